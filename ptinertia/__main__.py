@@ -1,0 +1,5 @@
+import sys
+
+from ptinertia.cli import main
+
+sys.exit(main())
