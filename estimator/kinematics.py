@@ -1,0 +1,128 @@
+"""Rigid-body kinematics of one order frame (paper eqs. 14-15, generalised).
+
+Every accelerometer channel c measures the component along its axis n_c of the
+acceleration of its point P_c:
+
+    a_c = n_c . (gamma_O + Omega' x OP_c) = n_c . gamma_O + (OP_c x n_c) . Omega'
+
+which is linear in the six complex unknowns ``[gamma_O, Omega']``. With three
+triaxial sensors that is 9 equations for 6 unknowns; weighted least squares
+gives the motion and a residual that measures what does not fit a rigid body
+(elastic modes, sensor faults). The reference point O is the centroid of the
+channel positions: it keeps the columns well scaled.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class KinematicsError(ValueError):
+    """The sensor geometry cannot determine a rigid-body motion."""
+
+
+@dataclass(frozen=True)
+class RigidMotion:
+    """Least-squares rigid-body motion of one frame, per order.
+
+    Attributes
+    ----------
+    origin : (3,) float, m
+        Reference point O (bench frame).
+    gamma_o : (n_orders, 3) complex, m/s^2
+        Acceleration of O.
+    omega_dot : (n_orders, 3) complex, rad/s^2
+        Angular acceleration.
+    cov_unit : (6, 6) float
+        ``(J^T W J)^-1`` of the real-valued problem per real/imag part: multiply
+        by a channel noise variance to get the covariance of [gamma_O, Omega'].
+    residual_rms : (n_orders,) float, m/s^2
+        Weighted RMS of what the rigid fit leaves, per order.
+    relative_residual : (n_orders,) float
+        ``residual_rms / rms(measured)``: 0 for a perfectly rigid motion.
+    """
+
+    origin: np.ndarray
+    gamma_o: np.ndarray
+    omega_dot: np.ndarray
+    cov_unit: np.ndarray
+    residual_rms: np.ndarray
+    relative_residual: np.ndarray
+
+    def point_acceleration(self, point: np.ndarray) -> np.ndarray:
+        """(n_orders, 3) complex acceleration of ``point`` (3,) m under this motion."""
+        r = np.asarray(point, dtype=float) - self.origin
+        return self.gamma_o + np.cross(self.omega_dot, r)
+
+
+def design_matrix(positions: np.ndarray, directions: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """Rows ``[n_c, OP_c x n_c]`` (n_ch, 6) mapping ``[gamma_O, Omega']`` to channel readings."""
+    r = np.asarray(positions, dtype=float) - origin
+    n = np.asarray(directions, dtype=float)
+    return np.hstack([n, np.cross(r, n)])
+
+
+def check_geometry(positions: np.ndarray, directions: np.ndarray) -> None:
+    """Raise :class:`KinematicsError` unless the channels determine all six rigid motions."""
+    origin = np.mean(positions, axis=0)
+    jac = design_matrix(positions, directions, origin)
+    sv = np.linalg.svd(jac, compute_uv=False)
+    if len(sv) < 6 or sv[-1] < 1e-6 * sv[0]:
+        raise KinematicsError(
+            f"{len(positions)} channels determine only {int(np.sum(sv > 1e-6 * sv[0]))} of 6 "
+            "rigid-body motions: need three non-collinear triaxial sensors (or equivalent axes)"
+        )
+
+
+def fit_rigid_motion(
+    amplitudes: np.ndarray,
+    positions: np.ndarray,
+    directions: np.ndarray,
+    weights: np.ndarray | None = None,
+) -> RigidMotion:
+    """Fit ``gamma_O`` and ``Omega'`` to the channel amplitudes of one frame.
+
+    Parameters
+    ----------
+    amplitudes : (n_orders, n_ch) complex, m/s^2
+        Order amplitudes of the usable channels.
+    positions : (n_ch, 3) float, m
+        Channel (sensor) positions, bench frame.
+    directions : (n_ch, 3) float
+        Unit measuring axes, bench frame.
+    weights : (n_ch,) float, optional
+        Inverse noise variances (relative); default equal.
+    """
+    amplitudes = np.atleast_2d(np.asarray(amplitudes, dtype=complex))
+    positions = np.asarray(positions, dtype=float)
+    n_ch = positions.shape[0]
+    w = np.ones(n_ch) if weights is None else np.asarray(weights, dtype=float)
+    origin = positions.mean(axis=0)
+    jac = design_matrix(positions, directions, origin)
+    sw = np.sqrt(w)
+    jw = jac * sw[:, None]
+    # Solve through the SVD: the geometry may be poorly conditioned, and the
+    # same decomposition gives the unit covariance for free.
+    u, s, vt = np.linalg.svd(jw, full_matrices=False)
+    if s[-1] < 1e-9 * s[0]:
+        raise KinematicsError("sensor geometry is degenerate: rigid-body motion not determined")
+    pinv = (vt.T / s) @ u.T  # (6, n_ch)
+    y = amplitudes * sw[None, :]
+    x = y @ pinv.T  # (n_orders, 6)
+    resid = y - x @ jw.T
+    dof = max(n_ch - 6, 1)
+    residual_rms = np.sqrt(np.sum(np.abs(resid) ** 2, axis=1) / dof / np.mean(w))
+    signal_rms = np.sqrt(np.mean(np.abs(amplitudes) ** 2, axis=1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        relative = np.where(signal_rms > 0, residual_rms / signal_rms, 0.0)
+    cov_unit = (vt.T / s**2) @ vt
+    return RigidMotion(
+        origin=origin,
+        gamma_o=x[:, :3],
+        omega_dot=x[:, 3:],
+        cov_unit=cov_unit,
+        residual_rms=residual_rms,
+        relative_residual=relative,
+    )
