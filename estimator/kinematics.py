@@ -42,6 +42,12 @@ class RigidMotion:
         Weighted RMS of what the rigid fit leaves, per order.
     relative_residual : (n_orders,) float
         ``residual_rms / rms(measured)``: 0 for a perfectly rigid motion.
+    noise_var : (n_orders,) float
+        Estimated variance of the real (and of the imaginary) part of a
+        unit-weight channel reading, ``sum w |r|^2 / (2 dof)``: with
+        ``cov_unit`` it gives the covariance of the fitted motion.
+    gain : (6, n_ch) float
+        The fit is linear: ``[gamma_O, Omega'] = gain @ amplitudes`` per order.
     """
 
     origin: np.ndarray
@@ -50,6 +56,8 @@ class RigidMotion:
     cov_unit: np.ndarray
     residual_rms: np.ndarray
     relative_residual: np.ndarray
+    noise_var: np.ndarray
+    gain: np.ndarray
 
     def point_acceleration(self, point: np.ndarray) -> np.ndarray:
         """(n_orders, 3) complex acceleration of ``point`` (3,) m under this motion."""
@@ -125,4 +133,6 @@ def fit_rigid_motion(
         cov_unit=cov_unit,
         residual_rms=residual_rms,
         relative_residual=relative,
+        noise_var=np.sum(np.abs(resid) ** 2, axis=1) / (2 * dof),
+        gain=pinv * sw[None, :],
     )

@@ -97,7 +97,9 @@ class RlsSolution:
     dof: float
 
 
-def rls_solve(state: RlsState, rcond: float = 1e-10, scale: np.ndarray | None = None) -> RlsSolution:
+def rls_solve(
+    state: RlsState, rcond: float = 1e-10, scale: np.ndarray | None = None
+) -> RlsSolution:
     """``theta = Lambda^-1 eta`` on the observable subspace.
 
     Parameters

@@ -25,6 +25,12 @@ def register(name: str, module: str, help_text: str) -> None:
 
 
 # Commands (add one line per command, once it works):
+register(
+    "excitation",
+    "ptinertia.commands.excitation",
+    "engine loads on the block per order (gas, inertia, total)",
+)
+register("modes", "ptinertia.commands.modes", "rigid-body modes of the powertrain on its mounts")
 
 
 class _Parser(argparse.ArgumentParser):

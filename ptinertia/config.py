@@ -177,9 +177,13 @@ class Engine(Section):
         n = self.cylinders
         for key in ("cylinder_positions_m", "throw_angles_deg", "firing_order"):
             if len(getattr(self, key)) != n:
-                raise ValueError(f"{key}: expected {n} values (one per cylinder), got {len(getattr(self, key))}")
+                raise ValueError(
+                    f"{key}: expected {n} values (one per cylinder), got {len(getattr(self, key))}"
+                )
         if sorted(self.firing_order) != list(range(1, n + 1)):
-            raise ValueError(f"firing_order: expected a permutation of 1..{n}, got {self.firing_order}")
+            raise ValueError(
+                f"firing_order: expected a permutation of 1..{n}, got {self.firing_order}"
+            )
         lam = self.stroke_m / 2 / self.conrod_length_m
         if lam >= 1:
             raise ValueError(
@@ -346,7 +350,9 @@ def _format_error(err: ValidationError, where: str) -> str:
     # An unknown key usually explains the "missing" error beside it (a misspelling): report it first.
     first = next((e for e in errors if e["type"] == "extra_forbidden"), errors[0])
     loc = ".".join(
-        (f"[{p}]" if isinstance(p, int) else str(p)) for p in first["loc"] if p not in {"parametric", "trace", "orders"}
+        (f"[{p}]" if isinstance(p, int) else str(p))
+        for p in first["loc"]
+        if p not in {"parametric", "trace", "orders"}
     ).replace(".[", "[")
     message = first["msg"].removeprefix("Value error, ")
     if first["type"] == "extra_forbidden":

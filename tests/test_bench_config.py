@@ -73,8 +73,12 @@ BAD_CASES = [
 ]
 
 
-@pytest.mark.parametrize(("label", "old", "new", "pattern"), BAD_CASES, ids=[c[0] for c in BAD_CASES])
-def test_bad_bench_gives_one_line_naming_the_key(label: str, old: str, new: str, pattern: str) -> None:
+@pytest.mark.parametrize(
+    ("label", "old", "new", "pattern"), BAD_CASES, ids=[c[0] for c in BAD_CASES]
+)
+def test_bad_bench_gives_one_line_naming_the_key(
+    label: str, old: str, new: str, pattern: str
+) -> None:
     with pytest.raises(ConfigError) as info:
         loads_bench(_bad(BASE, old, new), "bench.toml")
     message = str(info.value)
@@ -88,7 +92,9 @@ def test_fewer_than_three_non_collinear_sensors_refused() -> None:
     a = np.array([0.05, 0.30, 0.29])
     b = np.array([0.02, -0.42, 0.25])
     c = 2 * a - b
-    text = _bad(BASE, "position_m = [-0.26, -0.02, -0.12]", f"position_m = [{c[0]}, {c[1]}, {c[2]}]")
+    text = _bad(
+        BASE, "position_m = [-0.26, -0.02, -0.12]", f"position_m = [{c[0]}, {c[1]}, {c[2]}]"
+    )
     with pytest.raises(ConfigError, match=r"sensors: need at least three non-collinear"):
         loads_bench(text, "bench.toml")
 

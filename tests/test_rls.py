@@ -14,7 +14,9 @@ def _problem(seed: int = 0, frames: int = 40, rows: int = 9, n: int = 12):
     theta = rng.normal(size=n) * scale
     hs = [rng.normal(size=(rows, n)) / scale for _ in range(frames)]
     ws = [rng.uniform(0.5, 4.0, rows) for _ in range(frames)]
-    ys = [h @ theta + rng.normal(size=rows) / np.sqrt(w) * 1e-3 for h, w in zip(hs, ws, strict=True)]
+    ys = [
+        h @ theta + rng.normal(size=rows) / np.sqrt(w) * 1e-3 for h, w in zip(hs, ws, strict=True)
+    ]
     return theta, scale, hs, ys, ws
 
 

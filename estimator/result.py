@@ -1,0 +1,230 @@
+"""The final estimate: values, covariance, physical consistency, the result JSON.
+
+Covariance = random part + systematic part:
+
+* random: ``s^2 Lambda^-1`` with ``s^2 = max(1, rss / dof)`` (a posteriori
+  variance factor: model misfit beyond the measured noise widens it, never
+  narrows it);
+* systematic: ``Lambda^-1 S diag(tol^2) S^T Lambda^-1`` from the declared
+  sensor tolerances (see :mod:`estimator.streaming`).
+
+95 % intervals are ``value +- 1.96 std``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from estimator.equations import INERTIA_TERMS
+from estimator.rls import rls_solve
+
+if TYPE_CHECKING:
+    from estimator.streaming import InertiaEstimator
+
+Z95 = 1.959963984540054
+
+
+def tensor_from_terms(terms: np.ndarray) -> np.ndarray:
+    """(3, 3) tensor from ``[Ixx, Iyy, Izz, Ixy, Ixz, Iyz]`` (products as integral(x y dm))."""
+    ixx, iyy, izz, ixy, ixz, iyz = terms
+    return np.array([[ixx, -ixy, -ixz], [-ixy, iyy, -iyz], [-ixz, -iyz, izz]])
+
+
+def principal_axes(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Principal moments (ascending) and axes (columns, right-handed)."""
+    moments, axes = np.linalg.eigh(inertia)
+    if np.linalg.det(axes) < 0:
+        axes[:, 2] *= -1
+    return moments, axes
+
+
+def enforce_physical(inertia: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """Nearest tensor with positive principal moments obeying the triangle inequality.
+
+    Returns the (possibly) corrected tensor and the list of problems found.
+    """
+    moments, axes = principal_axes(inertia)
+    problems: list[str] = []
+    fixed = moments.copy()
+    if fixed[0] <= 0:
+        problems.append(f"not positive definite (smallest principal moment {fixed[0]:.4g} kg m^2)")
+        fixed = np.maximum(fixed, 1e-6 * max(fixed[-1], 1e-9))
+    if fixed[0] + fixed[1] < fixed[2]:
+        problems.append(f"principal moments {np.round(moments, 4).tolist()} violate I1 + I2 >= I3")
+        # Smallest change in the sum of squares: move the excess equally.
+        excess = (fixed[2] - fixed[0] - fixed[1]) / 3
+        fixed = fixed + np.array([excess, excess, -excess])
+    if not problems:
+        return inertia, problems
+    return (axes * fixed) @ axes.T, problems
+
+
+def _vs(value: float, std: float) -> dict[str, float | None]:
+    return {"value": float(value), "std": float(std) if math.isfinite(std) else None}
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Estimated parameters with covariance and bookkeeping."""
+
+    names: tuple[str, ...]
+    theta: np.ndarray
+    cov: np.ndarray
+    cov_random: np.ndarray
+    cov_systematic: np.ndarray
+    observable: np.ndarray
+    mass_known: bool
+    mass_nominal: float
+    unbalance_point: np.ndarray
+    frames_used: int
+    frames_rejected: dict[str, int]
+    orders_rejected: dict[str, int]
+    rpm_range: tuple[float, float] | None
+    half_order: dict[str, Any] | None
+    variance_factor: float
+
+    def std(self, name: str) -> float:
+        i = self.names.index(name)
+        return float(np.sqrt(self.cov[i, i])) if self.observable[i] else float("inf")
+
+    def value(self, name: str) -> float:
+        return float(self.theta[self.names.index(name)])
+
+    @property
+    def inertia(self) -> np.ndarray:
+        return tensor_from_terms(self.theta[:6])
+
+    @property
+    def cog(self) -> np.ndarray:
+        return self.theta[6:9].copy()
+
+    @property
+    def usable(self) -> bool:
+        return self.frames_used > 0 and bool(np.any(self.observable[:9]))
+
+    def mass(self) -> tuple[float, float] | None:
+        if self.mass_known or "inv_mass" not in self.names:
+            return None
+        i = self.names.index("inv_mass")
+        mu = self.theta[i]
+        if not self.observable[i] or mu <= 0:
+            return None
+        return 1.0 / mu, math.sqrt(self.cov[i, i]) / mu**2
+
+    def unbalance(self) -> dict[str, Any] | None:
+        if "unb_re" not in self.names:
+            return None
+        i, j = self.names.index("unb_re"), self.names.index("unb_im")
+        if not (self.observable[i] and self.observable[j]):
+            return None
+        z = complex(self.theta[i], self.theta[j])
+        cov = self.cov[np.ix_([i, j], [i, j])]
+        mass = self.mass()
+        if mass is not None:  # parameters are z / m
+            z, cov = z * mass[0], cov * mass[0] ** 2
+        mr = abs(z)
+        # z = m r exp(-i beta): delta-method std of |z| and of its angle
+        grad_mr = np.array([z.real, z.imag]) / max(mr, 1e-300)
+        grad_angle = np.array([-z.imag, z.real]) / max(mr, 1e-300) ** 2
+        return {
+            "mr_kgm": _vs(mr, float(np.sqrt(grad_mr @ cov @ grad_mr))),
+            "angle_deg": _vs(
+                math.degrees(-math.atan2(z.imag, z.real)),
+                math.degrees(float(np.sqrt(grad_angle @ cov @ grad_angle))),
+            ),
+            "point_m": [float(v) for v in self.unbalance_point],
+        }
+
+    def to_json(self, truth: dict[str, Any] | None = None) -> dict[str, Any]:
+        """The result document of ``ptinertia run --json`` (see README)."""
+        terms = {name: _vs(self.value(name), self.std(name)) for name in INERTIA_TERMS}
+        unobservable = [n for n, ok in zip(self.names, self.observable, strict=True) if not ok]
+        inertia, problems = enforce_physical(self.inertia)
+        moments, axes = principal_axes(inertia)
+        mass = self.mass()
+        doc: dict[str, Any] = {
+            "inertia_kgm2": {
+                "value": {k: v["value"] for k, v in terms.items()},
+                "std": {k: v["std"] for k, v in terms.items()},
+                "ci95": {
+                    k: (
+                        [v["value"] - Z95 * v["std"], v["value"] + Z95 * v["std"]]
+                        if v["std"] is not None
+                        else None
+                    )
+                    for k, v in terms.items()
+                },
+            },
+            "cog_m": {
+                "value": [self.value(n) for n in ("Gx", "Gy", "Gz")],
+                "std": [_finite(self.std(n)) for n in ("Gx", "Gy", "Gz")],
+            },
+            "mass_kg": None if mass is None else {"value": mass[0], "std": mass[1]},
+            "unbalance": self.unbalance(),
+            "crank_offset_deg": (
+                _vs(
+                    math.degrees(self.value("crank_offset")), math.degrees(self.std("crank_offset"))
+                )
+                if "crank_offset" in self.names
+                and self.observable[self.names.index("crank_offset")]
+                else None
+            ),
+            "principal": {
+                "moments_kgm2": moments.tolist(),
+                "axes": axes.T.tolist(),
+                "consistency": {"problems": problems, "enforced": bool(problems)},
+            },
+            "frames": {
+                "used": self.frames_used,
+                "rejected": dict(sorted(self.frames_rejected.items())),
+                "orders_rejected": dict(sorted(self.orders_rejected.items())),
+            },
+            "rpm_range": list(self.rpm_range) if self.rpm_range else None,
+            "half_order": self.half_order,
+            "unobservable": unobservable,
+            "variance_factor": self.variance_factor,
+        }
+        if truth is not None:
+            doc["truth"] = truth
+        return doc
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def build_estimate(est: InertiaEstimator) -> Estimate:
+    acc = est.best_state()
+    sol = rls_solve(acc.state, scale=est.scale)
+    n = est.layout.size
+    obs = sol.observable
+    cov_rand = sol.cov.copy()
+    factor = max(1.0, sol.rss / sol.dof) if sol.dof > 0 else 1.0
+    cov_rand[np.ix_(obs, obs)] *= factor
+    cov_sys = np.zeros((n, n))
+    if np.any(obs):
+        inv = sol.cov[np.ix_(obs, obs)]
+        dtheta = -inv @ acc.sens[obs]  # (n_obs, n_sys): d theta / d p
+        cov_sys[np.ix_(obs, obs)] = (dtheta * est.sys_std**2) @ dtheta.T
+    stats = est.stats
+    return Estimate(
+        names=est.layout.names,
+        theta=sol.theta,
+        cov=cov_rand + cov_sys,
+        cov_random=cov_rand,
+        cov_systematic=cov_sys,
+        observable=obs,
+        mass_known=est.setup.mass_known,
+        mass_nominal=est.setup.mass_nominal,
+        unbalance_point=np.asarray(est.setup.unbalance_point, float),
+        frames_used=stats.used,
+        frames_rejected=dict(stats.rejected),
+        orders_rejected=dict(stats.orders_rejected),
+        rpm_range=(stats.rpm_lo, stats.rpm_hi) if stats.used else None,
+        half_order=est.half_order_resolution(),
+        variance_factor=factor,
+    )

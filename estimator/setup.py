@@ -1,0 +1,102 @@
+"""What the estimator knows of the bench before the sweep, and which corrections it applies.
+
+The estimator never sees the truth: it gets the nominal sensor geometry, the
+engine (for the known excitation), the mounts (for the suspension
+correction), the crank-train spin inertia (gyroscopic correction) and the
+nominal or weighed mass, cog and inertia (starting point for the few
+linearised terms and for row weighting).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# (rpm, orders) -> (force (n_o, 3) complex N, moment about reference_point (n_o, 3) complex N m)
+ExcitationFn = Callable[[float, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class MountStiffness:
+    """One mount: position (3,) m and complex stiffness (3, 3) N/m in the bench frame."""
+
+    name: str
+    position: np.ndarray
+    stiffness: np.ndarray
+
+
+@dataclass(frozen=True)
+class Corrections:
+    """Model terms beyond the paper; each on by default when its data exist."""
+
+    suspension: bool = True  # mount reactions -K u from known mount stiffness
+    gyroscopic: bool = True  # Omega x H of the spinning crank train
+    unbalance: bool = True  # residual static unbalance at H1, estimated
+    crank_offset: bool = True  # crank-angle reference offset, estimated
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """Declared sensor uncertainties (1 sigma) propagated into the intervals (type B)."""
+
+    gain_rel: float = 0.01  # channel sensitivity, relative
+    alignment_rad: float = float(np.radians(1.0))  # each sensor's orientation
+    position_m: float = 0.002  # each sensor's position
+
+
+@dataclass(frozen=True)
+class Gates:
+    """Frame gating thresholds."""
+
+    max_relative_residual: float = 0.05  # rigid fit residual / signal, per order
+    max_rpm_change: float = 0.03  # relative rpm change across the frame window
+    min_mode_ratio: float = 1.25  # order frequency / highest rigid-body mode
+    rpm_range: tuple[float, float] = (0.0, float("inf"))
+
+
+@dataclass(frozen=True)
+class EstimatorSetup:
+    """The bench as the estimator sees it (nominal values; SI, bench frame).
+
+    Attributes
+    ----------
+    channels : channel names in the order of ``positions``/``directions``.
+    sensor_of_channel : (n_ch,) int, index of the sensor carrying each channel.
+    positions, directions : (n_ch, 3) channel points (m) and unit axes.
+    reference_point : (3,) m, point the excitation moment is given about.
+    unbalance_point : (3,) m, where a residual static unbalance acts (on the crank axis).
+    crank_axis, cylinder_axis : (3,) unit vectors; ``t = s x c`` completes the rotating frame.
+    spin_inertia : kg m^2 of the crank train about ``crank_axis``.
+    excitation : the known engine excitation.
+    mounts : mount stiffnesses (empty: free body).
+    mass_nominal, mass_known : kg, and whether it is an input (weighed) or estimated.
+    cog_nominal : (3,) m; inertia_nominal : (3, 3) kg m^2.
+    mode_max_hz : highest rigid-body mode of the nominal model (None: unknown).
+    """
+
+    channels: tuple[str, ...]
+    sensor_of_channel: np.ndarray
+    positions: np.ndarray
+    directions: np.ndarray
+    reference_point: np.ndarray
+    unbalance_point: np.ndarray
+    crank_axis: np.ndarray
+    cylinder_axis: np.ndarray
+    spin_inertia: float
+    excitation: ExcitationFn
+    mounts: tuple[MountStiffness, ...]
+    mass_nominal: float
+    mass_known: bool
+    cog_nominal: np.ndarray
+    inertia_nominal: np.ndarray
+    mode_max_hz: float | None = None
+    channel_weights: np.ndarray | None = None
+    corrections: Corrections = field(default_factory=Corrections)
+    tolerances: Tolerances = field(default_factory=Tolerances)
+    gates: Gates = field(default_factory=Gates)
+
+    @property
+    def n_sensors(self) -> int:
+        return int(np.max(self.sensor_of_channel)) + 1

@@ -1,0 +1,360 @@
+"""The streaming inertia estimator: one order frame in, an updated estimate out.
+
+Per frame: gate it (rpm steadiness, rpm range, mass-line distance to the
+rigid-body modes, rigidity residual per order), fit the rigid motion per order,
+build the whitened rows of every usable order (:mod:`estimator.equations`) and
+add them to a recursive least-squares state (:mod:`estimator.rls`).
+
+Beside the information state we accumulate ``S = sum H^T dr/dp``: the
+sensitivity of the normal equations to the declared systematic sensor errors
+p (gains, orientation, position). ``dtheta/dp = -Lambda^-1 S`` then turns the
+declared tolerances into a type-B covariance that does not shrink with the
+number of frames, which is what makes the 95 % intervals honest when the
+real errors are systematic (a 1 % gain error is the same in every frame).
+
+Half orders without a 720 deg reference: the crank wheel gives the angle
+modulo 360 deg, so the sign of every half-order amplitude is unknown. We carry
+two states, one per sign, and keep the one whose weighted residual is smaller
+(the wrong sign turns the roll equation of H1.5 against the inertia, and the
+misfit is large); the ratio of the two residuals is reported.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from estimator.equations import Linearisation, ParameterLayout, order_rows
+from estimator.kinematics import KinematicsError, RigidMotion, fit_rigid_motion
+from estimator.rls import RlsState, rls_init, rls_solve, rls_update
+from estimator.setup import EstimatorSetup
+
+
+class FrameLike(Protocol):
+    """The fields of ``dsp.frames.OrderFrame`` the estimator reads."""
+
+    time_s: float
+    rpm: float
+    orders: tuple[float, ...]
+    channels: tuple[str, ...]
+    amplitudes: np.ndarray
+    channel_ok: np.ndarray
+    rpm_change: float
+    flags: frozenset[str]
+
+
+@dataclass
+class Accumulator:
+    """Information state plus the systematic-error sensitivity ``S`` (n, n_p)."""
+
+    state: RlsState
+    sens: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int, n_sys: int) -> Accumulator:
+        return cls(state=rls_init(n), sens=np.zeros((n, n_sys)))
+
+
+@dataclass(frozen=True)
+class FrameOutcome:
+    """What the estimator did with one frame."""
+
+    time_s: float
+    rpm: float
+    used_orders: tuple[float, ...]
+    rejected: dict[float, str]
+    reason: str | None  # why the whole frame was rejected, None when used
+    relative_residual: dict[float, float]
+
+
+@dataclass
+class EstimatorStats:
+    used: int = 0
+    rejected: Counter[str] = field(default_factory=Counter)
+    orders_rejected: Counter[str] = field(default_factory=Counter)
+    rpm_lo: float = float("inf")
+    rpm_hi: float = float("-inf")
+    ambiguous_frames: int = 0
+
+
+def systematic_names(setup: EstimatorSetup) -> list[str]:
+    names = [f"gain:{c}" for c in setup.channels]
+    for s in range(setup.n_sensors):
+        names += [f"align:{s}:{ax}" for ax in "xyz"]
+        names += [f"pos:{s}:{ax}" for ax in "xyz"]
+    return names
+
+
+def systematic_stds(setup: EstimatorSetup) -> np.ndarray:
+    tol = setup.tolerances
+    n_ch = len(setup.channels)
+    per_sensor = [tol.alignment_rad] * 3 + [tol.position_m] * 3
+    return np.array([tol.gain_rel] * n_ch + per_sensor * setup.n_sensors)
+
+
+def channel_derivatives(
+    setup: EstimatorSetup, motion: RigidMotion, k: int, amplitudes: np.ndarray, used: np.ndarray
+) -> np.ndarray:
+    """d(channel readings)/d(systematic parameters), (n_used, n_sys) complex, order k.
+
+    A reading is ``n . gamma_P``. A relative gain error g scales it by (1 + g);
+    turning the sensor by a small angle about bench axis e changes ``n`` by
+    ``e x n``, so the reading by ``e . (n x gamma_P)``; moving it along e
+    changes ``gamma_P`` by ``Omega' x e``, so the reading by ``e . (n x Omega')``.
+    """
+    n_ch = len(setup.channels)
+    idx = np.flatnonzero(used)
+    out = np.zeros((idx.size, n_ch + 6 * setup.n_sensors), complex)
+    n = setup.directions[idx]
+    r = setup.positions[idx] - motion.origin
+    omega_dot = motion.omega_dot[k]
+    gamma_p = motion.gamma_o[k][None, :] + np.cross(omega_dot[None, :], r)
+    rows = np.arange(idx.size)
+    out[rows, idx] = amplitudes[idx]
+    base = n_ch + 6 * setup.sensor_of_channel[idx]
+    turn = np.cross(n, gamma_p)
+    move = np.cross(n, omega_dot[None, :])
+    for ax in range(3):
+        out[rows, base + ax] = turn[:, ax]
+        out[rows, base + 3 + ax] = move[:, ax]
+    return out
+
+
+class InertiaEstimator:
+    """Frame-by-frame estimate of inertia, cog, (mass), unbalance and crank offset.
+
+    Parameters
+    ----------
+    setup : the bench as the estimator sees it.
+    forgetting : RLS forgetting factor (1: every used frame counts equally).
+    """
+
+    def __init__(self, setup: EstimatorSetup, forgetting: float = 1.0) -> None:
+        self.setup = setup
+        self.forgetting = forgetting
+        corr = setup.corrections
+        self.layout = ParameterLayout(
+            unbalance=corr.unbalance, mass=not setup.mass_known, offset=corr.crank_offset
+        )
+        self.sys_names = systematic_names(setup)
+        self.sys_std = systematic_stds(setup)
+        n, n_sys = self.layout.size, len(self.sys_names)
+        # one accumulator per half-order sign hypothesis (+1 as measured, -1 flipped)
+        self.acc = {1: Accumulator.empty(n, n_sys), -1: Accumulator.empty(n, n_sys)}
+        self.stats = EstimatorStats()
+        self.noise_var: dict[float, float] = {}  # smoothed channel noise variance per order
+        self.lin = Linearisation(
+            cog=np.asarray(setup.cog_nominal, float),
+            inertia=np.asarray(setup.inertia_nominal, float),
+            mass=float(setup.mass_nominal),
+        )
+        self.scale = self._parameter_scale()
+
+    def _parameter_scale(self) -> np.ndarray:
+        scale = []
+        inertia = float(np.trace(self.setup.inertia_nominal) / 3)
+        for name in self.layout.names:
+            if name.startswith("I"):
+                scale.append(inertia)
+            elif name.startswith("G"):
+                scale.append(0.1)
+            elif name.startswith("unb"):
+                scale.append(1e-3 / (self.setup.mass_nominal if self.layout.mass else 1.0))
+            elif name == "inv_mass":
+                scale.append(1.0 / self.setup.mass_nominal)
+            else:
+                scale.append(0.01)
+        return np.array(scale)
+
+    # -- gating -------------------------------------------------------------------------
+    def _frame_gate(self, frame: FrameLike) -> str | None:
+        gates = self.setup.gates
+        if not np.isfinite(frame.rpm) or frame.rpm <= 0:
+            return "no_rpm"
+        if "no_tacho" in frame.flags or "tacho_resync" in frame.flags:
+            return "tacho"
+        if frame.rpm < gates.rpm_range[0] or frame.rpm > gates.rpm_range[1]:
+            return "rpm_out_of_range"
+        if abs(frame.rpm_change) > gates.max_rpm_change:
+            return "rpm_unsteady"
+        return None
+
+    def _channel_mask(self, frame: FrameLike) -> np.ndarray:
+        ok = np.zeros(len(self.setup.channels), dtype=bool)
+        index = {c: i for i, c in enumerate(frame.channels)}
+        for i, name in enumerate(self.setup.channels):
+            j = index.get(name)
+            if j is not None and bool(frame.channel_ok[j]):
+                ok[i] = bool(np.all(np.isfinite(frame.amplitudes[:, j])))
+        return ok
+
+    # -- update -------------------------------------------------------------------------
+    def update(self, frame: FrameLike) -> FrameOutcome:
+        """Gate one frame and, if usable, add its rows to the estimate."""
+        setup = self.setup
+        reason = self._frame_gate(frame)
+        rejected: dict[float, str] = {}
+        residuals: dict[float, float] = {}
+        used_orders: list[float] = []
+        if reason is None:
+            used = self._channel_mask(frame)
+            if used.sum() < 6:
+                reason = "too_few_channels"
+        if reason is not None:
+            return self._reject(frame, reason)
+
+        index = {c: i for i, c in enumerate(frame.channels)}
+        cols = [index[c] for c in np.asarray(setup.channels)[used]]
+        amplitudes = np.zeros((len(frame.orders), len(setup.channels)), complex)
+        amplitudes[:, used] = frame.amplitudes[:, cols]
+        weights = None if setup.channel_weights is None else setup.channel_weights[used]
+        try:
+            motion = fit_rigid_motion(
+                amplitudes[:, used], setup.positions[used], setup.directions[used], weights
+            )
+        except KinematicsError:
+            return self._reject(frame, "sensor_geometry")
+
+        ambiguous = "cycle_ambiguous" in frame.flags
+        orders = np.asarray(frame.orders, dtype=float)
+        force, moment = setup.excitation(frame.rpm, orders)
+        for k, h in enumerate(orders):
+            residuals[float(h)] = float(motion.relative_residual[k])
+            why = self._order_gate(float(h), frame.rpm, motion, k, force[k], moment[k])
+            if why:
+                rejected[float(h)] = why
+                self.stats.orders_rejected[why] += 1
+                continue
+            used_orders.append(float(h))
+            self._add_order(frame, motion, k, float(h), amplitudes, used, force[k], moment[k])
+
+        if not used_orders:
+            counts = Counter(rejected.values())
+            return self._reject(frame, counts.most_common(1)[0][0] if counts else "no_orders")
+        self.stats.used += 1
+        self.stats.ambiguous_frames += int(ambiguous)
+        self.stats.rpm_lo = min(self.stats.rpm_lo, frame.rpm)
+        self.stats.rpm_hi = max(self.stats.rpm_hi, frame.rpm)
+        self._relinearise()
+        return FrameOutcome(frame.time_s, frame.rpm, tuple(used_orders), rejected, None, residuals)
+
+    def _reject(self, frame: FrameLike, reason: str) -> FrameOutcome:
+        self.stats.rejected[reason] += 1
+        return FrameOutcome(frame.time_s, frame.rpm, (), {}, reason, {})
+
+    def _order_gate(
+        self,
+        h: float,
+        rpm: float,
+        motion: RigidMotion,
+        k: int,
+        force: np.ndarray,
+        moment: np.ndarray,
+    ) -> str | None:
+        gates = self.setup.gates
+        if not (np.any(np.abs(force) > 0) or np.any(np.abs(moment) > 0)):
+            return "no_excitation"
+        f_hz = h * rpm / 60.0
+        if (
+            self.setup.mode_max_hz is not None
+            and f_hz < gates.min_mode_ratio * self.setup.mode_max_hz
+        ):
+            return "near_rigid_modes"
+        if motion.relative_residual[k] > gates.max_relative_residual:
+            return "non_rigid"
+        return None
+
+    def _add_order(
+        self,
+        frame: FrameLike,
+        motion: RigidMotion,
+        k: int,
+        h: float,
+        amplitudes: np.ndarray,
+        used: np.ndarray,
+        force: np.ndarray,
+        moment: np.ndarray,
+    ) -> None:
+        setup = self.setup
+        signal = float(np.mean(np.abs(amplitudes[k, used]) ** 2))
+        raw = float(motion.noise_var[k])
+        # Smooth the per-frame noise estimate (3 degrees of freedom each) over frames,
+        # with a floor so noise-free data keep finite weights.
+        prev = self.noise_var.get(h, raw)
+        var = 0.8 * prev + 0.2 * raw if h in self.noise_var else raw
+        self.noise_var[h] = var
+        var = max(var, 1e-16 * signal, 1e-30)
+        # Both sign hypotheses see every row; they differ only in the half orders of
+        # frames whose 720 deg cycle is unknown.
+        flip_half = "cycle_ambiguous" in frame.flags and (2 * h) % 2 == 1
+        for sign, acc in self.acc.items():
+            flip = -1.0 if (sign == -1 and flip_half) else 1.0
+            m = motion if flip == 1.0 else _scaled(motion, k, flip)
+            rows = order_rows(setup, self.layout, self.lin, m, k, h, frame.rpm, force, moment, var)
+            acc.state = rls_update(acc.state, rows.H, rows.y, None, self.forgetting)
+            dmeas = m.gain @ channel_derivatives(setup, m, k, flip * amplitudes[k], used)
+            dm_real = np.vstack([dmeas.real, dmeas.imag])
+            acc.sens = self.forgetting * acc.sens + rows.H.T @ (rows.whiten @ rows.d_meas @ dm_real)
+
+    def _relinearise(self) -> None:
+        sol = rls_solve(self.best_state().state, scale=self.scale)
+        if not np.all(sol.observable[:9]):
+            return
+        from estimator.result import tensor_from_terms
+
+        inertia = tensor_from_terms(sol.theta[:6])
+        if np.linalg.eigvalsh(inertia)[0] <= 0:
+            return
+        mass = self.lin.mass
+        if self.layout.mass and sol.observable[self.layout.index("inv_mass")]:
+            inv = sol.theta[self.layout.index("inv_mass")]
+            if inv > 0:
+                mass = 1.0 / inv
+        self.lin = Linearisation(cog=sol.theta[6:9].copy(), inertia=inertia, mass=mass)
+
+    def best_state(self) -> Accumulator:
+        """The sign hypothesis with the smaller weighted residual (+1 unless ambiguous)."""
+        if self.stats.ambiguous_frames == 0:
+            return self.acc[1]
+        rss = {s: rls_solve(a.state, scale=self.scale).rss for s, a in self.acc.items()}
+        return self.acc[min(rss, key=lambda s: rss[s])]
+
+    def half_order_resolution(self) -> dict[str, Any] | None:
+        """How the 720 deg ambiguity was resolved (None when a phase reference existed)."""
+        if self.stats.ambiguous_frames == 0:
+            return None
+        rss = {s: rls_solve(a.state, scale=self.scale).rss for s, a in self.acc.items()}
+        best = min(rss, key=lambda s: rss[s])
+        other = -best
+        ratio = rss[other] / rss[best] if rss[best] > 0 else float("inf")
+        return {
+            "method": "residual",
+            "half_order_sign": best,
+            "residual_ratio": ratio,
+            "frames": self.stats.ambiguous_frames,
+        }
+
+    def estimate(self) -> Any:
+        from estimator.result import build_estimate
+
+        return build_estimate(self)
+
+
+def _scaled(motion: RigidMotion, k: int, factor: float) -> RigidMotion:
+    g = motion.gamma_o.copy()
+    w = motion.omega_dot.copy()
+    g[k] *= factor
+    w[k] *= factor
+    return RigidMotion(
+        origin=motion.origin,
+        gamma_o=g,
+        omega_dot=w,
+        cov_unit=motion.cov_unit,
+        residual_rms=motion.residual_rms,
+        relative_residual=motion.relative_residual,
+        noise_var=motion.noise_var,
+        gain=motion.gain,
+    )
