@@ -221,15 +221,26 @@ class InertiaEstimator:
         ambiguous = "cycle_ambiguous" in frame.flags
         orders = np.asarray(frame.orders, dtype=float)
         force, moment = setup.excitation(frame.rpm, orders)
+        # Excitation level per order (force times a typical 0.3 m arm, plus moment):
+        # an order the engine does not excite carries no information, only noise.
+        level = 0.3 * np.linalg.norm(force, axis=1) + np.linalg.norm(moment, axis=1)
+        excited = level > 1e-6 * max(float(level.max()), 1e-300)
+        frame_power = float(np.mean(np.abs(amplitudes[:, used]) ** 2))
         for k, h in enumerate(orders):
             residuals[float(h)] = float(motion.relative_residual[k])
-            why = self._order_gate(float(h), frame.rpm, motion, k, force[k], moment[k])
+            why = (
+                "no_excitation"
+                if not excited[k]
+                else self._order_gate(float(h), frame.rpm, motion, k)
+            )
             if why:
                 rejected[float(h)] = why
                 self.stats.orders_rejected[why] += 1
                 continue
             used_orders.append(float(h))
-            self._add_order(frame, motion, k, float(h), amplitudes, used, force[k], moment[k])
+            self._add_order(
+                frame, motion, k, float(h), amplitudes, used, force[k], moment[k], frame_power
+            )
 
         if not used_orders:
             counts = Counter(rejected.values())
@@ -245,18 +256,8 @@ class InertiaEstimator:
         self.stats.rejected[reason] += 1
         return FrameOutcome(frame.time_s, frame.rpm, (), {}, reason, {})
 
-    def _order_gate(
-        self,
-        h: float,
-        rpm: float,
-        motion: RigidMotion,
-        k: int,
-        force: np.ndarray,
-        moment: np.ndarray,
-    ) -> str | None:
+    def _order_gate(self, h: float, rpm: float, motion: RigidMotion, k: int) -> str | None:
         gates = self.setup.gates
-        if not (np.any(np.abs(force) > 0) or np.any(np.abs(moment) > 0)):
-            return "no_excitation"
         f_hz = h * rpm / 60.0
         if (
             self.setup.mode_max_hz is not None
@@ -277,16 +278,16 @@ class InertiaEstimator:
         used: np.ndarray,
         force: np.ndarray,
         moment: np.ndarray,
+        frame_power: float,
     ) -> None:
         setup = self.setup
-        signal = float(np.mean(np.abs(amplitudes[k, used]) ** 2))
         raw = float(motion.noise_var[k])
         # Smooth the per-frame noise estimate (3 degrees of freedom each) over frames,
         # with a floor so noise-free data keep finite weights.
         prev = self.noise_var.get(h, raw)
         var = 0.8 * prev + 0.2 * raw if h in self.noise_var else raw
         self.noise_var[h] = var
-        var = max(var, 1e-16 * signal, 1e-30)
+        var = max(var, 1e-16 * frame_power, 1e-30)
         # Both sign hypotheses see every row; they differ only in the half orders of
         # frames whose 720 deg cycle is unknown.
         flip_half = "cycle_ambiguous" in frame.flags and (2 * h) % 2 == 1
