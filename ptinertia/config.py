@@ -314,6 +314,54 @@ class Simulation(Section):
     max_order: Annotated[float, Field(ge=1, le=12)] = 6.0
 
 
+class Dsp(Section):
+    """Order tracking settings (see ``dsp/``)."""
+
+    orders: Annotated[list[float], Field(min_length=1)] = Field(
+        default_factory=lambda: [1.0, 1.5, 2.0]
+    )
+    frames_per_rev: Positive = 1.0
+    rpm_min: Positive = 300.0
+    rpm_max: Positive = 9000.0
+
+    @field_validator("orders")
+    @classmethod
+    def _half_orders(cls, v: list[float]) -> list[float]:
+        for h in v:
+            if h <= 0 or abs(2 * h - round(2 * h)) > 1e-9:
+                raise ValueError(f"orders must be positive multiples of 0.5, got {h}")
+        return v
+
+
+class EstimatorSettings(Section):
+    """Estimator corrections, gates and declared sensor tolerances (see ``estimator/``)."""
+
+    suspension: bool = True
+    gyroscopic: bool = True
+    unbalance: bool = True
+    crank_offset: bool = True
+    forgetting: Annotated[float, Field(gt=0, le=1)] = 1.0
+    gain_tolerance_pct: NonNegative = 1.0
+    alignment_tolerance_deg: NonNegative = 1.0
+    position_tolerance_m: NonNegative = 0.002
+    max_relative_residual: Positive = 0.05
+    max_rpm_change: Positive = 0.03
+    min_mode_ratio: NonNegative = 1.25
+    rpm_min: NonNegative = 0.0
+    rpm_max: Positive = 1e6
+
+
+class Can(Section):
+    """CAN acquisition: the DBC that maps frames to channels, and the bus."""
+
+    dbc: str | None = None
+    interface: str = "virtual"
+    channel: str = "ptinertia"
+    bitrate: Annotated[int, Field(gt=0)] = 500_000
+    data_bitrate: Annotated[int, Field(gt=0)] = 2_000_000
+    fd: bool = True
+
+
 class Bench(Section):
     meta: Meta = Field(default_factory=Meta)
     powertrain: Powertrain
@@ -326,6 +374,9 @@ class Bench(Section):
     tacho: Tacho = Field(default_factory=Tacho)
     sampling: Sampling = Field(default_factory=Sampling)
     simulation: Simulation = Field(default_factory=Simulation)
+    dsp: Dsp = Field(default_factory=Dsp)
+    estimator: EstimatorSettings = Field(default_factory=EstimatorSettings)
+    can: Can = Field(default_factory=Can)
 
     @model_validator(mode="after")
     def _sensors(self) -> Bench:
@@ -388,6 +439,10 @@ def loads_bench(text: str, where: str = "bench", base_dir: Path | None = None) -
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{where}: not valid TOML ({err})") from None
     bench = parse_bench(data, where)
+    if base_dir is not None and bench.can.dbc and not Path(bench.can.dbc).is_absolute():
+        bench = bench.model_copy(
+            update={"can": bench.can.model_copy(update={"dbc": str(base_dir / bench.can.dbc)})}
+        )
     if isinstance(bench.gas, GasTrace) and base_dir is not None:
         trace = Path(bench.gas.file)
         if not trace.is_absolute():
