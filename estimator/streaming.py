@@ -68,6 +68,7 @@ class FrameOutcome:
     rejected: dict[float, str]
     reason: str | None  # why the whole frame was rejected, None when used
     relative_residual: dict[float, float]
+    motion: RigidMotion | None = None  # the fitted rigid motion (for viewers)
 
 
 @dataclass
@@ -250,7 +251,9 @@ class InertiaEstimator:
         self.stats.rpm_lo = min(self.stats.rpm_lo, frame.rpm)
         self.stats.rpm_hi = max(self.stats.rpm_hi, frame.rpm)
         self._relinearise()
-        return FrameOutcome(frame.time_s, frame.rpm, tuple(used_orders), rejected, None, residuals)
+        return FrameOutcome(
+            frame.time_s, frame.rpm, tuple(used_orders), rejected, None, residuals, motion
+        )
 
     def _reject(self, frame: FrameLike, reason: str) -> FrameOutcome:
         self.stats.rejected[reason] += 1

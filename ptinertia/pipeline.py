@@ -1,0 +1,189 @@
+"""source -> dsp -> estimator -> sinks, with acquisition decoupled from processing.
+
+A reader thread pulls items from the source into a queue; the processing
+thread tracks orders, updates the estimate and feeds the sinks. A live source
+(CAN bus, paced simulator) gets an unbounded queue, so a slow viewer or disk
+never makes us drop samples: the backlog is measured and reported instead. A
+file or unpaced simulator gets a bounded queue (back-pressure keeps memory
+flat; nothing is lost either way).
+
+Samples are rounded to float32 before anything sees them: that is what the
+recorder stores, so a replay of the recording feeds the dsp stage exactly
+the same numbers and reproduces every estimate bit for bit.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, replace
+from typing import Any, Protocol
+
+import numpy as np
+
+from acquisition.stream import SampleBlock, Source, SourceEvent, StreamItem
+from estimator.result import Estimate
+from estimator.streaming import InertiaEstimator
+from ptinertia.sinks import EstimateUpdate, RunContext, Sink
+
+_END = object()
+
+
+class FrameTracker(Protocol):
+    """The dsp stage as the pipeline drives it."""
+
+    def feed(self, item: StreamItem) -> tuple[list[Any], list[SourceEvent]]:
+        """Process one item; return the frames and events it completed."""
+        ...
+
+    def finish(self) -> tuple[list[Any], list[SourceEvent]]:
+        """End of stream: flush what can still be completed."""
+        ...
+
+
+def as_recorded(item: StreamItem) -> StreamItem:
+    """The item as the recorder stores it (samples rounded to float32)."""
+    if isinstance(item, SampleBlock) and item.data.dtype != np.float32:
+        return replace(item, data=item.data.astype(np.float32).astype(np.float64))
+    return item
+
+
+@dataclass
+class RunSummary:
+    estimate: Estimate | None
+    frames: int
+    items: int
+    max_backlog_s: float
+    interrupted: bool
+    error: BaseException | None = None
+
+
+class _Reader(threading.Thread):
+    """Pulls items from the source into the queue until exhausted or stopped."""
+
+    def __init__(self, items: Iterable[StreamItem], q: queue.Queue[Any]) -> None:
+        super().__init__(name="ptinertia-acquisition", daemon=True)
+        self.items = items
+        self.q = q
+        self.error: BaseException | None = None
+        self.stop = threading.Event()
+
+    def run(self) -> None:
+        try:
+            for item in self.items:
+                while not self.stop.is_set():
+                    try:
+                        self.q.put((time.monotonic(), item), timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if self.stop.is_set():
+                    break
+        except BaseException as err:  # handed to the processing thread, re-raised there
+            self.error = err
+        finally:
+            self.q.put((time.monotonic(), _END))
+
+
+class Pipeline:
+    """Wire a source, a tracker, the estimator and sinks, and run them to the end.
+
+    Parameters
+    ----------
+    source : any :class:`acquisition.stream.Source`.
+    tracker : the dsp stage.
+    estimator : the streaming estimator.
+    sinks : recorder, viewer, progress line ... (called in order).
+    context : run-wide facts handed to the sinks' ``start``.
+    live : the source runs on the wall clock (unbounded queue, backlog reports).
+    """
+
+    def __init__(
+        self,
+        source: Source,
+        tracker: FrameTracker,
+        estimator: InertiaEstimator,
+        sinks: Sequence[Sink],
+        context: RunContext,
+        live: bool = False,
+        queue_items: int = 64,
+    ) -> None:
+        self.source = source
+        self.tracker = tracker
+        self.estimator = estimator
+        self.sinks = list(sinks)
+        self.context = context
+        self.live = live
+        self.queue: queue.Queue[Any] = queue.Queue(maxsize=0 if live else queue_items)
+        self.frames = 0
+        self.items = 0
+        self.max_backlog = 0.0
+        self._last_backlog_report = 0.0
+
+    def _each(self, fn: Callable[[Sink], None]) -> None:
+        for sink in self.sinks:
+            fn(sink)
+
+    def _frames(self, frames: list[Any], events: list[SourceEvent]) -> None:
+        for event in events:
+            self._each(lambda s, e=event: s.on_event(e))
+        for frame in frames:
+            self.frames += 1
+            outcome = self.estimator.update(frame)
+            self._each(lambda s, f=frame, o=outcome: s.on_frame(f, o))
+            if outcome.reason is None:
+                update = EstimateUpdate(frame.time_s, frame.rpm, self.estimator.estimate())
+                self._each(lambda s, u=update: s.on_estimate(u))
+
+    def _backlog(self, enqueued: float) -> None:
+        lag = time.monotonic() - enqueued
+        self.max_backlog = max(self.max_backlog, lag)
+        if self.live and lag > 1.0 and lag > 2 * self._last_backlog_report:
+            self._last_backlog_report = lag
+            self._each(lambda s: s.on_backlog(lag))
+
+    def run(self) -> RunSummary:
+        """Process the whole stream; always closes the source and every sink."""
+        reader = _Reader(self.source, self.queue)
+        interrupted = False
+        error: BaseException | None = None
+        final: Estimate | None = None
+        self._each(lambda s: s.start(self.context))
+        reader.start()
+        try:
+            while True:
+                enqueued, item = self.queue.get()
+                if item is _END:
+                    break
+                self._backlog(enqueued)
+                item = as_recorded(item)
+                self.items += 1
+                self._each(lambda s, i=item: s.on_item(i))
+                if isinstance(item, SourceEvent):
+                    self._each(lambda s, e=item: s.on_event(e))
+                    continue
+                self._frames(*self.tracker.feed(item))
+            if reader.error is not None:
+                raise reader.error
+            self._frames(*self.tracker.finish())
+        except KeyboardInterrupt:
+            interrupted = True
+        except BaseException as err:
+            error = err
+        finally:
+            reader.stop.set()
+            self.source.close()
+            final = self.estimator.estimate() if self.estimator.stats.used else None
+            close_errors: list[BaseException] = []
+            for sink in self.sinks:
+                try:
+                    sink.close(final)
+                except BaseException as err:  # every sink gets its close, even after one fails
+                    close_errors.append(err)
+            if error is None and close_errors:
+                error = close_errors[0]
+        if error is not None:
+            raise error
+        return RunSummary(final, self.frames, self.items, self.max_backlog, interrupted)
