@@ -1,0 +1,99 @@
+"""The terminal progress line of ``ptinertia run`` / ``replay``.
+
+One line, rewritten in place on a terminal (at most 5 times a second), one
+line every 10 s when stderr is a file or a CI log: stream time, rpm, frames
+used/rejected, and the current estimate of the largest inertia term with its
+95 % interval.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import TextIO
+
+from acquisition.stream import SourceEvent
+from estimator.result import Z95, Estimate
+from estimator.streaming import FrameOutcome
+from ptinertia.sinks import EstimateUpdate, RunContext, Sink
+
+
+class ProgressLine(Sink):
+    """Progress on stderr; events (gaps, re-syncs, backlog) as their own lines."""
+
+    def __init__(self, stream: TextIO | None = None, quiet: bool = False) -> None:
+        self.stream = stream or sys.stderr
+        self.quiet = quiet
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.period = 0.2 if self.tty else 10.0
+        self._last = 0.0
+        self.time_s = 0.0
+        self.rpm = float("nan")
+        self.used = 0
+        self.rejected = 0
+        self.estimate: Estimate | None = None
+        self._dirty = False
+
+    def start(self, context: RunContext) -> None:
+        self._t0 = time.monotonic()
+
+    def on_frame(self, frame: object, outcome: FrameOutcome) -> None:
+        self.time_s = outcome.time_s
+        self.rpm = outcome.rpm
+        if outcome.reason is None:
+            self.used += 1
+        else:
+            self.rejected += 1
+        self._tick()
+
+    def on_estimate(self, update: EstimateUpdate) -> None:
+        self.estimate = update.estimate
+
+    def on_event(self, event: SourceEvent) -> None:
+        if not self.quiet:
+            self._clear()
+            when = f" at {event.time_s:.2f} s" if event.time_s is not None else ""
+            print(f"[{event.kind}]{when}: {event.message}", file=self.stream)
+
+    def on_backlog(self, seconds: float) -> None:
+        if not self.quiet:
+            self._clear()
+            print(f"[backlog] processing is {seconds:.1f} s behind acquisition", file=self.stream)
+
+    def line(self) -> str:
+        text = f"t {self.time_s:7.1f} s  rpm {self.rpm:6.0f}  frames {self.used} used, {self.rejected} rejected"
+        est = self.estimate
+        if est is not None:
+            name = max(("Ixx", "Iyy", "Izz"), key=lambda n: est.value(n))
+            text += f"  {name} {est.value(name):.4f} +- {Z95 * est.std(name):.4f} kg m^2"
+            text += "  cog [" + ", ".join(f"{1e3 * v:.1f}" for v in est.cog) + "] mm"
+        return text
+
+    def _tick(self) -> None:
+        now = time.monotonic()
+        self._dirty = True
+        if self.quiet or now - self._last < self.period:
+            return
+        self._last = now
+        self._write()
+
+    def _write(self) -> None:
+        if self.tty:
+            self.stream.write("\r\x1b[2K" + self.line())
+        else:
+            self.stream.write(self.line() + "\n")
+        self.stream.flush()
+        self._dirty = False
+
+    def _clear(self) -> None:
+        if self.tty:
+            self.stream.write("\r\x1b[2K")
+
+    def close(self, final: Estimate | None) -> None:
+        if self.quiet:
+            return
+        if self._dirty or self.tty:
+            self._write()
+        if self.tty:
+            self.stream.write("\n")
+            self.stream.flush()
