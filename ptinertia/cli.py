@@ -25,12 +25,14 @@ def register(name: str, module: str, help_text: str) -> None:
 
 
 # Commands (add one line per command, once it works):
+register("run", "ptinertia.commands.run", "acquire, track orders and estimate inertia, cog and mass")
 register(
     "excitation",
     "ptinertia.commands.excitation",
     "engine loads on the block per order (gas, inertia, total)",
 )
 register("modes", "ptinertia.commands.modes", "rigid-body modes of the powertrain on its mounts")
+register("simulate", "ptinertia.commands.simulate", "simulate a bench run and write it as CSV or MF4")
 
 
 class _Parser(argparse.ArgumentParser):

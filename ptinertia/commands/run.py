@@ -1,0 +1,166 @@
+"""``ptinertia run``: acquire, track orders, estimate, record, show.
+
+With no option at all it runs the simulated example bench (the i3 sweep
+1500 -> 4500 rpm in 60 s) end to end and prints the estimate against the truth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from ptinertia.config import load_bench
+from ptinertia.errors import UsageError
+from ptinertia.paths import DEFAULT_BENCH
+from ptinertia.runner import RunOptions, print_table, run_source, write_json
+from ptinertia.sinks import Sink
+
+CORRECTIONS = ("suspension", "gyroscopic", "unbalance", "crank_offset")
+
+
+def add_parser(sub: Any, name: str, help_text: str) -> None:
+    p = sub.add_parser(name, help=help_text, description=__doc__)
+    p.add_argument(
+        "--bench", default=str(DEFAULT_BENCH), help="bench TOML (default: the i3 example)"
+    )
+    p.add_argument(
+        "--source",
+        default="sim",
+        help="sim (simulated bench, default), file:PATH (.csv, .mf4, CAN logs), can:INTERFACE:CHANNEL",
+    )
+    p.add_argument("--json", metavar="PATH", help="write the result document here")
+    p.add_argument("--record", metavar="PATH", help="record everything to this MCAP file")
+    p.add_argument(
+        "--rerun",
+        metavar="MODE",
+        default=None,
+        help="spawn | connect[=ADDR] | save=PATH | serve[=ADDR] | off "
+        "(default: spawn where there is a display, else save an .rrd next to the recording)",
+    )
+    p.add_argument(
+        "--orders", help="orders to track, e.g. 1,1.5,2 (default: the bench's [dsp] orders)"
+    )
+    p.add_argument(
+        "--no",
+        action="append",
+        default=[],
+        choices=CORRECTIONS,
+        metavar="CORRECTION",
+        help=f"switch a correction off (repeatable): {', '.join(CORRECTIONS)}",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    sim = p.add_argument_group("simulated source (--source sim)")
+    sim.add_argument("--sweep", metavar="FROM:TO", help="rpm sweep, e.g. 1500:4500")
+    sim.add_argument("--duration", type=float, metavar="S", help="sweep duration in s")
+    sim.add_argument("--fs", type=float, metavar="HZ", help="accelerometer sample rate")
+    sim.add_argument("--noise-db", type=float, metavar="DB", help="white noise SNR in dB")
+    sim.add_argument("--seed", type=int, help="random seed of the simulated imperfections")
+    sim.add_argument(
+        "--realistic", action="store_true", help="1 %% gains, 1 deg, 2 mm, 40 dB, unbalance"
+    )
+    sim.add_argument("--paced", action="store_true", help="pace the simulator to the wall clock")
+
+
+def parse_orders(text: str | None) -> tuple[float, ...] | None:
+    if text is None:
+        return None
+    try:
+        return tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise UsageError(f"--orders: expected numbers like 1,1.5,2, got {text!r}") from None
+
+
+def sim_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``[simulation]`` overrides given on the command line."""
+    out: dict[str, Any] = {}
+    if args.realistic:
+        out.update(
+            noise_snr_db=40.0,
+            gain_error_pct=1.0,
+            misalignment_deg=1.0,
+            position_error_m=0.002,
+            residual_unbalance_kgm=5e-4,
+            residual_unbalance_deg=40.0,
+        )
+    if args.sweep:
+        try:
+            lo, hi = (float(v) for v in args.sweep.split(":"))
+        except ValueError:
+            raise UsageError(
+                f"--sweep: expected FROM:TO in rpm, e.g. 1500:4500, got {args.sweep!r}"
+            ) from None
+        out.update(rpm_start=lo, rpm_end=hi)
+    if args.duration is not None:
+        out["duration_s"] = args.duration
+    if args.noise_db is not None:
+        out["noise_snr_db"] = args.noise_db
+    if args.seed is not None:
+        out["seed"] = args.seed
+    if args.fs is not None:
+        out["accel_rate_hz"] = args.fs
+    if args.paced:
+        out["paced"] = True
+    return out
+
+
+def viewer_sinks(mode: str | None, record: str | None) -> list[Sink]:
+    """The Rerun sink for ``--rerun`` (imported only when a view is asked for)."""
+    if mode == "off":
+        return []
+    try:
+        from ptinertia import viewer
+    except ImportError:
+        if mode is None:
+            return []
+        raise UsageError("--rerun: the viewer is not available in this installation") from None
+    parsed = viewer.parse_rerun_option(mode, record)
+    return [] if parsed is None else [viewer.RerunSink(parsed)]
+
+
+def recorder_sinks(path: str | None) -> list[Sink]:
+    if path is None:
+        return []
+    from replay.recorder import McapRecorder
+
+    return [McapRecorder(path)]
+
+
+def run(args: argparse.Namespace) -> int:
+    from ptinertia.sources import open_source
+
+    bench_path = Path(args.bench)
+    bench = load_bench(bench_path)
+    bench_text = bench_path.read_text(encoding="utf-8")
+    overrides = sim_overrides(args) if args.source == "sim" else {}
+    if args.source != "sim" and any(
+        getattr(args, k) not in (None, False)
+        for k in ("sweep", "duration", "noise_db", "seed", "fs")
+    ):
+        raise UsageError("--sweep/--duration/--noise-db/--seed/--fs apply to --source sim only")
+    if args.source == "sim":
+        overrides["bench_text"] = bench_text
+    source = open_source(args.source, bench, **overrides)
+    sinks = recorder_sinks(args.record) + viewer_sinks(args.rerun, args.record)
+    options = RunOptions(
+        orders=parse_orders(args.orders),
+        corrections_off=tuple(args.no),
+        quiet=args.quiet,
+        live=args.source.startswith("can:") or bool(overrides.get("paced")),
+        sinks=tuple(sinks),
+    )
+    summary, doc = run_source(bench, bench_text, source, args.source, options)
+    if doc is None or summary.estimate is None:
+        print(
+            "ptinertia run: no estimate: no usable frame (see the rejection counts above)",
+            file=sys.stderr,
+        )
+        return 1
+    print_table(summary.estimate, doc)
+    if args.json:
+        write_json(doc, args.json)
+        print(f"result written to {args.json}")
+    if args.record:
+        print(f"recording written to {args.record}")
+    return 130 if summary.interrupted else 0

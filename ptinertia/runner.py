@@ -1,0 +1,196 @@
+"""The whole chain for one source: shared by ``run`` and ``replay``.
+
+Builds the dsp stage and the estimator from the bench file, attaches the
+sinks (progress line, recorder, viewer), runs the pipeline, and turns the
+final estimate into the result document (and a table for the terminal).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from acquisition.stream import Source
+from estimator.result import Z95, Estimate
+from estimator.setup import Corrections, Gates, Tolerances
+from estimator.streaming import InertiaEstimator
+from ptinertia.config import Bench
+from ptinertia.estimation import estimator_setup
+from ptinertia.pipeline import Pipeline, RunSummary
+from ptinertia.progress import ProgressLine
+from ptinertia.sinks import RunContext, Sink
+from ptinertia.tracking import BenchTracker, tracker_config
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """Per-run choices beyond the bench file (command-line overrides)."""
+
+    orders: tuple[float, ...] | None = None
+    corrections_off: tuple[str, ...] = ()
+    quiet: bool = False
+    live: bool = False
+    sinks: tuple[Sink, ...] = ()
+    attachments: dict[str, bytes] = field(default_factory=dict)
+
+
+def make_estimator(bench: Bench, corrections_off: tuple[str, ...] = ()) -> InertiaEstimator:
+    """The streaming estimator with the bench file's ``[estimator]`` settings."""
+    s = bench.estimator
+    corrections = Corrections(
+        suspension=s.suspension and "suspension" not in corrections_off,
+        gyroscopic=s.gyroscopic and "gyroscopic" not in corrections_off,
+        unbalance=s.unbalance and "unbalance" not in corrections_off,
+        crank_offset=s.crank_offset and "crank_offset" not in corrections_off,
+    )
+    tolerances = Tolerances(
+        gain_rel=s.gain_tolerance_pct / 100.0,
+        alignment_rad=math.radians(s.alignment_tolerance_deg),
+        position_m=s.position_tolerance_m,
+    )
+    gates = Gates(
+        max_relative_residual=s.max_relative_residual,
+        max_rpm_change=s.max_rpm_change,
+        min_mode_ratio=s.min_mode_ratio,
+        rpm_range=(s.rpm_min, s.rpm_max),
+    )
+    setup = estimator_setup(bench, corrections=corrections, tolerances=tolerances, gates=gates)
+    return InertiaEstimator(setup, forgetting=s.forgetting)
+
+
+def settings_of(bench: Bench, tracker: BenchTracker, estimator: InertiaEstimator) -> dict[str, Any]:
+    """Plain-JSON settings in force (kept in recordings and reports)."""
+    cfg = tracker.config
+    return {
+        "dsp": {
+            "orders": list(cfg.orders),
+            "frames_per_rev": cfg.frames_per_rev,
+            "taper_deg": cfg.taper_deg,
+            "rpm_range": [cfg.rpm_min, cfg.rpm_max],
+            "tacho": asdict(cfg.tacho),
+        },
+        "estimator": {
+            "corrections": asdict(estimator.setup.corrections),
+            "tolerances": asdict(estimator.setup.tolerances),
+            "gates": asdict(estimator.setup.gates),
+            "forgetting": estimator.forgetting,
+            "mass_known": estimator.setup.mass_known,
+            "parameters": list(estimator.layout.names),
+        },
+    }
+
+
+def run_source(
+    bench: Bench, bench_text: str, source: Source, source_spec: str, options: RunOptions
+) -> tuple[RunSummary, dict[str, Any] | None]:
+    """Run the chain on ``source``; returns the summary and the result document."""
+    tracker = BenchTracker(source.layout, tracker_config(bench, options.orders))
+    estimator = make_estimator(bench, options.corrections_off)
+    truth = source.layout.metadata.get("truth")
+    context = RunContext(
+        bench_text=bench_text,
+        bench=bench,
+        layout=source.layout,
+        setup=estimator.setup,
+        truth=truth,
+        settings=settings_of(bench, tracker, estimator),
+        source=source_spec,
+        attachments=dict(options.attachments),
+    )
+    sinks: list[Sink] = [ProgressLine(quiet=options.quiet), *options.sinks]
+    summary = Pipeline(source, tracker, estimator, sinks, context, live=options.live).run()
+    doc = None
+    if summary.estimate is not None:
+        doc = summary.estimate.to_json(result_truth(truth))
+        doc["source"] = source_spec
+        if summary.interrupted:
+            doc["interrupted"] = True
+    return summary, doc
+
+
+def result_truth(truth: dict[str, Any] | None) -> dict[str, Any] | None:
+    """The simulated truth in the result document's shape."""
+    if not truth:
+        return None
+    out: dict[str, Any] = {
+        "inertia_kgm2": {"value": truth.get("inertia_kgm2")},
+        "cog_m": {"value": truth.get("cog_m")},
+        "mass_kg": {"value": truth.get("mass_kg")},
+    }
+    if truth.get("unbalance"):
+        out["unbalance"] = truth["unbalance"]
+    return out
+
+
+def write_json(doc: dict[str, Any], path: str | Path) -> None:
+    """Write atomically: a reader never sees half a result file."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".part")
+    tmp.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    tmp.replace(path)
+
+
+def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO = sys.stdout) -> None:
+    """Estimate, 95 % interval, truth and error, one line per term."""
+    truth = doc.get("truth") or {}
+    t_inertia = (truth.get("inertia_kgm2") or {}).get("value") or {}
+    t_cog = (truth.get("cog_m") or {}).get("value")
+    rows: list[tuple[str, float, float, float | None, str]] = []
+    for name in ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz"):
+        rows.append((name, estimate.value(name), estimate.std(name), t_inertia.get(name), "kg m^2"))
+    for i, name in enumerate(("Gx", "Gy", "Gz")):
+        t = t_cog[i] if t_cog else None
+        rows.append(
+            (
+                name,
+                1e3 * estimate.value(name),
+                1e3 * estimate.std(name),
+                None if t is None else 1e3 * t,
+                "mm",
+            )
+        )
+    mass = estimate.mass()
+    if mass is not None:
+        t_mass = (truth.get("mass_kg") or {}).get("value")
+        rows.append(("mass", mass[0], mass[1], t_mass, "kg"))
+    header = f"{'term':6} {'estimate':>11} {'95% +-':>9} {'truth':>11} {'error':>9}  unit"
+    print(header, file=out)
+    for name, value, std, t, unit in rows:
+        ci = Z95 * std if math.isfinite(std) else float("nan")
+        if t is None:
+            print(f"{name:6} {value:11.4f} {ci:9.4f} {'':>11} {'':>9}  {unit}", file=out)
+            continue
+        err = value - t
+        rel = f"{100 * err / abs(t):8.2f}%" if unit != "mm" and abs(t) > 0 else f"{err:8.2f} "
+        print(f"{name:6} {value:11.4f} {ci:9.4f} {t:11.4f} {rel:>9}  {unit}", file=out)
+    unb = doc.get("unbalance")
+    if unb:
+        print(
+            f"residual unbalance {1e3 * unb['mr_kgm']['value']:.3f} g m at "
+            f"{unb['angle_deg']['value']:.1f} deg",
+            file=out,
+        )
+    frames = doc["frames"]
+    rejected = ", ".join(f"{k} {v}" for k, v in frames["rejected"].items()) or "none"
+    lo, hi = doc["rpm_range"] or (math.nan, math.nan)
+    print(f"frames used {frames['used']} ({lo:.0f}-{hi:.0f} rpm), rejected: {rejected}", file=out)
+    if doc.get("unobservable"):
+        print(
+            "unobservable (no excitation reaches them): " + ", ".join(doc["unobservable"]), file=out
+        )
+    if doc["principal"]["consistency"]["problems"]:
+        print(
+            "physical consistency enforced: "
+            + "; ".join(doc["principal"]["consistency"]["problems"]),
+            file=out,
+        )
+
+
+def finite(values: np.ndarray) -> bool:
+    return bool(np.all(np.isfinite(values)))
