@@ -32,23 +32,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.kinematics import RigidMotion
 from estimator.setup import EstimatorSetup
+from estimator.vec import cross, skew
 
 INERTIA_TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    """Cross-product matrix: ``skew(a) @ b == a x b`` (works for complex vectors)."""
-    x, y, z = v
-    return np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]], dtype=np.result_type(v, float))
-
-
-def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a x b`` for two 3-vectors; np.cross costs ~20 us per call on vectors this small."""
-    return np.array(
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-    )
 
 
 def inertia_columns(omega_dot: np.ndarray) -> np.ndarray:
@@ -101,12 +88,12 @@ class Linearisation:
 
 
 @dataclass(frozen=True)
-class OrderRows:
-    """Whitened rows of one order of one frame.
+class FrameRows:
+    """Whitened rows of the orders of one frame (leading axis: order).
 
-    ``H`` (12, n) and ``y`` (12,) are whitened; ``whiten`` (12, 12) maps raw
-    residuals to whitened ones; ``d_meas`` (12, 12) is the derivative of the
-    raw residual with respect to the real measurement vector
+    ``H`` (n_o, 12, n) and ``y`` (n_o, 12) are whitened; ``whiten`` (n_o, 12, 12)
+    maps raw residuals to whitened ones; ``d_meas`` (n_o, 12, 12) is the
+    derivative of the raw residual with respect to the real measurement vector
     ``[Re gamma_O, Re Omega', Im gamma_O, Im Omega']``.
     """
 
@@ -116,124 +103,162 @@ class OrderRows:
     d_meas: np.ndarray
 
 
-def _real_rows(hc: np.ndarray, yc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    return np.vstack([hc.real, hc.imag]), np.concatenate([yc.real, yc.imag])
+def skew_batch(v: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) cross-product matrices of (..., 3) vectors."""
+    out = np.zeros((*v.shape[:-1], 3, 3), dtype=v.dtype)
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
 
 
-def order_rows(
+def inertia_columns_batch(w: np.ndarray) -> np.ndarray:
+    """(n_o, 3, 6): ``I @ w == A @ [Ixx, Iyy, Izz, Ixy, Ixz, Iyz]`` for each row of w (n_o, 3)."""
+    a = np.zeros((w.shape[0], 3, 6), dtype=w.dtype)
+    wx, wy, wz = w[:, 0], w[:, 1], w[:, 2]
+    a[:, 0, 0], a[:, 0, 3], a[:, 0, 4] = wx, -wy, -wz
+    a[:, 1, 1], a[:, 1, 3], a[:, 1, 5] = wy, -wx, -wz
+    a[:, 2, 2], a[:, 2, 4], a[:, 2, 5] = wz, -wx, -wy
+    return a
+
+
+def frame_rows(
     setup: EstimatorSetup,
     layout: ParameterLayout,
     lin: Linearisation,
-    motion: RigidMotion,
-    k: int,
-    order: float,
+    gamma_o: np.ndarray,
+    omega_dot: np.ndarray,
+    origin: np.ndarray,
+    cov_unit: np.ndarray,
+    orders: np.ndarray,
     rpm: float,
     force: np.ndarray,
     moment_r: np.ndarray,
-    noise_var: float,
-) -> OrderRows:
-    """Rows of order ``order`` (index ``k`` in ``motion``) at ``rpm``.
+    noise_var: np.ndarray,
+) -> FrameRows:
+    """Rows of every given order of one frame at ``rpm``.
 
     Parameters
     ----------
-    force, moment_r : (3,) complex
+    gamma_o, omega_dot : (n_o, 3) complex
+        Fitted rigid motion per order (acceleration of ``origin``, angular acceleration).
+    origin : (3,) m; cov_unit : (6, 6) unit covariance of the fit (see kinematics).
+    orders : (n_o,) float.
+    force, moment_r : (n_o, 3) complex
         Known excitation force (N) and moment about ``setup.reference_point`` (N m).
-    noise_var : float
-        Channel noise variance (m/s^2)^2 of this order; scales ``motion.cov_unit``.
+    noise_var : (n_o,) float
+        Channel noise variance (m/s^2)^2 per order; scales ``cov_unit``.
     """
+    n_o = len(orders)
     n = layout.size
+    h = np.asarray(orders, float)
     w = rpm * 2 * np.pi / 60.0
-    big_w2 = (order * w) ** 2
-    o = motion.origin
-    gamma_o = motion.gamma_o[k]
-    omega_dot = motion.omega_dot[k]
+    big_w2 = (h * w) ** 2
+    o = origin
     corr = setup.corrections
-    eye = np.eye(3)
+    eye = np.broadcast_to(np.eye(3), (n_o, 3, 3))
 
     # Mount reactions f_i = K_i gamma_i / W^2 and their derivatives w.r.t. [gamma_O, Omega'].
-    f_mounts = np.zeros(3, complex)
-    m_mounts_origin = np.zeros(3, complex)  # sum p_i x f_i
-    df_dgo = np.zeros((3, 3), complex)
-    df_dw = np.zeros((3, 3), complex)
-    dmp_dgo = np.zeros((3, 3), complex)  # d(sum p_i x f_i)/d gamma_O
-    dmp_dw = np.zeros((3, 3), complex)
+    f_mounts = np.zeros((n_o, 3), complex)
+    m_mounts_origin = np.zeros((n_o, 3), complex)  # sum p_i x f_i
+    df_dgo = np.zeros((n_o, 3, 3), complex)
+    df_dw = np.zeros((n_o, 3, 3), complex)
+    dmp_dgo = np.zeros((n_o, 3, 3), complex)  # d(sum p_i x f_i)/d gamma_O
+    dmp_dw = np.zeros((n_o, 3, 3), complex)
     if corr.suspension:
         for mount in setup.mounts:
             r = mount.position - o
-            kw = mount.stiffness / big_w2
+            sk_r, sk_p = skew(r), skew(mount.position)
+            kw = mount.stiffness[None, :, :] / big_w2[:, None, None]  # (n_o, 3, 3)
             gamma_i = gamma_o + cross(omega_dot, r)
-            f_i = kw @ gamma_i
+            f_i = np.einsum("oij,oj->oi", kw, gamma_i)
             f_mounts += f_i
             m_mounts_origin += cross(mount.position, f_i)
-            dfi_dw = kw @ -skew(r)
+            dfi_dw = -kw @ sk_r
             df_dgo += kw
             df_dw += dfi_dw
-            dmp_dgo += skew(mount.position) @ kw
-            dmp_dw += skew(mount.position) @ dfi_dw
+            dmp_dgo += sk_p @ kw
+            dmp_dw += sk_p @ dfi_dw
 
     s = setup.crank_axis
     c = setup.cylinder_axis
     t = cross(s, c)
-    gyro = (setup.spin_inertia / (1j * order)) * cross(omega_dot, s) if corr.gyroscopic else 0 * s
-    dgyro_dw = -(setup.spin_inertia / (1j * order)) * skew(s) if corr.gyroscopic else 0 * eye
+    spin = (setup.spin_inertia / (1j * h)) if corr.gyroscopic else np.zeros(n_o, complex)
+    gyro = spin[:, None] * cross(omega_dot, s)
+    dgyro_dw = -spin[:, None, None] * skew(s)[None]
 
-    ht = np.zeros((3, n), complex)  # translation rows
-    hr = np.zeros((3, n), complex)  # rotation rows
-    g_idx = slice(6, 9)
+    ht = np.zeros((n_o, 3, n), complex)  # translation rows
+    hr = np.zeros((n_o, 3, n), complex)  # rotation rows
     m_hat = lin.mass
     f_known = force + f_mounts
+    sk_w = skew_batch(omega_dot)
+    sk_wo = np.einsum("oij,j->oi", sk_w, o)
 
     if layout.mass:
         # gamma_O + Omega' x (G - O) = mu (F_exc + F_m) + w^2 mu z (c - i t)
-        ht[:, g_idx] = skew(omega_dot)
-        ht[:, layout.index("inv_mass")] = -f_known
-        yt = -gamma_o + skew(omega_dot) @ o
+        ht[:, :, 6:9] = sk_w
+        ht[:, :, layout.index("inv_mass")] = -f_known
+        yt = -gamma_o + sk_wo
         dt_dgo = eye - df_dgo / m_hat
-        dt_dw = -skew(lin.cog - o) - df_dw / m_hat
+        dt_dw = -skew(lin.cog - o)[None] - df_dw / m_hat
         unb_scale = m_hat  # F_unb = w^2 m (z/m) (c - i t) in the rotation rows
     else:
         # m (gamma_O + Omega' x (G - O)) - w^2 z (c - i t) = F_exc + F_m
-        ht[:, g_idx] = m_hat * skew(omega_dot)
-        yt = f_known - m_hat * gamma_o + m_hat * skew(omega_dot) @ o
+        ht[:, :, 6:9] = m_hat * sk_w
+        yt = f_known - m_hat * gamma_o + m_hat * sk_wo
         dt_dgo = m_hat * eye - df_dgo
-        dt_dw = -m_hat * skew(lin.cog - o) - df_dw
+        dt_dw = -m_hat * skew(lin.cog - o)[None] - df_dw
         unb_scale = 1.0
 
     # I Omega' + G x (F_exc + F_m) - (P_u - G) x F_unb = M_R + R x F_exc + sum p_i x f_i - gyro
-    hr[:, :6] = inertia_columns(omega_dot)
-    hr[:, g_idx] = -skew(f_known)
+    hr[:, :, :6] = inertia_columns_batch(omega_dot)
+    hr[:, :, 6:9] = -skew_batch(f_known)
     yr = moment_r + cross(setup.reference_point, force) + m_mounts_origin - gyro
-    dr_dgo = skew(lin.cog) @ df_dgo - dmp_dgo
-    dr_dw = lin.inertia + dgyro_dw + skew(lin.cog) @ df_dw - dmp_dw
+    sk_g = skew(lin.cog)
+    dr_dgo = sk_g @ df_dgo - dmp_dgo
+    dr_dw = lin.inertia[None] + dgyro_dw + sk_g @ df_dw - dmp_dw
 
-    if layout.unbalance and order == 1.0:
-        col_a = w**2 * (c - 1j * t)  # z = a + i b: F_unb = a col_a + b (i col_a)
-        col_b = 1j * col_a
-        arm = setup.unbalance_point - lin.cog
-        ia, ib = layout.index("unb_re"), layout.index("unb_im")
-        ht[:, ia], ht[:, ib] = -col_a, -col_b
-        hr[:, ia] = -unb_scale * cross(arm, col_a)
-        hr[:, ib] = -unb_scale * cross(arm, col_b)
+    if layout.unbalance:
+        first = np.flatnonzero(h == 1.0)
+        if first.size:
+            col_a = w**2 * (c - 1j * t)  # z = a + i b: F_unb = a col_a + b (i col_a)
+            col_b = 1j * col_a
+            arm = setup.unbalance_point - lin.cog
+            ia, ib = layout.index("unb_re"), layout.index("unb_im")
+            ht[first, :, ia], ht[first, :, ib] = -col_a, -col_b
+            hr[first, :, ia] = -unb_scale * cross(arm, col_a)
+            hr[first, :, ib] = -unb_scale * cross(arm, col_b)
 
-    # d residual / d measurement, complex (6, 6) on [gamma_O, Omega'].
-    d_c = np.block([[dt_dgo, dt_dw], [dr_dgo, dr_dw]])
+    # d residual / d measurement, complex (n_o, 6, 6) on [gamma_O, Omega'].
+    d_c = np.empty((n_o, 6, 6), complex)
+    d_c[:, :3, :3], d_c[:, :3, 3:], d_c[:, 3:, :3], d_c[:, 3:, 3:] = dt_dgo, dt_dw, dr_dgo, dr_dw
     if layout.offset:
         # A reference offset d multiplies every measured amplitude by exp(-i h d):
         # d residual / d d = D (-i h m) at d = 0.
-        meas = np.concatenate([gamma_o, omega_dot])
-        col = d_c @ (-1j * order * meas)
-        ht[:, layout.index("crank_offset")] = col[:3]
-        hr[:, layout.index("crank_offset")] = col[3:]
+        meas = np.concatenate([gamma_o, omega_dot], axis=1)
+        col = np.einsum("oij,oj->oi", d_c, -1j * h[:, None] * meas)
+        ht[:, :, layout.index("crank_offset")] = col[:, :3]
+        hr[:, :, layout.index("crank_offset")] = col[:, 3:]
 
-    hc = np.vstack([ht, hr])
-    yc = np.concatenate([yt, yr])
-    H, y = _real_rows(hc, yc)
-    d_real = np.block([[d_c.real, -d_c.imag], [d_c.imag, d_c.real]])
-    cov_meas = np.kron(np.eye(2), motion.cov_unit) * noise_var
-    cov_rows = d_real @ cov_meas @ d_real.T
+    hc = np.concatenate([ht, hr], axis=1)  # (n_o, 6, n)
+    yc = np.concatenate([yt, yr], axis=1)  # (n_o, 6)
+    H = np.concatenate([hc.real, hc.imag], axis=1)
+    y = np.concatenate([yc.real, yc.imag], axis=1)
+    d_real = np.empty((n_o, 12, 12))
+    d_real[:, :6, :6] = d_c.real
+    d_real[:, :6, 6:] = -d_c.imag
+    d_real[:, 6:, :6] = d_c.imag
+    d_real[:, 6:, 6:] = d_c.real
+    # Real and imaginary parts of the measurement are independent with the same
+    # covariance: cov(rows) = D diag(C, C) D^T, C = noise_var * cov_unit.
+    cu = cov_unit[None] * np.asarray(noise_var, float)[:, None, None]
+    da, db = d_real[:, :, :6], d_real[:, :, 6:]
+    cov_rows = da @ cu @ da.transpose(0, 2, 1) + db @ cu @ db.transpose(0, 2, 1)
     # Whitening with the Cholesky factor of the row covariance (tiny jitter keeps
     # it positive definite when a row does not depend on the measurement at all).
-    jitter = 1e-12 * np.trace(cov_rows) / 12 + 1e-300
-    chol = np.linalg.cholesky(cov_rows + jitter * np.eye(12))
-    whiten = np.linalg.inv(chol)
-    return OrderRows(H=whiten @ H, y=whiten @ y, whiten=whiten, d_meas=d_real)
+    jitter = 1e-12 * np.trace(cov_rows, axis1=1, axis2=2) / 12 + 1e-300
+    cov_rows += jitter[:, None, None] * np.eye(12)
+    whiten = np.linalg.inv(np.linalg.cholesky(cov_rows))
+    return FrameRows(
+        H=whiten @ H, y=np.einsum("oij,oj->oi", whiten, y), whiten=whiten, d_meas=d_real
+    )

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from estimator.vec import cross
+
 
 class KinematicsError(ValueError):
     """The sensor geometry cannot determine a rigid-body motion."""
@@ -62,14 +64,14 @@ class RigidMotion:
     def point_acceleration(self, point: np.ndarray) -> np.ndarray:
         """(n_orders, 3) complex acceleration of ``point`` (3,) m under this motion."""
         r = np.asarray(point, dtype=float) - self.origin
-        return self.gamma_o + np.cross(self.omega_dot, r)
+        return self.gamma_o + cross(self.omega_dot, r)
 
 
 def design_matrix(positions: np.ndarray, directions: np.ndarray, origin: np.ndarray) -> np.ndarray:
     """Rows ``[n_c, OP_c x n_c]`` (n_ch, 6) mapping ``[gamma_O, Omega']`` to channel readings."""
     r = np.asarray(positions, dtype=float) - origin
     n = np.asarray(directions, dtype=float)
-    return np.hstack([n, np.cross(r, n)])
+    return np.hstack([n, cross(r, n)])
 
 
 def check_geometry(positions: np.ndarray, directions: np.ndarray) -> None:

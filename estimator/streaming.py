@@ -27,10 +27,15 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from estimator.equations import Linearisation, ParameterLayout, order_rows
+from estimator.equations import Linearisation, ParameterLayout, frame_rows
 from estimator.kinematics import KinematicsError, RigidMotion, fit_rigid_motion
 from estimator.rls import RlsState, rls_init, rls_solve, rls_update
 from estimator.setup import EstimatorSetup
+from estimator.vec import cross
+
+# The linearised terms (G x F_unb, row weighting) move slowly once a few frames are in:
+# refresh them every few used frames rather than solving after every frame.
+RELINEARISE_EVERY = 8
 
 
 class FrameLike(Protocol):
@@ -97,9 +102,13 @@ def systematic_stds(setup: EstimatorSetup) -> np.ndarray:
 
 
 def channel_derivatives(
-    setup: EstimatorSetup, motion: RigidMotion, k: int, amplitudes: np.ndarray, used: np.ndarray
+    setup: EstimatorSetup,
+    motion: RigidMotion,
+    ks: np.ndarray,
+    amplitudes: np.ndarray,
+    used: np.ndarray,
 ) -> np.ndarray:
-    """d(channel readings)/d(systematic parameters), (n_used, n_sys) complex, order k.
+    """d(channel readings)/d(systematic parameters), (n_k, n_used, n_sys) complex, orders ks.
 
     A reading is ``n . gamma_P``. A relative gain error g scales it by (1 + g);
     turning the sensor by a small angle about bench axis e changes ``n`` by
@@ -108,19 +117,19 @@ def channel_derivatives(
     """
     n_ch = len(setup.channels)
     idx = np.flatnonzero(used)
-    out = np.zeros((idx.size, n_ch + 6 * setup.n_sensors), complex)
-    n = setup.directions[idx]
-    r = setup.positions[idx] - motion.origin
-    omega_dot = motion.omega_dot[k]
-    gamma_p = motion.gamma_o[k][None, :] + np.cross(omega_dot[None, :], r)
+    out = np.zeros((len(ks), idx.size, n_ch + 6 * setup.n_sensors), complex)
+    n = setup.directions[idx]  # (u, 3)
+    r = setup.positions[idx] - motion.origin  # (u, 3)
+    omega_dot = motion.omega_dot[ks]  # (k, 3)
+    gamma_p = motion.gamma_o[ks][:, None, :] + cross(omega_dot[:, None, :], r[None])  # (k, u, 3)
     rows = np.arange(idx.size)
-    out[rows, idx] = amplitudes[idx]
+    out[:, rows, idx] = amplitudes[np.ix_(ks, idx)]
     base = n_ch + 6 * setup.sensor_of_channel[idx]
-    turn = np.cross(n, gamma_p)
-    move = np.cross(n, omega_dot[None, :])
+    turn = cross(n[None], gamma_p)  # (k, u, 3)
+    move = cross(n[None], omega_dot[:, None, :])
     for ax in range(3):
-        out[rows, base + ax] = turn[:, ax]
-        out[rows, base + 3 + ax] = move[:, ax]
+        out[:, rows, base + ax] = turn[:, :, ax]
+        out[:, rows, base + 3 + ax] = move[:, :, ax]
     return out
 
 
@@ -239,10 +248,12 @@ class InertiaEstimator:
                 self.stats.orders_rejected[why] += 1
                 continue
             used_orders.append(float(h))
-            self._add_order(
-                frame, motion, k, float(h), amplitudes, used, force[k], moment[k], frame_power
-            )
 
+        if used_orders:
+            ks = np.array([k for k, h in enumerate(orders) if float(h) in used_orders])
+            self._add_orders(
+                frame, motion, ks, orders, amplitudes, used, force, moment, frame_power
+            )
         if not used_orders:
             counts = Counter(rejected.values())
             return self._reject(frame, counts.most_common(1)[0][0] if counts else "no_orders")
@@ -250,7 +261,8 @@ class InertiaEstimator:
         self.stats.ambiguous_frames += int(ambiguous)
         self.stats.rpm_lo = min(self.stats.rpm_lo, frame.rpm)
         self.stats.rpm_hi = max(self.stats.rpm_hi, frame.rpm)
-        self._relinearise()
+        if self.stats.used % RELINEARISE_EVERY == 1:
+            self._relinearise()
         return FrameOutcome(
             frame.time_s, frame.rpm, tuple(used_orders), rejected, None, residuals, motion
         )
@@ -271,12 +283,26 @@ class InertiaEstimator:
             return "non_rigid"
         return None
 
-    def _add_order(
+    def _noise_var(
+        self, motion: RigidMotion, ks: np.ndarray, orders: np.ndarray, floor: float
+    ) -> np.ndarray:
+        """Per-order channel noise variance, smoothed over frames (3 dof per frame is noisy),
+        floored so noise-free data keep finite weights."""
+        out = []
+        for k in ks:
+            h = float(orders[k])
+            raw = float(motion.noise_var[k])
+            var = 0.8 * self.noise_var[h] + 0.2 * raw if h in self.noise_var else raw
+            self.noise_var[h] = var
+            out.append(max(var, floor))
+        return np.array(out)
+
+    def _add_orders(
         self,
         frame: FrameLike,
         motion: RigidMotion,
-        k: int,
-        h: float,
+        ks: np.ndarray,
+        orders: np.ndarray,
         amplitudes: np.ndarray,
         used: np.ndarray,
         force: np.ndarray,
@@ -284,24 +310,44 @@ class InertiaEstimator:
         frame_power: float,
     ) -> None:
         setup = self.setup
-        raw = float(motion.noise_var[k])
-        # Smooth the per-frame noise estimate (3 degrees of freedom each) over frames,
-        # with a floor so noise-free data keep finite weights.
-        prev = self.noise_var.get(h, raw)
-        var = 0.8 * prev + 0.2 * raw if h in self.noise_var else raw
-        self.noise_var[h] = var
-        var = max(var, 1e-16 * frame_power, 1e-30)
+        var = self._noise_var(motion, ks, orders, max(1e-16 * frame_power, 1e-30))
+        h = orders[ks]
+        dmeas = np.einsum(
+            "iu,kus->kis", motion.gain, channel_derivatives(setup, motion, ks, amplitudes, used)
+        )
+        dm_real = np.concatenate([dmeas.real, dmeas.imag], axis=1)  # (k, 12, n_sys)
+
+        def rows_for(sign: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            g = motion.gamma_o[ks] * sign[:, None]
+            w = motion.omega_dot[ks] * sign[:, None]
+            r = frame_rows(
+                setup,
+                self.layout,
+                self.lin,
+                g,
+                w,
+                motion.origin,
+                motion.cov_unit,
+                h,
+                frame.rpm,
+                force[ks],
+                moment[ks],
+                var,
+            )
+            dr = r.whiten @ r.d_meas @ (dm_real * sign[:, None, None])  # (k, 12, n_sys)
+            sens = np.einsum("kip,kis->ps", r.H, dr)
+            return r.H.reshape(-1, self.layout.size), r.y.reshape(-1), sens
+
         # Both sign hypotheses see every row; they differ only in the half orders of
-        # frames whose 720 deg cycle is unknown.
-        flip_half = "cycle_ambiguous" in frame.flags and (2 * h) % 2 == 1
-        for sign, acc in self.acc.items():
-            flip = -1.0 if (sign == -1 and flip_half) else 1.0
-            m = motion if flip == 1.0 else _scaled(motion, k, flip)
-            rows = order_rows(setup, self.layout, self.lin, m, k, h, frame.rpm, force, moment, var)
-            acc.state = rls_update(acc.state, rows.H, rows.y, None, self.forgetting)
-            dmeas = m.gain @ channel_derivatives(setup, m, k, flip * amplitudes[k], used)
-            dm_real = np.vstack([dmeas.real, dmeas.imag])
-            acc.sens = self.forgetting * acc.sens + rows.H.T @ (rows.whiten @ rows.d_meas @ dm_real)
+        # frames whose 720 deg cycle is unknown (there the motion, and with it every
+        # measurement-derived term, flips sign).
+        plus = np.ones(len(ks))
+        flip = np.where(("cycle_ambiguous" in frame.flags) & ((2 * h) % 2 == 1), -1.0, 1.0)
+        H, y, sens = rows_for(plus)
+        flipped = rows_for(flip) if np.any(flip < 0) else (H, y, sens)
+        for (Hs, ys, ss), acc in (((H, y, sens), self.acc[1]), (flipped, self.acc[-1])):
+            acc.state = rls_update(acc.state, Hs, ys, None, self.forgetting)
+            acc.sens = self.forgetting * acc.sens + ss
 
     def _relinearise(self) -> None:
         sol = rls_solve(self.best_state().state, scale=self.scale)
