@@ -317,37 +317,45 @@ class InertiaEstimator:
         )
         dm_real = np.concatenate([dmeas.real, dmeas.imag], axis=1)  # (k, 12, n_sys)
 
-        def rows_for(sign: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            g = motion.gamma_o[ks] * sign[:, None]
-            w = motion.omega_dot[ks] * sign[:, None]
+        def rows_for(sel: np.ndarray, sign: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            """Whitened rows (k, 12, n), (k, 12) and sensitivities (k, 12, n_sys) of orders ks[sel]."""
+            kk = ks[sel]
             r = frame_rows(
                 setup,
                 self.layout,
                 self.lin,
-                g,
-                w,
+                sign * motion.gamma_o[kk],
+                sign * motion.omega_dot[kk],
                 motion.origin,
                 motion.cov_unit,
-                h,
+                h[sel],
                 frame.rpm,
-                force[ks],
-                moment[ks],
-                var,
+                force[kk],
+                moment[kk],
+                var[sel],
             )
-            dr = r.whiten @ r.d_meas @ (dm_real * sign[:, None, None])  # (k, 12, n_sys)
-            sens = np.einsum("kip,kis->ps", r.H, dr)
-            return r.H.reshape(-1, self.layout.size), r.y.reshape(-1), sens
+            return r.H, r.y, r.whiten @ r.d_meas @ (sign * dm_real[sel])
 
         # Both sign hypotheses see every row; they differ only in the half orders of
         # frames whose 720 deg cycle is unknown (there the motion, and with it every
-        # measurement-derived term, flips sign).
-        plus = np.ones(len(ks))
-        flip = np.where(("cycle_ambiguous" in frame.flags) & ((2 * h) % 2 == 1), -1.0, 1.0)
-        H, y, sens = rows_for(plus)
-        flipped = rows_for(flip) if np.any(flip < 0) else (H, y, sens)
-        for (Hs, ys, ss), acc in (((H, y, sens), self.acc[1]), (flipped, self.acc[-1])):
-            acc.state = rls_update(acc.state, Hs, ys, None, self.forgetting)
-            acc.sens = self.forgetting * acc.sens + ss
+        # measurement-derived term, flips sign): only those are computed twice.
+        everything = np.ones(len(ks), dtype=bool)
+        H, y, dr = rows_for(everything, 1.0)
+        hyp = {1: (H, y, dr)}
+        half = ((2 * h) % 2 == 1) & ("cycle_ambiguous" in frame.flags)
+        if np.any(half):
+            Hf, yf, drf = H.copy(), y.copy(), dr.copy()
+            Hf[half], yf[half], drf[half] = rows_for(half, -1.0)
+            hyp[-1] = (Hf, yf, drf)
+        else:
+            hyp[-1] = hyp[1]
+        n = self.layout.size
+        for sign, (Hs, ys, drs) in hyp.items():
+            acc = self.acc[sign]
+            acc.state = rls_update(
+                acc.state, Hs.reshape(-1, n), ys.reshape(-1), None, self.forgetting
+            )
+            acc.sens = self.forgetting * acc.sens + np.einsum("kip,kis->ps", Hs, drs)
 
     def _relinearise(self) -> None:
         sol = rls_solve(self.best_state().state, scale=self.scale)

@@ -109,6 +109,7 @@ class Pipeline:
         context: RunContext,
         live: bool = False,
         queue_items: int = 64,
+        estimate_period_s: float = 0.25,
     ) -> None:
         self.source = source
         self.tracker = tracker
@@ -121,6 +122,11 @@ class Pipeline:
         self.items = 0
         self.max_backlog = 0.0
         self._last_backlog_report = 0.0
+        # Publishing the full estimate (covariance, type-B part) costs more than a
+        # frame update: do it every estimate_period_s of stream time (deterministic,
+        # so a replay publishes the same estimates at the same frames).
+        self.estimate_period_s = estimate_period_s
+        self._last_estimate_t = -float("inf")
 
     def _each(self, fn: Callable[[Sink], None]) -> None:
         for sink in self.sinks:
@@ -133,7 +139,9 @@ class Pipeline:
             self.frames += 1
             outcome = self.estimator.update(frame)
             self._each(lambda s, f=frame, o=outcome: s.on_frame(f, o))
-            if outcome.reason is None:
+            due = frame.time_s - self._last_estimate_t >= self.estimate_period_s
+            if outcome.reason is None and due:
+                self._last_estimate_t = frame.time_s
                 update = EstimateUpdate(frame.time_s, frame.rpm, self.estimator.estimate())
                 self._each(lambda s, u=update: s.on_estimate(u))
 
