@@ -1,0 +1,215 @@
+"""Open a source from a short spec: ``sim``, ``file:PATH``, ``can:INTERFACE:CHANNEL``.
+
+The spec names the backend (:mod:`acquisition.registry`, imported lazily); the
+bench file says which channels the estimate needs, so a CSV or MF4 recording
+is checked against it on opening (a missing channel is a :class:`SourceError`
+naming it, not a silent hole later on). CAN logs and live buses are checked by
+their own openers against the DBC; MCAP replays by theirs.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from acquisition.registry import file_kind, source_backend
+from acquisition.stream import Source, SourceError, StreamLayout
+from acquisition.sweep import RpmProfile
+from ptinertia.config import Bench, Simulation, Tacho, parse_bench
+
+# options of the simulated source that are not bench-file keys
+SIM_OPTIONS = (
+    "block_s",
+    "paced",
+    "profile",
+    "tacho_rise_s",
+    "table_rtol",
+    "table_degree",
+    "bench_text",
+)
+FILE_OPTIONS = ("block_s",)
+FILE_SUFFIXES = (".csv", ".mf4", ".mdf", ".blf", ".asc", ".trc", ".log", ".mcap")
+
+
+def open_source(spec: str, bench: Bench, **overrides: Any) -> Source:
+    """Open the source ``spec`` for ``bench``.
+
+    Parameters
+    ----------
+    spec : str
+        ``"sim"`` (the simulated bench); ``"file:PATH"``: a CSV base file or an
+        MF4 recording (:mod:`acquisition.csvfile`, :mod:`acquisition.mdf`), a
+        CAN log (``.blf .asc .trc .log``, or an MF4 of raw CAN frames), an MCAP
+        recording to replay (a bare path with one of those extensions works
+        too); ``"can:INTERFACE:CHANNEL"`` a live bus (either part defaults to
+        the bench's ``[can]``).
+    bench : Bench
+    **overrides
+        ``sim``: any ``[simulation]`` key (``rpm_start``, ``duration_s``,
+        ``noise_snr_db``, ``seed``, ...), ``accel_rate_hz``, ``tacho`` (a dict
+        of ``[tacho]`` keys or a ``Tacho``), and the options ``block_s``,
+        ``paced``, ``profile`` (an :class:`RpmProfile` replacing the default
+        sweep), ``tacho_rise_s``, ``table_rtol``, ``table_degree``,
+        ``bench_text``. CSV and MF4: ``block_s``. CAN, CAN logs and MCAP: the
+        options of their openers.
+
+    Raises
+    ------
+    SourceError
+        Unknown spec or option, unreadable file, a channel the bench needs
+        missing from the file.
+    ConfigError
+        An override that makes the bench invalid.
+    """
+    kind, sep, arg = spec.partition(":")
+    if spec == "sim":
+        return open_simulated(bench, **overrides)
+    if kind == "file" and sep:
+        return open_file(arg, bench, **overrides)
+    if kind == "can" and sep:
+        source: Source = source_backend("can")(arg, bench, **overrides)
+        return source
+    if Path(spec).suffix.lower() in FILE_SUFFIXES:
+        return open_file(spec, bench, **overrides)
+    raise SourceError(
+        f"source {spec!r}: expected 'sim', 'file:PATH' ({', '.join(FILE_SUFFIXES)}) "
+        "or 'can:INTERFACE:CHANNEL'"
+    )
+
+
+def _unknown(options: dict[str, Any], known: tuple[str, ...] | list[str], what: str) -> None:
+    bad = sorted(set(options) - set(known))
+    if bad:
+        raise SourceError(f"{what}: unknown option {bad[0]!r}; known: {', '.join(sorted(known))}")
+
+
+def simulated_bench(bench: Bench, **overrides: Any) -> Bench:
+    """``bench`` with ``[simulation]``, ``accel_rate_hz`` and ``[tacho]`` overrides, validated."""
+    sim_keys = set(Simulation.model_fields)
+    sim_upd = {k: v for k, v in overrides.items() if k in sim_keys}
+    data = bench.model_dump(mode="json")
+    data["simulation"].update(sim_upd)
+    if "accel_rate_hz" in overrides:
+        data["sampling"]["accel_rate_hz"] = overrides["accel_rate_hz"]
+    tacho = overrides.get("tacho")
+    if isinstance(tacho, Tacho):
+        data["tacho"] = tacho.model_dump(mode="json")
+    elif isinstance(tacho, dict):
+        data["tacho"].update(tacho)
+    elif tacho is not None:
+        raise SourceError(
+            f"tacho: expected a dict of [tacho] keys or a Tacho, got {type(tacho).__name__}"
+        )
+    return parse_bench(data, "overrides")
+
+
+def open_simulated(bench: Bench, **overrides: Any) -> Source:
+    """The simulated bench of ``bench`` (see :func:`open_source` for the overrides)."""
+    from ptinertia.bench import build_simulated_model
+
+    known = [*Simulation.model_fields, "accel_rate_hz", "tacho", *SIM_OPTIONS]
+    _unknown(overrides, known, "source 'sim'")
+    bench = simulated_bench(bench, **{k: v for k, v in overrides.items() if k not in SIM_OPTIONS})
+    options = {k: v for k, v in overrides.items() if k in SIM_OPTIONS}
+    sim = bench.simulation
+    profile = options.pop("profile", None)
+    if profile is None:
+        profile = RpmProfile.from_simulation(sim)
+    elif not isinstance(profile, RpmProfile):
+        raise SourceError(f"profile: expected an RpmProfile, got {type(profile).__name__}")
+    metadata: dict[str, Any] = {"bench": bench.model_dump(mode="json")}
+    text = options.pop("bench_text", None)
+    if text is not None:
+        metadata["bench_text"] = str(text)
+    model, truth = build_simulated_model(bench, sim)
+    cls = source_backend("sim")
+    source: Source = cls(
+        model,
+        tacho=bench.tacho,
+        accel_rate_hz=bench.sampling.accel_rate_hz,
+        profile=profile,
+        max_order=sim.max_order,
+        noise_snr_db=sim.noise_snr_db,
+        seed=sim.seed,
+        truth=truth,
+        metadata=metadata,
+        **options,
+    )
+    return source
+
+
+def open_file(path: str | Path, bench: Bench, **overrides: Any) -> Source:
+    """A recording chosen by its extension; CSV and MF4 are checked against ``bench``."""
+    path = Path(path)
+    kind = file_kind(path.suffix)
+    if kind == "mf4" and _is_can_log(path):
+        kind = "can-log"
+    if kind in ("can-log", "mcap"):
+        opened: Source = source_backend(kind)(path, bench, **overrides)
+        return opened
+    _unknown(overrides, FILE_OPTIONS, f"source 'file:{path}'")
+    source: Source = source_backend(kind)(path, **overrides)
+    try:
+        check_channels(source.layout, bench, str(path))
+    except BaseException:
+        source.close()
+        raise
+    return source
+
+
+def _is_can_log(path: Path) -> bool:
+    """An MF4 of raw CAN frames (asammdf bus logging), read by the CAN log source."""
+    try:
+        from acquisition.can_logs import is_can_log
+    except ImportError:
+        return False
+    return bool(is_can_log(path))
+
+
+def required_channels(bench: Bench) -> list[tuple[str, str, str]]:
+    """``(channel, kind, why)`` the estimate needs; kind is ``sampled``, ``edges`` or ``either``."""
+    need = [(c, "sampled", f"sensor {s.name}") for s in bench.sensors for c in s.channels if c]
+    t = bench.tacho
+    need.append(
+        (
+            t.channel,
+            "edges" if t.delivery == "edges" else "sampled",
+            f"tacho, delivery {t.delivery!r}",
+        )
+    )
+    if t.kind == "rpm":
+        need.append((t.rpm_channel, "sampled", "rpm channel of a kind='rpm' tacho"))
+    if t.phase_reference == "cam":
+        need.append(
+            (t.cam_channel, "edges" if t.delivery == "edges" else "sampled", "cam phase reference")
+        )
+    if t.phase_reference == "pressure":
+        need.append((t.pressure_channel, "sampled", "cylinder-pressure phase reference"))
+    return need
+
+
+def check_channels(layout: StreamLayout, bench: Bench, where: str) -> None:
+    """Raise :class:`SourceError` naming the first channel ``bench`` needs that ``layout`` lacks."""
+    sampled = set(layout.channel_names)
+    edges = set(layout.edge_channels)
+    for name, kind, why in required_channels(bench):
+        if kind == "edges" and name not in edges:
+            hint = (
+                " (it is a sampled channel there: set [tacho] delivery = 'sampled')"
+                if name in sampled
+                else ""
+            )
+            raise SourceError(
+                f"{where}: edge channel {name!r} ({why}) not found{hint}; edge channels: "
+                f"{', '.join(sorted(edges)) or 'none'}"
+            )
+        if kind == "sampled" and name not in sampled:
+            hint = (
+                " (it is an edge channel there: set [tacho] delivery = 'edges')"
+                if name in edges
+                else ""
+            )
+            raise SourceError(
+                f"{where}: channel {name!r} ({why}) not found{hint}; "
+                f"channels: {', '.join(layout.channel_names)}"
+            )
