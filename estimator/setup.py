@@ -35,6 +35,9 @@ class Corrections:
     gyroscopic: bool = True  # Omega x H of the spinning crank train
     unbalance: bool = True  # residual static unbalance at H1, estimated
     crank_offset: bool = True  # crank-angle reference offset, estimated
+    self_calibration: bool = (
+        True  # sensor gain/orientation/position errors from rigid-fit residuals
+    )
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,249 @@
+"""Estimator accuracy and speed on the simulated benches, through the real dsp.
+
+Prints:
+1. noise-free i3 sweep 1500 -> 4500 rpm / 60 s / 5120 Hz: error per term with all
+   corrections, with each one switched off, and the paper's plain method;
+2. the same estimate from the frames up to 3000 rpm only;
+3. realistic i3 (40 dB, 1 % gains, 1 deg, 2 mm, residual unbalance) over N seeds:
+   error statistics per term and the coverage of the 95 % intervals;
+4. i4: mass error; i3 with an elastic mode in the sweep range;
+5. RLS update time per frame and estimator time per frame.
+
+Usage: python benchmarks/bench_estimator.py [--seeds 20] [--jobs 2] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+I3 = ROOT / "examples" / "i3-bench.toml"
+I4 = ROOT / "examples" / "i4-bench.toml"
+TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
+REALISTIC = dict(
+    noise_snr_db=40.0,
+    gain_error_pct=1.0,
+    misalignment_deg=1.0,
+    position_error_m=0.002,
+    residual_unbalance_kgm=5e-4,
+    residual_unbalance_deg=40.0,
+)
+
+
+def run_case(
+    bench_path: Path,
+    overrides: dict[str, Any],
+    off: tuple[str, ...] = (),
+    rpm_max: float | None = None,
+) -> dict[str, Any]:
+    from ptinertia.config import load_bench
+    from ptinertia.runner import RunOptions, run_source
+    from ptinertia.sources import open_source
+
+    bench = load_bench(bench_path)
+    overrides = dict(overrides)
+    if overrides.pop("_self_calibration", False):
+        est = bench.estimator.model_copy(update={"self_calibration": True})
+        bench = bench.model_copy(update={"estimator": est})
+    if rpm_max is not None:
+        est = bench.estimator.model_copy(update={"rpm_max": rpm_max})
+        bench = bench.model_copy(update={"estimator": est})
+    source = open_source("sim", bench, **overrides)
+    t0 = time.perf_counter()
+    summary, doc = run_source(
+        bench, bench_path.read_text(), source, "sim", RunOptions(quiet=True, corrections_off=off)
+    )
+    doc = doc or {}
+    doc["_seconds"] = time.perf_counter() - t0
+    doc["_frames"] = summary.frames
+    return doc
+
+
+def errors(doc: dict[str, Any]) -> dict[str, float]:
+    """Relative error per inertia term (products relative to their own value), cog in mm, mass %."""
+    t = doc["truth"]
+    out = {}
+    for k in TERMS:
+        tv = t["inertia_kgm2"]["value"][k]
+        out[k] = 100 * (doc["inertia_kgm2"]["value"][k] - tv) / abs(tv)
+    cog = np.array(doc["cog_m"]["value"]) - np.array(t["cog_m"]["value"])
+    out["cog_mm"] = float(1e3 * np.linalg.norm(cog))
+    if doc.get("mass_kg"):
+        out["mass_%"] = (
+            100 * (doc["mass_kg"]["value"] - t["mass_kg"]["value"]) / t["mass_kg"]["value"]
+        )
+    return out
+
+
+def covered(doc: dict[str, Any]) -> dict[str, bool]:
+    t = doc["truth"]
+    out = {}
+    for k in TERMS:
+        lo, hi = doc["inertia_kgm2"]["ci95"][k]
+        out[k] = lo <= t["inertia_kgm2"]["value"][k] <= hi
+    for i, axis in enumerate("xyz"):
+        v, s = doc["cog_m"]["value"][i], doc["cog_m"]["std"][i]
+        out[f"G{axis}"] = abs(v - t["cog_m"]["value"][i]) <= 1.96 * s
+    return out
+
+
+def line(label: str, err: dict[str, float]) -> str:
+    terms = "  ".join(f"{k} {err[k]:+6.2f}%" for k in TERMS)
+    extra = f"  cog {err['cog_mm']:.2f} mm"
+    if "mass_%" in err:
+        extra += f"  mass {err['mass_%']:+.2f}%"
+    return f"{label:28} {terms}{extra}"
+
+
+def _job(args: tuple[Path, dict[str, Any], tuple[str, ...], float | None]) -> dict[str, Any]:
+    return run_case(*args)
+
+
+def rls_timing() -> tuple[float, float]:
+    """Microseconds per RLS update (12 rows x 13 parameters) and per estimator frame."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    from estimator_harness import Body, frames, make_setup
+
+    from estimator.rls import rls_init, rls_update
+    from estimator.streaming import InertiaEstimator
+
+    rng = np.random.default_rng(0)
+    state = rls_init(13)
+    rows = [(rng.normal(size=(36, 13)), rng.normal(size=36)) for _ in range(2000)]
+    t0 = time.perf_counter()
+    for h, y in rows:
+        state = rls_update(state, h, y)
+    rls_us = (time.perf_counter() - t0) / len(rows) * 1e6
+    body = Body()
+    est = InertiaEstimator(make_setup(body))
+    fr = list(frames(body, np.linspace(1500, 4500, 500)))
+    t0 = time.perf_counter()
+    for f in fr:
+        est.update(f)
+    frame_us = (time.perf_counter() - t0) / len(fr) * 1e6
+    return rls_us, frame_us
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--quick", action="store_true", help="20 s sweeps, 4 seeds")
+    a = ap.parse_args()
+    dur = {"duration_s": 20.0} if a.quick else {}
+    seeds = 4 if a.quick else a.seeds
+
+    cases: list[tuple[str, tuple[Path, dict[str, Any], tuple[str, ...], float | None]]] = [
+        ("all corrections", (I3, dur, (), None)),
+        ("no suspension", (I3, dur, ("suspension",), None)),
+        ("no gyroscopic", (I3, dur, ("gyroscopic",), None)),
+        ("no unbalance", (I3, dur, ("unbalance",), None)),
+        ("no crank offset", (I3, dur, ("crank_offset",), None)),
+        (
+            "paper (all off)",
+            (
+                I3,
+                dur,
+                ("suspension", "gyroscopic", "unbalance", "crank_offset", "self_calibration"),
+                None,
+            ),
+        ),
+        ("frames up to 3000 rpm", (I3, dur, (), 3000.0)),
+        ("i4 (mass estimated)", (I4, dur, (), None)),
+        (
+            "elastic mode 160 Hz",
+            (
+                I3,
+                {
+                    **dur,
+                    **REALISTIC,
+                    "elastic_mode": {
+                        "frequency_hz": 160.0,
+                        "damping_ratio": 0.03,
+                        "participation": 0.1,
+                    },
+                },
+                (),
+                None,
+            ),
+        ),
+    ]
+    realistic = [(I3, {**dur, **REALISTIC, "seed": s}, (), None) for s in range(seeds)]
+    realistic_cal = [
+        (I3, {**dur, **REALISTIC, "seed": s, "_self_calibration": True}, (), None)
+        for s in range(seeds)
+    ]
+    with ProcessPoolExecutor(max_workers=a.jobs) as pool:
+        docs = list(pool.map(_job, [c for _, c in cases] + realistic + realistic_cal))
+    fixed, real, real_cal = (
+        docs[: len(cases)],
+        docs[len(cases) : len(cases) + seeds],
+        docs[len(cases) + seeds :],
+    )
+
+    print(
+        "== i3 noise-free, 1500 -> 4500 rpm, 5120 Hz (errors; products relative to their own value)"
+    )
+    for (label, _), doc in zip(cases[:7], fixed[:7], strict=True):
+        print(line(label, errors(doc)))
+    print("== i4, noise-free")
+    print(line(cases[7][0], errors(fixed[7])))
+    print("== i3 with an elastic mode in the sweep range (realistic errors)")
+    doc = fixed[8]
+    print(
+        line(cases[8][0], errors(doc)),
+        " rejected:",
+        doc["frames"]["rejected"],
+        doc["frames"]["orders_rejected"],
+    )
+
+    for label, group in (
+        ("default settings", real),
+        ("with experimental self-calibration", real_cal),
+    ):
+        errs = [errors(d) for d in group]
+        cov = [covered(d) for d in group]
+        print(f"== realistic i3 over {seeds} seeds, {label}")
+        for k in (*TERMS, "cog_mm"):
+            v = np.array([e[k] for e in errs])
+            unit = "mm" if k == "cog_mm" else "%"
+            print(
+                f"  {k:7} mean |err| {np.mean(np.abs(v)):6.2f} {unit}  max |err| {np.max(np.abs(v)):6.2f} {unit}",
+                end="",
+            )
+            if k in TERMS:
+                print(f"  95% interval covers truth in {sum(c[k] for c in cov)}/{seeds}")
+            else:
+                print(
+                    f"  cog intervals cover in {sum(all(c[g] for g in ('Gx', 'Gy', 'Gz')) for c in cov)}/{seeds}"
+                )
+        unb = [
+            abs(d["unbalance"]["mr_kgm"]["value"] - 5e-4) / 5e-4 * 100
+            for d in group
+            if d.get("unbalance")
+        ]
+        print(f"  unbalance amplitude error mean {np.mean(unb):.1f} %, max {np.max(unb):.1f} %")
+        all_cov = sum(all(c.values()) for c in cov)
+        print(f"  all nine intervals cover the truth in {all_cov}/{seeds} seeds")
+
+    secs = np.mean([d["_seconds"] for d in real])
+    sweep = 20.0 if a.quick else 60.0
+    print(
+        f"== speed: chain {sweep:.0f} s sweep in {secs:.1f} s ({sweep / secs:.0f}x real time, 9 ch at 5120 Hz)"
+    )
+    rls_us, frame_us = rls_timing()
+    print(
+        f"   RLS update {rls_us:.0f} us per frame (36 rows x 13 parameters); estimator {frame_us:.0f} us per frame"
+    )
+
+
+if __name__ == "__main__":
+    main()
