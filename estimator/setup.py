@@ -35,9 +35,9 @@ class Corrections:
     gyroscopic: bool = True  # Omega x H of the spinning crank train
     unbalance: bool = True  # residual static unbalance at H1, estimated
     crank_offset: bool = True  # crank-angle reference offset, estimated
-    self_calibration: bool = (
-        True  # sensor gain/orientation/position errors from rigid-fit residuals
-    )
+    # Sensor gain/orientation/position errors from the rigid-fit residuals. Off by
+    # default: weakly observable with three sensors (see estimator/calibration.py).
+    self_calibration: bool = False
 
 
 @dataclass(frozen=True)
@@ -54,6 +54,9 @@ class Gates:
     """Frame gating thresholds."""
 
     max_relative_residual: float = 0.05  # rigid fit residual / signal, per order
+    baseline_frames: int = 15  # first frames of each order that set its residual baseline
+    residual_growth: float = 2.0  # reject when the residual exceeds growth * baseline + margin
+    residual_margin: float = 0.002
     max_rpm_change: float = 0.03  # relative rpm change across the frame window
     min_mode_ratio: float = 1.25  # order frequency / highest rigid-body mode
     rpm_range: tuple[float, float] = (0.0, float("inf"))

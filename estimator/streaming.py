@@ -158,6 +158,7 @@ class InertiaEstimator:
         self.calib = calibration_init(n_sys)  # sensor self-calibration normal equations
         self.stats = EstimatorStats()
         self.noise_var: dict[float, float] = {}  # smoothed channel noise variance per order
+        self.residual_baseline: dict[float, list[float]] = {}  # first rigid-fit residuals per order
         self.lin = Linearisation(
             cog=np.asarray(setup.cog_nominal, float),
             inertia=np.asarray(setup.inertia_nominal, float),
@@ -281,9 +282,19 @@ class InertiaEstimator:
             and f_hz < gates.min_mode_ratio * self.setup.mode_max_hz
         ):
             return "near_rigid_modes"
-        if motion.relative_residual[k] > gates.max_relative_residual:
+        res = float(motion.relative_residual[k])
+        if res > gates.max_relative_residual:
             return "non_rigid"
-        return None
+        # Elastic-mode detection: sensor errors leave a residual that is a fixed
+        # share of the signal along the mass line, an approaching elastic mode one
+        # that grows like (f / f_e)^2. The first frames of each order set the
+        # baseline; a frame whose residual has grown past it is off the mass line.
+        base = self.residual_baseline.setdefault(h, [])
+        if len(base) < gates.baseline_frames:
+            base.append(res)
+            return None
+        limit = gates.residual_growth * float(np.median(base)) + gates.residual_margin
+        return "non_rigid" if res > limit else None
 
     def _calibrate(
         self,
