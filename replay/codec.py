@@ -1,0 +1,374 @@
+"""Encode and decode one message of each topic (symmetric pairs, no file I/O).
+
+Every ``encode_*`` returns the serialised protobuf bytes of a
+:mod:`replay.schemas` message; the matching ``decode_*`` gives back the
+object the pipeline handed to the recorder. Raw samples travel as float32
+(the pipeline has already rounded them, see ``ptinertia.pipeline.as_recorded``)
+and everything else as float64, so a decoded item equals the original bit for
+bit. A message that does not fit the recorded layout raises
+:class:`BadMessage`; the reader skips it and reports it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import numpy as np
+
+from acquisition.stream import EdgeBlock, SampleBlock, SampleGroup, SourceEvent, StreamLayout
+from replay.schemas import PARAMETERS, wire_class
+
+
+class BadMessage(Exception):
+    """One message cannot be decoded against the layout (the reader skips it)."""
+
+
+# -- raw items ---------------------------------------------------------------------------------
+
+
+def sample_time(block: SampleBlock, group: SampleGroup) -> float:
+    """Time of the block's first sample, s."""
+    return group.t0_s + block.first_index / group.rate_hz
+
+
+def encode_samples(block: SampleBlock, group: SampleGroup) -> bytes:
+    """``/raw/<group>``: the block as float32, channel-major."""
+    data = np.ascontiguousarray(block.data, dtype="<f4")
+    if data.shape != (len(group.channels), block.n_samples):
+        raise ValueError(
+            f"sample block of group {group.name!r}: expected {len(group.channels)} channels, "
+            f"got data of shape {block.data.shape}"
+        )
+    msg = wire_class("SampleBlock")(
+        time_s=sample_time(block, group),
+        group=group.name,
+        first_index=int(block.first_index),
+        rate_hz=group.rate_hz,
+        t0_s=group.t0_s,
+        channels=[c.name for c in group.channels],
+        n_samples=block.n_samples,
+        data=data.tobytes(),
+    )
+    return bytes(msg.SerializeToString())
+
+
+def decode_samples(data: bytes, layout: StreamLayout) -> SampleBlock:
+    """A :class:`SampleBlock` with float64 data holding the recorded float32 values."""
+    msg = wire_class("SampleBlock").FromString(data)
+    try:
+        group = layout.group(msg.group)
+    except KeyError:
+        raise BadMessage(f"sample group {msg.group!r} is not in the recorded layout") from None
+    names = tuple(c.name for c in group.channels)
+    if tuple(msg.channels) != names:
+        raise BadMessage(
+            f"group {msg.group!r}: channels {list(msg.channels)} differ from the layout's {list(names)}"
+        )
+    n_ch, n = len(names), int(msg.n_samples)
+    if len(msg.data) != 4 * n_ch * n:
+        raise BadMessage(
+            f"group {msg.group!r}: {len(msg.data)} data bytes, expected {4 * n_ch * n} "
+            f"({n_ch} channels x {n} samples x 4)"
+        )
+    values = np.frombuffer(msg.data, dtype="<f4").reshape(n_ch, n).astype(np.float64)
+    return SampleBlock(group.name, int(msg.first_index), values)
+
+
+def encode_edges(block: EdgeBlock, time_s: float) -> bytes:
+    """``/raw/edges/<channel>``: edge times as float64."""
+    times = np.ascontiguousarray(block.times_s, dtype="<f8")
+    msg = wire_class("EdgeBlock")(time_s=time_s, channel=block.channel, times_s=times.tobytes())
+    return bytes(msg.SerializeToString())
+
+
+def decode_edges(data: bytes, layout: StreamLayout) -> EdgeBlock:
+    msg = wire_class("EdgeBlock").FromString(data)
+    if msg.channel not in layout.edge_channels:
+        raise BadMessage(f"edge channel {msg.channel!r} is not in the recorded layout")
+    if len(msg.times_s) % 8:
+        raise BadMessage(f"edge channel {msg.channel!r}: {len(msg.times_s)} bytes is not n x 8")
+    return EdgeBlock(msg.channel, np.frombuffer(msg.times_s, dtype="<f8").copy())
+
+
+def encode_event(event: SourceEvent, origin: str, time_s: float) -> bytes:
+    """``/events``: origin ``"source"`` (a raw stream item) or ``"dsp"``."""
+    msg = wire_class("SourceEvent")(
+        time_s=event.time_s if event.time_s is not None else time_s,
+        kind=event.kind,
+        message=event.message,
+        has_time=event.time_s is not None,
+        count=int(event.count),
+        origin=origin,
+    )
+    return bytes(msg.SerializeToString())
+
+
+def decode_event(data: bytes) -> tuple[str, SourceEvent]:
+    """``(origin, event)``."""
+    msg = wire_class("SourceEvent").FromString(data)
+    event = SourceEvent(msg.kind, msg.message, msg.time_s if msg.has_time else None, int(msg.count))
+    return msg.origin, event
+
+
+def encode_can(frames: Any, time_s: float) -> bytes:
+    """``/raw/can``: a batch of ``acquisition.can_codec.RawFrame`` as columns."""
+    msg = wire_class("CanFrames")(
+        time_s=time_s,
+        timestamp_ns=[int(f.timestamp_ns) for f in frames],
+        arbitration_id=[int(f.arbitration_id) for f in frames],
+        flags=[(1 if f.is_extended_id else 0) | (2 if f.is_fd else 0) for f in frames],
+        length=[len(f.data) for f in frames],
+        data=b"".join(bytes(f.data) for f in frames),
+    )
+    return bytes(msg.SerializeToString())
+
+
+def decode_can(data: bytes) -> list[Any]:
+    """The batch of ``RawFrame`` as received."""
+    from acquisition.can_codec import RawFrame
+
+    msg = wire_class("CanFrames").FromString(data)
+    n = len(msg.timestamp_ns)
+    if not (len(msg.arbitration_id) == len(msg.flags) == len(msg.length) == n):
+        raise BadMessage(f"CAN batch at {msg.time_s:.3f} s: columns of different lengths")
+    if sum(msg.length) != len(msg.data):
+        raise BadMessage(
+            f"CAN batch at {msg.time_s:.3f} s: {len(msg.data)} data bytes, lengths say {sum(msg.length)}"
+        )
+    frames, pos = [], 0
+    payload = bytes(msg.data)
+    for t, can_id, flags, size in zip(
+        msg.timestamp_ns, msg.arbitration_id, msg.flags, msg.length, strict=True
+    ):
+        frames.append(
+            RawFrame(t, can_id, bool(flags & 1), payload[pos : pos + size], bool(flags & 2))
+        )
+        pos += size
+    return frames
+
+
+# -- processing results ------------------------------------------------------------------------
+
+
+def encode_frame(frame: Any) -> bytes:
+    """``/orders``: a ``dsp.frames.OrderFrame``."""
+    amp = np.asarray(frame.amplitudes, dtype=complex)
+    ok = np.asarray(frame.channel_ok, dtype=bool)
+    cls = wire_class("OrderFrame")
+    msg = cls(
+        time_s=frame.time_s,
+        rpm=frame.rpm,
+        crank_angle_rad=frame.crank_angle_rad,
+        orders=list(frame.orders),
+        channels=list(frame.channels),
+        amplitude_re=amp.real.ravel().tolist(),
+        amplitude_im=amp.imag.ravel().tolist(),
+        channel_ok=ok.tolist(),
+        rpm_change=frame.rpm_change,
+        leakage=np.asarray(frame.leakage, dtype=float).tolist(),
+        flags=sorted(frame.flags),
+    )
+    magnitude, phase = np.abs(amp), np.degrees(np.angle(amp))
+    for k, order in enumerate(frame.orders):
+        entry = msg.by_order.add(order=order)
+        for j, channel in enumerate(frame.channels):
+            entry.channels.add(
+                channel=channel,
+                amplitude=float(magnitude[k, j]),
+                phase_deg=float(phase[k, j]),
+                ok=bool(ok[j]),
+            )
+    return bytes(msg.SerializeToString())
+
+
+def decode_frame(data: bytes) -> Any:
+    """The ``dsp.frames.OrderFrame``, amplitudes exact."""
+    from dsp.frames import OrderFrame
+
+    msg = wire_class("OrderFrame").FromString(data)
+    n_o, n_ch = len(msg.orders), len(msg.channels)
+    re = np.array(msg.amplitude_re, dtype=float)
+    im = np.array(msg.amplitude_im, dtype=float)
+    if re.size != n_o * n_ch or im.size != n_o * n_ch or len(msg.channel_ok) != n_ch:
+        raise BadMessage(
+            f"order frame at {msg.time_s:.3f} s: {re.size} amplitudes for {n_o} orders x {n_ch} channels"
+        )
+    return OrderFrame(
+        time_s=msg.time_s,
+        rpm=msg.rpm,
+        crank_angle_rad=msg.crank_angle_rad,
+        orders=tuple(msg.orders),
+        channels=tuple(msg.channels),
+        amplitudes=(re + 1j * im).reshape(n_o, n_ch),
+        channel_ok=np.array(msg.channel_ok, dtype=bool),
+        rpm_change=msg.rpm_change,
+        leakage=np.array(msg.leakage, dtype=float),
+        flags=frozenset(msg.flags),
+    )
+
+
+def encode_outcome(outcome: Any) -> bytes:
+    """``/gating``: an ``estimator.streaming.FrameOutcome`` (without the fitted motion)."""
+    msg = wire_class("Gating")(
+        time_s=outcome.time_s,
+        rpm=outcome.rpm,
+        used=outcome.reason is None,
+        reason=outcome.reason or "",
+        used_orders=list(outcome.used_orders),
+    )
+    used = set(outcome.used_orders)
+    orders = list(outcome.relative_residual)
+    orders += [h for h in outcome.rejected if h not in outcome.relative_residual]
+    for h in orders:
+        msg.orders.add(
+            order=h,
+            used=h in used,
+            rejected=outcome.rejected.get(h, ""),
+            relative_residual=outcome.relative_residual.get(h, math.nan),
+            has_residual=h in outcome.relative_residual,
+        )
+    return bytes(msg.SerializeToString())
+
+
+def decode_outcome(data: bytes) -> Any:
+    """The ``estimator.streaming.FrameOutcome`` (``motion`` is None: it is not recorded)."""
+    from estimator.streaming import FrameOutcome
+
+    msg = wire_class("Gating").FromString(data)
+    return FrameOutcome(
+        time_s=msg.time_s,
+        rpm=msg.rpm,
+        used_orders=tuple(msg.used_orders),
+        rejected={g.order: g.rejected for g in msg.orders if g.rejected},
+        reason=None if msg.used else msg.reason,
+        relative_residual={g.order: g.relative_residual for g in msg.orders if g.has_residual},
+    )
+
+
+def encode_estimate(time_s: float, rpm: float, estimate: Any, final: bool = False) -> bytes:
+    """``/estimate``: an ``estimator.result.Estimate`` in full (covariances included).
+
+    ``cov`` is left empty when it is exactly ``cov_random + cov_systematic``
+    (as ``estimator.result.build_estimate`` makes it): a third of the size of a
+    message, and the decoder rebuilds the same bits.
+    """
+    cov = np.asarray(estimate.cov, float)
+    cov_random = np.asarray(estimate.cov_random, float)
+    cov_systematic = np.asarray(estimate.cov_systematic, float)
+    implied = bool(np.array_equal(cov, cov_random + cov_systematic))
+    msg = wire_class("Estimate")(
+        time_s=time_s,
+        rpm=rpm,
+        frames_used=int(estimate.frames_used),
+        variance_factor=float(estimate.variance_factor),
+        names=list(estimate.names),
+        theta=np.asarray(estimate.theta, float).tolist(),
+        cov=[] if implied else cov.ravel().tolist(),
+        cov_random=cov_random.ravel().tolist(),
+        cov_systematic=cov_systematic.ravel().tolist(),
+        observable=np.asarray(estimate.observable, bool).tolist(),
+        mass_known=bool(estimate.mass_known),
+        mass_nominal=float(estimate.mass_nominal),
+        unbalance_point=np.asarray(estimate.unbalance_point, float).tolist(),
+        rpm_range=list(estimate.rpm_range) if estimate.rpm_range else [],
+        half_order_json=json.dumps(estimate.half_order) if estimate.half_order else "",
+        final=final,
+    )
+    for name in estimate.names:
+        if name in PARAMETERS:
+            setattr(msg, name, estimate.value(name))
+            setattr(msg, f"{name}_std", estimate.std(name))
+    mass = estimate.mass()
+    if mass is not None:
+        msg.mass_kg, msg.mass_kg_std = mass
+    else:
+        msg.mass_kg = float(estimate.mass_nominal)
+        msg.mass_kg_std = 0.0 if estimate.mass_known else math.inf
+    for key, count in estimate.frames_rejected.items():
+        msg.frames_rejected.add(key=key, count=int(count))
+    for key, count in estimate.orders_rejected.items():
+        msg.orders_rejected.add(key=key, count=int(count))
+    return bytes(msg.SerializeToString())
+
+
+def decode_estimate(data: bytes) -> tuple[float, float, Any, bool]:
+    """``(time_s, rpm, estimator.result.Estimate, final)``, every number as recorded."""
+    from estimator.result import Estimate
+
+    msg = wire_class("Estimate").FromString(data)
+    n = len(msg.names)
+
+    def square(values: Any, what: str) -> np.ndarray:
+        arr = np.array(values, dtype=float)
+        if arr.size != n * n:
+            raise BadMessage(
+                f"estimate at {msg.time_s:.3f} s: {what} has {arr.size} values for {n} parameters"
+            )
+        return arr.reshape(n, n)
+
+    if len(msg.theta) != n or len(msg.observable) != n:
+        raise BadMessage(f"estimate at {msg.time_s:.3f} s: {len(msg.theta)} values for {n} names")
+    cov_random = square(msg.cov_random, "cov_random")
+    cov_systematic = square(msg.cov_systematic, "cov_systematic")
+    cov = square(msg.cov, "cov") if len(msg.cov) else cov_random + cov_systematic
+    estimate = Estimate(
+        names=tuple(msg.names),
+        theta=np.array(msg.theta, dtype=float),
+        cov=cov,
+        cov_random=cov_random,
+        cov_systematic=cov_systematic,
+        observable=np.array(msg.observable, dtype=bool),
+        mass_known=msg.mass_known,
+        mass_nominal=msg.mass_nominal,
+        unbalance_point=np.array(msg.unbalance_point, dtype=float),
+        frames_used=int(msg.frames_used),
+        frames_rejected={c.key: int(c.count) for c in msg.frames_rejected},
+        orders_rejected={c.key: int(c.count) for c in msg.orders_rejected},
+        rpm_range=(msg.rpm_range[0], msg.rpm_range[1]) if len(msg.rpm_range) == 2 else None,
+        half_order=json.loads(msg.half_order_json) if msg.half_order_json else None,
+        variance_factor=msg.variance_factor,
+    )
+    return msg.time_s, msg.rpm, estimate, msg.final
+
+
+# -- layout ------------------------------------------------------------------------------------
+
+
+def layout_to_json(layout: StreamLayout) -> str:
+    """The layout (groups, edge channels, metadata) as JSON; floats round-trip exactly."""
+    from acquisition.csvfile import json_default
+
+    doc = {
+        "groups": [
+            {
+                "name": g.name,
+                "rate_hz": g.rate_hz,
+                "t0_s": g.t0_s,
+                "channels": [{"name": c.name, "unit": c.unit} for c in g.channels],
+            }
+            for g in layout.groups
+        ],
+        "edge_channels": list(layout.edge_channels),
+        "metadata": layout.metadata,
+    }
+    return json.dumps(doc, default=json_default)
+
+
+def layout_from_json(text: str) -> StreamLayout:
+    from acquisition.stream import ChannelSpec
+
+    doc = json.loads(text)
+    groups = tuple(
+        SampleGroup(
+            name=str(g["name"]),
+            rate_hz=float(g["rate_hz"]),
+            channels=tuple(ChannelSpec(str(c["name"]), str(c["unit"])) for c in g["channels"]),
+            t0_s=float(g.get("t0_s", 0.0)),
+        )
+        for g in doc["groups"]
+    )
+    return StreamLayout(
+        groups, tuple(doc.get("edge_channels", ())), dict(doc.get("metadata") or {})
+    )

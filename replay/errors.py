@@ -1,0 +1,15 @@
+"""The replay layer's user error.
+
+A recording is a source, so :class:`LogError` subclasses
+:class:`acquisition.stream.SourceError` (itself a ``ValueError``): the CLI
+already prints it as one line with exit code 2, and code that opens "some
+source" catches it with the other source errors.
+"""
+
+from __future__ import annotations
+
+from acquisition.stream import SourceError
+
+
+class LogError(SourceError):
+    """A recording cannot be written or read (empty, not MCAP, truncated before any data, missing topics)."""
