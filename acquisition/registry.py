@@ -39,6 +39,7 @@ FILE_KINDS: dict[str, str] = {
 WRITERS: dict[str, tuple[str, str]] = {
     ".csv": ("acquisition.csvfile", "CsvWriter"),
     ".mf4": ("acquisition.mdf", "MdfWriter"),
+    ".mcap": ("replay.recorder", "McapFileWriter"),
 }
 
 

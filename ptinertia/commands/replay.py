@@ -1,0 +1,106 @@
+"""``ptinertia replay``: re-run dsp and estimator on a recorded MCAP log.
+
+With unchanged settings the estimates are bit-identical to those of the live
+run (the log keeps the exact float32 samples the live dsp stage saw); with
+``--bench``, ``--orders`` or ``--no`` it re-estimates. A directory replays
+every ``*.mcap`` in it and writes one result per log.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from ptinertia.commands.run import CORRECTIONS, parse_orders, recorder_sinks, viewer_sinks
+from ptinertia.config import load_bench, loads_bench
+from ptinertia.errors import UsageError
+from ptinertia.runner import RunOptions, print_table, run_source, write_json
+
+
+def add_parser(sub: Any, name: str, help_text: str) -> None:
+    p = sub.add_parser(name, help=help_text, description=__doc__)
+    p.add_argument("log", help="an MCAP recording, or a directory of them")
+    p.add_argument("--bench", help="bench TOML overriding the one stored in the log")
+    p.add_argument("--json", metavar="PATH", help="result document (a directory: one file per log)")
+    p.add_argument("--record", metavar="PATH", help="record the replay again (single log only)")
+    p.add_argument(
+        "--rerun",
+        metavar="MODE",
+        default="off",
+        help="spawn | connect[=ADDR] | save=PATH | serve | off (default off)",
+    )
+    p.add_argument("--speed", default="max", help="max (default) or realtime, or a factor like 10")
+    p.add_argument("--orders", help="orders to track (default: the bench's [dsp] orders)")
+    p.add_argument("--no", action="append", default=[], choices=CORRECTIONS, metavar="CORRECTION")
+    p.add_argument("--quiet", action="store_true")
+
+
+def parse_speed(text: str) -> float | None:
+    if text == "max":
+        return None
+    if text == "realtime":
+        return 1.0
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value > 0:
+        raise UsageError(f"--speed: expected max, realtime or a positive factor, got {text!r}")
+    return value
+
+
+def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None) -> int:
+    from replay.reader import open_log
+    from replay.source import McapSource
+
+    log = open_log(log_path)
+    if args.bench:
+        bench_text = Path(args.bench).read_text(encoding="utf-8")
+        bench = load_bench(args.bench)
+    else:
+        if not log.bench_text:
+            raise UsageError(f"{log_path}: the log holds no bench file; give one with --bench")
+        bench_text = log.bench_text
+        bench = loads_bench(bench_text, f"{log_path}:bench.toml")
+    source = McapSource(log, speed=parse_speed(args.speed))
+    from ptinertia.sources import check_channels
+
+    check_channels(source.layout, bench, str(log_path))
+    sinks = recorder_sinks(args.record) + viewer_sinks(args.rerun, args.record)
+    options = RunOptions(
+        orders=parse_orders(args.orders),
+        corrections_off=tuple(args.no),
+        quiet=args.quiet,
+        live=source.speed is not None,
+        sinks=tuple(sinks),
+        attachments=dict(log.attachments),
+    )
+    summary, doc = run_source(bench, bench_text, source, log.source or "replay", options)
+    for line in log.report.lines():
+        print(f"{log_path}: {line}", file=sys.stderr)
+    if doc is None or summary.estimate is None:
+        print(f"{log_path}: no estimate: no usable frame", file=sys.stderr)
+        return 1
+    print(f"== {log_path}")
+    print_table(summary.estimate, doc)
+    if json_path is not None:
+        write_json(doc, json_path)
+        print(f"result written to {json_path}")
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    from replay.reader import find_logs
+
+    target = Path(args.log)
+    logs = find_logs(target)
+    if target.is_dir():
+        if args.record:
+            raise UsageError("--record: replaying a directory records nothing; give one log")
+        out_dir = Path(args.json) if args.json else target
+        out_dir.mkdir(parents=True, exist_ok=True)
+        codes = [replay_one(p, args, out_dir / (p.stem + ".result.json")) for p in logs]
+        return max(codes, default=0)
+    return replay_one(logs[0], args, Path(args.json) if args.json else None)
