@@ -1,0 +1,149 @@
+"""The bench engineer's commands end to end: run, record, replay, bad input."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ptinertia.cli import main
+from ptinertia.paths import EXAMPLES_DIR
+
+I3 = EXAMPLES_DIR / "i3-bench.toml"
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    out = tmp_path_factory.mktemp("run")
+    log, result = out / "x.mcap", out / "r.json"
+    code = main(["run", "--rerun", "off", "--quiet", "--record", str(log), "--json", str(result)])
+    assert code == 0
+    return log, result
+
+
+def test_run_on_defaults_meets_the_noise_free_accuracy(recorded: tuple[Path, Path]) -> None:
+    doc = json.loads(recorded[1].read_text())
+    truth = doc["truth"]["inertia_kgm2"]["value"]
+    for term, value in doc["inertia_kgm2"]["value"].items():
+        assert value == pytest.approx(truth[term], rel=0.002), term
+    cog = np.array(doc["cog_m"]["value"]) - np.array(doc["truth"]["cog_m"]["value"])
+    assert np.all(np.abs(cog) < 0.0005)
+    assert doc["frames"]["used"] > 2500
+    assert doc["rpm_range"][0] < 1600 and doc["rpm_range"][1] > 4400
+
+
+def test_replay_gives_the_recorded_result_exactly(
+    recorded: tuple[Path, Path], tmp_path: Path
+) -> None:
+    log, result = recorded
+    again = tmp_path / "r2.json"
+    assert main(["replay", str(log), "--quiet", "--json", str(again)]) == 0
+    assert json.loads(again.read_text()) == json.loads(result.read_text())
+
+
+def test_replay_with_a_correction_off_re_estimates(
+    recorded: tuple[Path, Path], tmp_path: Path
+) -> None:
+    log, result = recorded
+    plain = tmp_path / "plain.json"
+    assert main(["replay", str(log), "--quiet", "--no", "suspension", "--json", str(plain)]) == 0
+    a = json.loads(plain.read_text())["inertia_kgm2"]["value"]
+    b = json.loads(result.read_text())["inertia_kgm2"]["value"]
+    assert abs(a["Ixx"] - b["Ixx"]) / b["Ixx"] > 0.01  # the mount bias comes back
+
+
+def test_replay_of_a_directory_writes_one_result_per_log(
+    recorded: tuple[Path, Path], tmp_path: Path
+) -> None:
+    log, _ = recorded
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    for name in ("a", "b"):
+        (logs / f"{name}.mcap").write_bytes(log.read_bytes())
+    assert main(["replay", str(logs), "--quiet"]) == 0
+    assert sorted(p.name for p in logs.glob("*.result.json")) == ["a.result.json", "b.result.json"]
+
+
+def _one_line_error(capsys: pytest.CaptureFixture[str], code: int) -> str:
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "Traceback" not in err
+    return err
+
+
+def test_non_mcap_file_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "bad.mcap"
+    bad.write_text("not a recording")
+    err = _one_line_error(capsys, main(["replay", str(bad), "--quiet"]))
+    assert "bad.mcap" in err
+
+
+def test_bench_override_missing_a_recorded_channel_is_one_line(
+    recorded: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    text = I3.read_text().replace(
+        'channels = ["A_x", "A_y", "A_z"]', 'channels = ["P_x", "P_y", "P_z"]'
+    )
+    other = tmp_path / "other.toml"
+    other.write_text(text)
+    err = _one_line_error(
+        capsys, main(["replay", str(recorded[0]), "--bench", str(other), "--quiet"])
+    )
+    assert "P_x" in err
+
+
+def test_bad_source_spec_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    err = _one_line_error(
+        capsys, main(["run", "--source", "nonsense", "--rerun", "off", "--quiet"])
+    )
+    assert "nonsense" in err
+
+
+def test_sweep_outside_the_mass_line_range_ends_without_estimate(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # 600 -> 700 rpm: H1, H1.5 and H2 all lie among the rigid-body modes (< 1.25 x 19.2 Hz)
+    code = main(["run", "--sweep", "600:700", "--duration", "5", "--rerun", "off", "--quiet"])
+    assert code == 1
+    assert "no estimate" in capsys.readouterr().err
+
+
+def test_ctrl_c_finishes_the_recording(tmp_path: Path) -> None:
+    log = tmp_path / "live.mcap"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "ptinertia",
+            "run",
+            "--paced",
+            "--rerun",
+            "off",
+            "--quiet",
+            "--record",
+            str(log),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=env,
+    )
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and (not log.exists() or log.stat().st_size < 200_000):
+        time.sleep(0.2)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode in (0, 130), err.decode()
+    from replay.reader import open_log
+
+    recording = open_log(log)
+    assert recording.finished  # footer written: the shutdown was clean
+    assert b"Traceback" not in err
