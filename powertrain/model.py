@@ -11,9 +11,11 @@ A single modal coordinate ``eta`` (m) with frequency ``f_e`` and damping ratio
 crank axis. Its shape at the channels, ``phi`` (n_ch,), comes from the pattern
 ``xi^2 (c + t/2) + xi s x GP / L`` (bending in both planes, plus a twist growing
 along the axis; ``xi`` is a sensor's axial distance from the cog over their
-rms axial distance ``L``), with every rigid-body motion of the channel
-geometry projected out, so no rigid motion can explain it; it is scaled to a
-largest entry of 1. It is driven by the moments that bend and twist the
+rms axial distance ``L``). The part of the pattern a rigid motion explains is
+kept at ``rigid_share`` of its size (a real bending shape seen by three
+sensors looks partly like a rigid motion, and that part biases any rigid fit;
+0 keeps only the part no rigid motion can explain); scaled to a largest
+entry of 1. It is driven by the moments that bend and twist the
 block, about ``b = (t + s) / sqrt(2)`` (pitch-type and roll)::
 
     eta'' + 2 zeta w_e eta' + w_e^2 eta = p L (M_G . b) / I_b,   I_b = b^T I b
@@ -48,13 +50,17 @@ class ElasticMode:
     frequency_hz : Hz.
     damping_ratio : zeta.
     participation : p, 1 means the mode's modal inertia equals the body's about ``b``.
+    rigid_share : share of the pattern's rigid-looking part kept in the shape (0..1).
     """
 
     frequency_hz: float
     damping_ratio: float = 0.02
     participation: float = 1.0
+    rigid_share: float = 0.5
 
     def __post_init__(self) -> None:
+        if not 0.0 <= self.rigid_share <= 1.0:
+            raise PhysicsError(f"elastic mode rigid_share must be in 0..1, got {self.rigid_share}")
         if self.frequency_hz <= 0 or self.damping_ratio <= 0 or self.participation < 0:
             raise PhysicsError(
                 f"elastic mode needs frequency > 0 ({self.frequency_hz} Hz), damping ratio > 0 "
@@ -143,12 +149,13 @@ class BenchModel:
         coef, *_ = np.linalg.lstsq(rigid, pattern, rcond=None)
         shape = pattern - rigid @ coef
         size = float(np.abs(shape).max())
+        shape = shape + self.elastic_mode.rigid_share * (rigid @ coef) if self.elastic_mode else shape
         if size < 1e-6 * max(float(np.abs(pattern).max()), 1e-300):
             raise PhysicsError(
                 f"elastic mode: {len(self._names)} channels leave no motion that is not rigid "
                 "(need more than 6 independent channels)"
             )
-        return shape / size
+        return shape / float(np.abs(shape).max())
 
     # -- loads and response ------------------------------------------------------------------
 

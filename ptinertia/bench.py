@@ -233,6 +233,7 @@ def build_simulated_model(
             sim.elastic_mode.frequency_hz,
             sim.elastic_mode.damping_ratio,
             sim.elastic_mode.participation,
+            sim.elastic_mode.rigid_share,
         )
     )
     body = _body(bench)

@@ -292,9 +292,12 @@ class Sampling(Section):
 
 
 class ElasticMode(Section):
+    """First elastic mode of the simulated powertrain (see ``powertrain/model.py``)."""
+
     frequency_hz: Positive
     damping_ratio: Positive = 0.02
     participation: Positive = 1.0
+    rigid_share: Annotated[float, Field(ge=0, le=1)] = 0.5
 
 
 class Simulation(Section):

@@ -88,7 +88,7 @@ def test_gains_scale_each_channel(bench, model):
 
 
 def test_elastic_mode_is_not_rigid_and_breaks_rigidity_near_its_frequency(model):
-    mode = ElasticMode(frequency_hz=150.0, damping_ratio=0.02, participation=1.0)
+    mode = ElasticMode(frequency_hz=150.0, damping_ratio=0.02, participation=1.0, rigid_share=0.0)
     elastic = BenchModel(model.body, model.mounts, model.engine, model.sensors, elastic_mode=mode)
     d = rigid_channel_matrix(
         elastic.channel_positions, elastic.channel_directions, elastic.body.cog
@@ -104,6 +104,30 @@ def test_elastic_mode_is_not_rigid_and_breaks_rigidity_near_its_frequency(model)
     rigid_only = model.channel_amplitudes(3000.0, [3.0])
     diff = elastic.channel_amplitudes(3000.0, [3.0]) - rigid_only
     np.testing.assert_allclose(d.T @ diff[0, 0], 0, atol=1e-9 * np.abs(diff).max())
+
+
+def test_elastic_shape_keeps_the_asked_share_of_its_rigid_looking_part(model):
+    def shape(share: float) -> np.ndarray:
+        mode = ElasticMode(frequency_hz=150.0, rigid_share=share)
+        m = BenchModel(model.body, model.mounts, model.engine, model.sensors, elastic_mode=mode)
+        return m.elastic_shape
+
+    d = rigid_channel_matrix(model.channel_positions, model.channel_directions, model.body.cog)
+
+    def split(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        coef, *_ = np.linalg.lstsq(d, v, rcond=None)
+        return v - d @ coef, d @ coef
+
+    ortho0, rigid0 = split(shape(0.0))
+    np.testing.assert_allclose(rigid0, 0, atol=1e-12)
+    ortho_half, rigid_half = split(shape(0.5))
+    ortho_full, rigid_full = split(shape(1.0))
+    # same non-rigid direction; the rigid-looking part scales with the share
+    scale_half = np.linalg.norm(ortho_half) / np.linalg.norm(ortho0)
+    scale_full = np.linalg.norm(ortho_full) / np.linalg.norm(ortho0)
+    np.testing.assert_allclose(ortho_half / scale_half, ortho0, atol=1e-12)
+    np.testing.assert_allclose(rigid_half / scale_half, 0.5 * rigid_full / scale_full, atol=1e-12)
+    assert np.linalg.norm(rigid_full) > 0.1 * np.linalg.norm(ortho_full)
 
 
 def test_simulated_model_is_deterministic_and_json_serialisable(bench):
