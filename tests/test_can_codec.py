@@ -247,7 +247,9 @@ def test_missing_channel_names_it(tmp_path, i3):
 
 def test_missing_unreadable_or_unnamed_dbc(tmp_path, i3):
     with pytest.raises(SourceError, match="no DBC: name it in the bench file"):
-        load_plan(i3)  # the example bench names none
+        load_plan(
+            i3.model_copy(update={"can": i3.can.model_copy(update={"dbc": None})})
+        )  # a bench that names none
     with pytest.raises(SourceError, match="not found"):
         load_dbc(tmp_path / "nope.dbc")
     bad = tmp_path / "bad.dbc"

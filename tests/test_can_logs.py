@@ -123,7 +123,10 @@ def test_unreadable_and_missing_logs(tmp_path, i3, frames):
             list(src)
     write_can_log(tmp_path / "ok.blf", frames[:10])
     with pytest.raises(SourceError, match="no DBC"):
-        open_source(f"file:{tmp_path / 'ok.blf'}", i3)
+        open_source(
+            f"file:{tmp_path / 'ok.blf'}",
+            i3.model_copy(update={"can": i3.can.model_copy(update={"dbc": None})}),
+        )
     with pytest.raises(SourceError, match=r"expected \.blf"):
         FrameLogWriter(tmp_path / "x.txt")
 

@@ -50,8 +50,11 @@ SIM = {"duration_s": 3.0, "rpm_start": 1500.0, "rpm_end": 4500.0, "noise_snr_db"
 def can_bench_file(tmp_path: Path, name: str = "i3-bench.toml", dbc: Path | str = DBC) -> Path:
     """A copy of an example bench that names ``dbc`` in its ``[can]`` table."""
     text = (EXAMPLES_DIR / name).read_text()
+    # The examples name their DBC relative to examples/; point at the one asked for.
+    head, sep, _ = text.partition("\n[can]\n")
+    assert sep, f"{name} has no [can] table"
     path = tmp_path / f"can-{name}"
-    path.write_text(text + f'\n[can]\ndbc = "{Path(dbc).resolve()}"\ninterface = "virtual"\n')
+    path.write_text(head + f'\n[can]\ndbc = "{Path(dbc).resolve()}"\ninterface = "virtual"\n')
     return path
 
 
@@ -497,7 +500,9 @@ def test_open_can_bad_input(i3, tmp_path):
     ):
         open_can("nosuchbus:0", bench)
     with pytest.raises(SourceError, match="no DBC"):
-        open_can("virtual:x", i3)
+        open_can(
+            "virtual:x", i3.model_copy(update={"can": i3.can.model_copy(update={"dbc": None})})
+        )
     with pytest.raises(SourceError, match="unknown option 'bogus'"):
         open_can("virtual:x", bench, bogus=1)
     with pytest.raises(SourceError, match="CAN FD frame but the bus is classic"):

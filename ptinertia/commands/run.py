@@ -61,6 +61,13 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
         "--realistic", action="store_true", help="1 %% gains, 1 deg, 2 mm, 40 dB, unbalance"
     )
     sim.add_argument("--paced", action="store_true", help="pace the simulator to the wall clock")
+    can = p.add_argument_group("CAN source (--source can:INTERFACE:CHANNEL, CAN log files)")
+    can.add_argument(
+        "--dbc", help="DBC mapping frames to channels (default: the bench's [can] dbc)"
+    )
+    can.add_argument("--bitrate", type=int, help="nominal bit rate, bit/s")
+    can.add_argument("--data-bitrate", type=int, help="CAN FD data bit rate, bit/s")
+    can.add_argument("--fd", action=argparse.BooleanOptionalAction, default=None, help="CAN FD bus")
 
 
 def parse_orders(text: str | None) -> tuple[float, ...] | None:
@@ -105,6 +112,20 @@ def sim_overrides(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
+def can_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """CAN options given on the command line (for can: sources and CAN log files)."""
+    out: dict[str, Any] = {}
+    if args.dbc:
+        out["dbc"] = args.dbc
+    if args.bitrate is not None:
+        out["bitrate"] = args.bitrate
+    if args.data_bitrate is not None:
+        out["data_bitrate"] = args.data_bitrate
+    if args.fd is not None:
+        out["fd"] = args.fd
+    return out
+
+
 def viewer_sinks(mode: str | None, record: str | None) -> list[Sink]:
     """The Rerun sink for ``--rerun`` (imported only when a view is asked for)."""
     if mode == "off":
@@ -141,13 +162,22 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--sweep/--duration/--noise-db/--seed/--fs apply to --source sim only")
     if args.source == "sim":
         overrides["bench_text"] = bench_text
+    is_can = args.source.startswith("can:")
+    can = can_overrides(args)
+    if can and args.source == "sim":
+        raise UsageError("--dbc/--bitrate/--data-bitrate/--fd apply to CAN sources only")
+    overrides.update(can)
+    recorders = recorder_sinks(args.record)
+    if is_can and recorders:
+        # the raw frames go into the log too, so it can be decoded again with a corrected DBC
+        overrides["frame_listener"] = recorders[0].on_can_frames  # type: ignore[attr-defined]
     source = open_source(args.source, bench, **overrides)
-    sinks = recorder_sinks(args.record) + viewer_sinks(args.rerun, args.record)
+    sinks = recorders + viewer_sinks(args.rerun, args.record)
     options = RunOptions(
         orders=parse_orders(args.orders),
         corrections_off=tuple(args.no),
         quiet=args.quiet,
-        live=args.source.startswith("can:") or bool(overrides.get("paced")),
+        live=is_can or bool(overrides.get("paced")),
         sinks=tuple(sinks),
     )
     summary, doc = run_source(bench, bench_text, source, args.source, options)
