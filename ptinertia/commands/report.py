@@ -1,0 +1,51 @@
+"""``ptinertia report``: a self-contained HTML report of a run, for CAE and mount design.
+
+Input: a recording of a run (``run --record``, ``replay --record``), a raw-only
+recording (``simulate --out x.mcap``: the chain is run on it first, with the bench
+file stored in the log), or a result document (``run --json``; add ``--bench`` for
+the modes). ``--png DIR`` also writes every figure as a PNG file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from ptinertia.errors import UsageError
+
+
+def add_parser(sub: Any, name: str, help_text: str) -> None:
+    p = sub.add_parser(name, help=help_text, description=__doc__)
+    p.add_argument("input", help="LOG.mcap (recording) or result.json (result document)")
+    p.add_argument("--out", default=None, help="HTML file to write (default: INPUT with .html)")
+    p.add_argument("--png", metavar="DIR", help="also write every figure as DIR/NAME.png")
+    p.add_argument(
+        "--bench",
+        help="bench TOML: for a result document, enables modes; for a recording, re-estimates with it",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from ptinertia.report import make_report
+
+    src = Path(args.input)
+    out = Path(args.out) if args.out else src.with_suffix(".html")
+    if out.resolve() == src.resolve():
+        raise UsageError(f"--out {out}: would overwrite the input")
+    if not out.parent.is_dir():
+        raise UsageError(f"--out {out}: directory {out.parent} does not exist")
+    t0 = time.perf_counter()
+    report = make_report(src, out, bench=args.bench, png_dir=args.png)
+    for line in report.headline:
+        print(line)
+    size = out.stat().st_size / 1e6
+    print(
+        f"report written to {out} ({size:.2f} MB, {time.perf_counter() - t0:.1f} s)",
+        file=sys.stderr,
+    )
+    if args.png:
+        print(f"{len(report.figures)} figures written to {args.png}", file=sys.stderr)
+    return 0
