@@ -64,7 +64,7 @@ def enforce_physical(inertia: np.ndarray) -> tuple[np.ndarray, list[str]]:
     return (axes * fixed) @ axes.T, problems
 
 
-def _vs(value: float, std: float) -> dict[str, float | None]:
+def _vs(value: float, std: float) -> dict[str, Any]:
     return {"value": float(value), "std": float(std) if math.isfinite(std) else None}
 
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
@@ -128,29 +128,29 @@ class Pipeline:
         self.estimate_period_s = estimate_period_s
         self._last_estimate_t = -float("inf")
 
-    def _each(self, fn: Callable[[Sink], None]) -> None:
-        for sink in self.sinks:
-            fn(sink)
-
     def _frames(self, frames: list[Any], events: list[SourceEvent]) -> None:
         for event in events:
-            self._each(lambda s, e=event: s.on_event(e))
+            for sink in self.sinks:
+                sink.on_event(event)
         for frame in frames:
             self.frames += 1
             outcome = self.estimator.update(frame)
-            self._each(lambda s, f=frame, o=outcome: s.on_frame(f, o))
+            for sink in self.sinks:
+                sink.on_frame(frame, outcome)
             due = frame.time_s - self._last_estimate_t >= self.estimate_period_s
             if outcome.reason is None and due:
                 self._last_estimate_t = frame.time_s
                 update = EstimateUpdate(frame.time_s, frame.rpm, self.estimator.estimate())
-                self._each(lambda s, u=update: s.on_estimate(u))
+                for sink in self.sinks:
+                    sink.on_estimate(update)
 
     def _backlog(self, enqueued: float) -> None:
         lag = time.monotonic() - enqueued
         self.max_backlog = max(self.max_backlog, lag)
         if self.live and lag > 1.0 and lag > 2 * self._last_backlog_report:
             self._last_backlog_report = lag
-            self._each(lambda s: s.on_backlog(lag))
+            for sink in self.sinks:
+                sink.on_backlog(lag)
 
     def run(self) -> RunSummary:
         """Process the whole stream; always closes the source and every sink."""
@@ -158,7 +158,8 @@ class Pipeline:
         interrupted = False
         error: BaseException | None = None
         final: Estimate | None = None
-        self._each(lambda s: s.start(self.context))
+        for sink in self.sinks:
+            sink.start(self.context)
         reader.start()
         try:
             while True:
@@ -168,9 +169,11 @@ class Pipeline:
                 self._backlog(enqueued)
                 item = as_recorded(item)
                 self.items += 1
-                self._each(lambda s, i=item: s.on_item(i))
+                for sink in self.sinks:
+                    sink.on_item(item)
                 if isinstance(item, SourceEvent):
-                    self._each(lambda s, e=item: s.on_event(e))
+                    for sink in self.sinks:
+                        sink.on_event(item)
                     continue
                 self._frames(*self.tracker.feed(item))
             if reader.error is not None:
