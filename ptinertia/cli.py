@@ -26,6 +26,7 @@ def register(name: str, module: str, help_text: str) -> None:
 
 # Commands (add one line per command, once it works):
 register("run", "ptinertia.commands.run", "acquire, track orders and estimate inertia, cog and mass")
+register("replay", "ptinertia.commands.replay", "re-run dsp and estimator on recorded MCAP logs")
 register(
     "excitation",
     "ptinertia.commands.excitation",
@@ -33,6 +34,15 @@ register(
 )
 register("modes", "ptinertia.commands.modes", "rigid-body modes of the powertrain on its mounts")
 register("simulate", "ptinertia.commands.simulate", "simulate a bench run and write it as CSV or MF4")
+register("can-sim", "ptinertia.commands.can_sim", "simulated bench as a CAN DAQ: send its frames on a bus or to a log")
+register("pendulum", "ptinertia.commands.pendulum", "inertia and cog from a pendulum test")
+register("massline", "ptinertia.commands.massline", "mass, cog, inertia from UFF58 FRFs")
+register("compare", "ptinertia.commands.compare", "estimates of any methods side by side")
+register("orders", "ptinertia.commands.orders", "order amplitude and phase vs rpm of a recording")
+register("simulate-pendulum", "ptinertia.commands.simulate_classic", "simulated pendulum test")
+register("simulate-frf", "ptinertia.commands.simulate_classic", "simulated hammer FRFs as UFF58")
+register("report", "ptinertia.commands.report", "self-contained HTML report of a run or result")
+register("export", "ptinertia.commands.export", "estimate as bench TOML, JSON/CSV or Nastran CONM2")
 
 
 class _Parser(argparse.ArgumentParser):

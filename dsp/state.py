@@ -1,0 +1,104 @@
+"""The order tracker's state: what is carried from one stream item to the next.
+
+Every class here is a frozen dataclass whose arrays and dicts are replaced,
+never modified in place, so a step function can return a new state and leave
+the old one valid (the pure ``track`` of :mod:`dsp.orders`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from acquisition.stream import SourceEvent
+from dsp import angle as ang
+from dsp.config import Plan
+from dsp.rpmangle import RpmAngleState
+from dsp.sums import Row
+from dsp.tacho import EdgeDetectorState
+from dsp.wheel import DecoderState, RunStart
+
+TWO_PI = 2.0 * math.pi
+TACHO_REASONS = ("tacho_resync", "no_tacho")
+
+
+@dataclass(frozen=True)
+class Invalid:
+    """A crank-angle stretch without usable samples: ``reason`` is a frame flag.
+
+    ``group`` is the group index for a sample gap (``missing_channel``), None for
+    a tacho stretch (every channel). The end points carry times for interpolation.
+    """
+
+    phi_a: float
+    phi_b: float
+    t_a: float
+    t_b: float
+    reason: str
+    group: int | None
+
+
+@dataclass(frozen=True)
+class GroupState:
+    """Per-group stream state.
+
+    ``pend`` holds samples waiting for the angle, as (first grid index, kept
+    rows (n_keep, n)) pieces of consecutive samples; ``last_*`` describe the last sample that got one; ``acc`` maps a
+    segment ``m`` to its sums (:mod:`dsp.sums`); ``pressure`` candidate TDC ``k`` to
+    (sum, count) of the pressure near ``phi_w = 2 pi k``.
+    """
+
+    pend: tuple[tuple[int, np.ndarray], ...] = ()
+    last_index: int = -1
+    last_phi: float = -math.inf
+    last_t: float = math.nan
+    last_run: int = -1
+    first_phi: float = math.nan
+    starved: bool = False
+    acc: dict[int, Row] = field(default_factory=dict)
+    pressure: dict[int, tuple[float, int]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class TrackerState:
+    """Everything the tracker carries between items (see :func:`track`)."""
+
+    plan: Plan
+    decoder: DecoderState = field(default_factory=DecoderState)
+    table: ang.AngleTable = field(default_factory=ang.AngleTable)
+    tacho_det: EdgeDetectorState = field(default_factory=EdgeDetectorState)
+    cam_det: EdgeDetectorState = field(default_factory=EdgeDetectorState)
+    rpm_angle: RpmAngleState = field(default_factory=RpmAngleState)
+    groups: tuple[GroupState, ...] = ()
+    runs: dict[int, RunStart] = field(default_factory=dict)
+    chain_of_run: dict[int, int] = field(default_factory=dict)
+    parity: dict[int, tuple[int, float]] = field(default_factory=dict)
+    cam_pending: np.ndarray = field(default_factory=lambda: np.empty(0))
+    invalid: tuple[Invalid, ...] = ()
+    next_frame: int | None = None
+    # last frames before correction: (j (h,), chain (h,), amplitudes (h, n_int, n_ch)), for ramps
+    history: tuple[np.ndarray, ...] = ()
+    events: tuple[SourceEvent, ...] = ()
+
+
+def initial_state(plan: Plan) -> TrackerState:
+    """The state before the first item."""
+    return TrackerState(plan=plan, groups=tuple(GroupState() for _ in plan.groups))
+
+
+def set_group(st: TrackerState, gi: int, gs: GroupState) -> TrackerState:
+    """``st`` with group ``gi`` replaced."""
+    groups = list(st.groups)
+    groups[gi] = gs
+    return replace(st, groups=tuple(groups))
+
+
+def chain_at(st: TrackerState, phi: float) -> int | None:
+    """The parity chain of the run holding crank angle ``phi`` (None outside every run)."""
+    t, _ = ang.time_at(st.table, np.array([phi]))
+    if not np.isfinite(t[0]):
+        return None
+    ok, _, _, run = ang.lookup(st.table, t)
+    return st.chain_of_run.get(int(run[0])) if ok[0] else None

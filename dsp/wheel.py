@@ -1,0 +1,287 @@
+"""Tooth-wheel decoding: gap detection, tooth numbering, missed and extra edges.
+
+Edge times go in, *knots* come out: ``(t_s, n)`` pairs where ``n`` is the
+absolute wheel position in tooth pitches (the gap counts its missing teeth), so
+the crank angle of a knot is ``phi = phi_first_tooth + n * 2 pi / N`` exactly.
+
+Checks, all vectorised over the edges of a block (a Python loop per tooth
+would cost more than the whole order tracking):
+
+* Synchronisation: the gap is an interval about ``M + 1`` times the one before
+  and after it. A sync is confirmed only when the *next* gap arrives exactly
+  one revolution later, so a missed edge cannot pass for the gap.
+* Tracking: each interval divided by its expected pitch count (1, or ``M + 1``
+  across the gap) must stay within ``tolerance`` of the previous one. A
+  missing edge doubles it, an extra edge cuts one of the two parts below half:
+  either breaks the pattern, an event is reported, no knot is produced until
+  the wheel has re-synchronised at a later gap.
+* An edge becomes a knot only once the interval *after* it has passed too, so
+  a spurious edge never becomes a knot.
+* After a re-sync the revolution count across the lost stretch is bridged from
+  the tooth rate on both sides; if the estimate is not clearly within a
+  quarter revolution of a whole number, the run is marked ``bridged=False``
+  (the 720 deg cycle and the unwrapped angle may have slipped).
+
+Pulses (N per revolution, no gap) and once-per-revolution pulses are the same
+with ``M = 0``: any three consistent intervals synchronise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from acquisition.stream import SourceEvent
+from dsp.tacho import TachoConfig
+
+# Revolutions across which a lost stretch is still bridged (speed assumed to vary linearly).
+MAX_BRIDGE_REVS = 20.0
+
+
+@dataclass(frozen=True)
+class RunStart:
+    """A synchronised stretch of the wheel begins.
+
+    ``reason``: ``"start"`` (first sync), ``"tacho_resync"`` (after a missed or
+    extra edge) or ``"no_tacho"`` (after a dropout of several pitches).
+    ``bridged``: the revolution count across the lost stretch is certain.
+    """
+
+    run: int
+    t_s: float
+    n: int
+    reason: str
+    bridged: bool
+
+
+@dataclass(frozen=True)
+class Knots:
+    """Knots committed by one decoder step (arrays of equal length)."""
+
+    t_s: np.ndarray  # (k,) float64, s
+    n: np.ndarray  # (k,) int64, wheel position in pitches
+    run: np.ndarray  # (k,) int64, run id
+    runs: tuple[RunStart, ...] = ()
+
+    @staticmethod
+    def empty() -> Knots:
+        return Knots(np.empty(0), np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64))
+
+
+@dataclass(frozen=True)
+class DecoderState:
+    """Carried between :func:`decode_edges` calls (arrays are never modified in place).
+
+    ``buf`` holds edges not yet committed; when synced, ``buf[0]`` is the
+    last committed edge (or the gap start while a sync is being confirmed),
+    its tooth count is ``c0`` and ``r_prev`` the per-pitch interval ending at it.
+    """
+
+    buf: np.ndarray = field(default_factory=lambda: np.empty(0))
+    synced: bool = False
+    confirmed: bool = False
+    c0: int = 0
+    r_prev: float = math.nan
+    run: int = -1
+    run_base_n: int = 0
+    last_t: float = math.nan  # last committed knot: time (s), position, per-pitch interval (s)
+    last_n: int = 0
+    last_r: float = math.nan
+    lost_reason: str = ""
+
+
+def _position(c: np.ndarray, teeth: int, gap: int) -> np.ndarray:
+    """Wheel position (pitches) of tooth count ``c`` (tooth 0 = first after the gap)."""
+    per_rev = teeth - gap
+    return (c // per_rev) * teeth + (c % per_rev)
+
+
+def _find_sync(d: np.ndarray, cfg: TachoConfig) -> int:
+    """Index ``g`` of the first interval that looks like the gap (or -1).
+
+    The tooth after the gap ends interval ``g``. For pulses (M = 0) any
+    interval whose neighbours agree within the tolerance will do.
+    """
+    tol = cfg.tolerance
+    m1 = cfg.gap_teeth + 1
+    if d.size < 3:
+        return -1
+    a = d[1:-1] / d[:-2]  # gap / before
+    b = d[2:] / d[1:-1]  # after / gap
+    ok = (a >= m1 * (1 - tol)) & (a <= m1 * (1 + tol))
+    ok &= (b >= 1 / (m1 * (1 + tol))) & (b <= 1 / (m1 * (1 - tol)))
+    hits = np.flatnonzero(ok)
+    return int(hits[0]) + 1 if hits.size else -1
+
+
+def decode_edges(
+    state: DecoderState, times_s: np.ndarray, cfg: TachoConfig
+) -> tuple[DecoderState, Knots, list[SourceEvent]]:
+    """Advance the wheel decoder by a block of edge times.
+
+    Parameters
+    ----------
+    state : DecoderState
+    times_s : (k,) float64, s
+        Rising-edge times, increasing, continuing the previous call's.
+    cfg : TachoConfig
+
+    Returns
+    -------
+    state : DecoderState
+    knots : Knots
+        Newly committed knots, in time order.
+    events : list of SourceEvent
+        Sync, loss of sync (missed / extra edge, dropout), uncertain bridging.
+    """
+    teeth, gap, tol = cfg.teeth_per_rev, cfg.gap_teeth, cfg.tolerance
+    per_rev = teeth - gap
+    buf = np.concatenate((state.buf, np.asarray(times_s, dtype=float)))
+    out_t: list[np.ndarray] = []
+    out_n: list[np.ndarray] = []
+    out_r: list[np.ndarray] = []
+    runs: list[RunStart] = []
+    events: list[SourceEvent] = []
+    st = replace(state, buf=buf)
+    while True:
+        buf = st.buf
+        if not st.synced:
+            d = np.diff(buf)
+            g = _find_sync(d, cfg)
+            if g < 0:
+                st = replace(st, buf=buf[-3:])  # keep what a gap straddling the next block needs
+                break
+            # buf[g] is the last tooth before the gap (count -1), buf[g + 1] tooth 0
+            st = replace(
+                st,
+                buf=buf[g:],
+                synced=True,
+                confirmed=False,
+                c0=-1,
+                r_prev=float(d[g]) / (gap + 1),
+            )
+            continue
+        d = np.diff(buf)
+        if d.size < 2:
+            break
+        c = st.c0 + np.arange(buf.size)
+        n_rel = _position(c, teeth, gap)
+        pitches = np.diff(n_rel)
+        r = d / pitches
+        prev = np.concatenate(([st.r_prev], r[:-1]))
+        ratio = r / prev
+        bad = np.flatnonzero((ratio < 1 - tol) | (ratio > 1 + tol))
+        b = int(bad[0]) if bad.size else -1
+        if not st.confirmed:
+            # a full revolution, up to the next gap's tooth 0, must pass before anything commits
+            need = per_rev + 1 if gap else max(per_rev, 3) + 1
+            if b >= 0 and b < need:
+                st = replace(st, buf=buf[b + 1 :], synced=False)
+                continue
+            if d.size < need:
+                break
+            st = _start_run(st, buf, r, cfg, events, runs)
+        # commit every edge whose following interval passed (not buf[0]: already committed)
+        end = b if b >= 0 else d.size  # intervals 0 .. end-1 passed, edges 1 .. end-1 commit
+        if end >= 2 or (end >= 1 and not st.confirmed):
+            lo = 1 if st.confirmed else 0
+            sl = slice(lo, end)
+            n_abs = st.run_base_n + n_rel[sl]
+            out_t.append(buf[sl])
+            out_n.append(n_abs)
+            out_r.append(np.full(end - lo, st.run, dtype=np.int64))
+        st = replace(st, confirmed=True)
+        if b < 0:
+            keep = buf.size - 2
+            st = replace(
+                st,
+                buf=buf[keep:],
+                c0=int(c[keep]),
+                r_prev=float(r[keep - 1]) if keep >= 1 else st.r_prev,
+                last_t=float(buf[keep]),
+                last_n=int(st.run_base_n + n_rel[keep]),
+                last_r=float(r[keep - 1]) if keep >= 1 else st.last_r,
+            )
+            break
+        # pattern broken at interval b
+        last = max(end - 1, 0)
+        st = replace(
+            st,
+            last_t=float(buf[last]),
+            last_n=int(st.run_base_n + n_rel[last]),
+            last_r=float(prev[b]),
+        )
+        q = float(ratio[b])
+        if q > 2.0 * (gap + 2):
+            kind, what = "no_tacho", f"no tacho edge for {d[b] * 1e3:.1f} ms ({q:.1f} pitches)"
+        elif q > 1:
+            kind, what = "tacho_missing_edge", f"tooth interval {q:.2f} x the previous: missed edge"
+        else:
+            kind, what = "tacho_extra_edge", f"tooth interval {q:.2f} x the previous: extra edge"
+        events.append(
+            SourceEvent(
+                kind,
+                f"{what} at t = {buf[b]:.6f} s; re-synchronising at the next gap",
+                float(buf[b]),
+            )
+        )
+        st = replace(st, buf=buf[b + 1 :], synced=False, lost_reason=kind)
+    knots = (
+        Knots(
+            np.concatenate(out_t),
+            np.concatenate(out_n).astype(np.int64),
+            np.concatenate(out_r),
+            tuple(runs),
+        )
+        if out_t
+        else replace(Knots.empty(), runs=tuple(runs))
+    )
+    return st, knots, events
+
+
+def _start_run(
+    st: DecoderState,
+    buf: np.ndarray,
+    r: np.ndarray,
+    cfg: TachoConfig,
+    events: list[SourceEvent],
+    runs: list[RunStart],
+) -> DecoderState:
+    """Number a freshly confirmed run: its absolute position, bridged from the last run."""
+    teeth = cfg.teeth_per_rev
+    t0 = float(buf[1])  # tooth 0 (first after the gap)
+    run = st.run + 1
+    if st.run < 0:
+        base, reason, bridged = 0, "start", True
+        message = f"tacho synchronised at t = {t0:.6f} s"
+    else:
+        # pitches elapsed at the mean of the tooth rates on both sides of the lost stretch
+        pitch_s = 0.5 * (st.last_r + float(r[1]))
+        est = st.last_n + (t0 - st.last_t) / pitch_s
+        step = (
+            teeth if cfg.gap_teeth else 1
+        )  # tooth 0 sits on a whole revolution (wheel) or a pitch
+        base = round(est / step) * step
+        # the angle must keep increasing even when the count is a guess
+        # (the gap's first edge, M + 1 pitches before tooth 0, is a knot of the new run too)
+        base = max(base, -(-(st.last_n + cfg.gap_teeth + 2) // step) * step)
+        slip = abs(est - base) / teeth
+        revs = (t0 - st.last_t) / (pitch_s * teeth)
+        bridged = slip < 0.25 * step / teeth and revs < MAX_BRIDGE_REVS
+        reason = st.lost_reason or "tacho_resync"
+        message = (
+            f"tacho re-synchronised at t = {t0:.6f} s after {t0 - st.last_t:.3f} s "
+            f"({revs:.2f} rev) without angle"
+        )
+        if not bridged:
+            why = (
+                f"longer than {MAX_BRIDGE_REVS:g} rev"
+                if revs >= MAX_BRIDGE_REVS
+                else f"{slip:.2f} rev off a whole count"
+            )
+            message += f"; revolution count uncertain ({why}): angle rebased"
+    events.append(SourceEvent("tacho_sync", message, t0))
+    runs.append(RunStart(run, t0, base, reason, bridged))
+    return replace(st, run=run, run_base_n=base)

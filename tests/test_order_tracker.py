@@ -1,0 +1,348 @@
+"""The streaming order tracker: block-size invariance first, then state, flags and errors.
+
+Signals come from :mod:`dsp.synthetic` (closed-form crank angle and order
+content, independent of the simulated bench).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from acquisition.stream import EdgeBlock, SampleBlock, SourceEvent
+from dsp.config import OrderTrackerConfig, make_plan
+from dsp.errors import DspConfigError
+from dsp.orders import OrderTracker, initial_state, track
+from dsp.synthetic import Ramp, SyntheticBench, random_content
+from dsp.tacho import TachoConfig
+
+TDC = 84.0
+
+
+def _bench(seed: int = 3, ramp: Ramp | None = None, **kw) -> SyntheticBench:
+    rng = np.random.default_rng(seed)
+    contents = [random_content(rng) for _ in range(3)]
+    return SyntheticBench(ramp or Ramp(1500.0, 2500.0, 4.0), contents, tdc_after_gap_deg=TDC, **kw)
+
+
+def _config(**kw) -> OrderTrackerConfig:
+    tacho = kw.pop("tacho", TachoConfig(tdc_after_gap_deg=TDC))
+    return OrderTrackerConfig(tacho=tacho, orders=(0.5, 1.0, 1.5, 2.0), **kw)
+
+
+def _run(bench, items, config=None):
+    tracker = OrderTracker.from_layout(bench.layout, config or _config())
+    frames, events = [], []
+    for item in items:
+        f, e = tracker.process(item)
+        frames += f
+        events += e
+    return frames, events
+
+
+def _one_block(bench: SyntheticBench, duration: float):
+    """The whole stream as one edge block and one sample block per group."""
+    items = list(bench.items(duration, block_s=duration))
+    edges = [i for i in items if isinstance(i, EdgeBlock)]
+    samples = [i for i in items if isinstance(i, SampleBlock)]
+    out = []
+    for ch in sorted({e.channel for e in edges}):
+        out.append(EdgeBlock(ch, np.concatenate([e.times_s for e in edges if e.channel == ch])))
+    for g in sorted({s.group for s in samples}):
+        parts = [s for s in samples if s.group == g]
+        out.append(SampleBlock(g, parts[0].first_index, np.concatenate([p.data for p in parts], 1)))
+    return out
+
+
+def _split_edges(items, rng):
+    """Cut every edge block at random points too (down to single edges)."""
+    for item in items:
+        if isinstance(item, EdgeBlock) and item.times_s.size > 1:
+            cuts = np.sort(
+                rng.choice(
+                    np.arange(1, item.times_s.size),
+                    size=min(5, item.times_s.size - 1),
+                    replace=False,
+                )
+            )
+            for part in np.split(item.times_s, cuts):
+                yield EdgeBlock(item.channel, part)
+        else:
+            yield item
+
+
+def _assert_same_frames(a, b, tol=1e-9):
+    assert len(a) == len(b) and len(a) > 10
+    for fa, fb in zip(a, b, strict=True):
+        assert fa.crank_angle_rad == fb.crank_angle_rad
+        assert fa.flags == fb.flags
+        assert abs(fa.time_s - fb.time_s) < 1e-12
+        assert abs(fa.rpm - fb.rpm) < 1e-9 * fa.rpm
+        scale = np.abs(fa.amplitudes).max()
+        np.testing.assert_allclose(fa.amplitudes, fb.amplitudes, rtol=0, atol=tol * scale)
+        np.testing.assert_array_equal(fa.channel_ok, fb.channel_ok)
+        np.testing.assert_allclose(fa.leakage, fb.leakage, rtol=1e-6, atol=1e-12)
+
+
+@pytest.mark.parametrize("tacho", ["edges", "sampled"])
+def test_random_block_splits_give_the_same_frames(tacho):
+    duration = 1.2 if tacho == "sampled" else 3.0
+    bench = _bench(tacho=tacho, ramp=Ramp(1500.0, 3000.0, 2.0))
+    config = _config(tacho=TachoConfig(tdc_after_gap_deg=TDC, delivery=tacho))
+    reference, _ = _run(bench, _one_block(bench, duration), config)
+    rng = np.random.default_rng(7)
+    # blocks of 1 .. ~2 x 0.03 s, so many are a single sample
+    split = _split_edges(bench.items(duration, block_s=0.03, rng_blocks=rng), rng)
+    frames, _ = _run(bench, split, config)
+    _assert_same_frames(reference, frames)
+
+
+def test_single_sample_blocks_give_the_same_frames():
+    bench = _bench()
+    duration = 0.6
+    reference, _ = _run(bench, _one_block(bench, duration))
+    items = []
+    for item in bench.items(duration, block_s=0.05):
+        if isinstance(item, SampleBlock):
+            items += [
+                SampleBlock(item.group, item.first_index + k, item.data[:, k : k + 1])
+                for k in range(item.n_samples)
+            ]
+        else:
+            items.append(item)
+    frames, _ = _run(bench, items)
+    _assert_same_frames(reference, frames)
+
+
+def test_pure_step_and_class_agree_and_step_leaves_its_input_alone():
+    bench = _bench()
+    items = list(bench.items(1.5, block_s=0.07))
+    tracker = OrderTracker.from_layout(bench.layout, _config())
+    state = initial_state(make_plan(bench.layout, _config()))
+    pure, wrapped = [], []
+    for item in items:
+        before = state
+        snapshot = (before.next_frame, len(before.groups[0].acc), before.table.t_end)
+        state, frames = track(state, item)
+        assert (before.next_frame, len(before.groups[0].acc), before.table.t_end) == snapshot
+        pure += frames
+        wrapped += tracker.process(item)[0]
+    _assert_same_frames(pure, wrapped, tol=1e-12)
+
+
+def test_source_events_pass_through_and_stream_continues():
+    bench = _bench()
+    items = list(bench.items(1.0, block_s=0.1))
+    items.insert(3, SourceEvent("gap", "3 CAN frames lost", 0.25))
+    frames, events = _run(bench, items)
+    assert any(e.kind == "gap" for e in events)
+    assert len(frames) > 20
+
+
+def test_frames_sit_at_whole_revolutions_with_consistent_time_and_rpm():
+    ramp = Ramp(2000.0, 2600.0, 3.0)
+    bench = _bench(ramp=ramp)
+    frames, _ = _run(bench, bench.items(3.0))
+    phis = np.array([f.crank_angle_rad for f in frames])
+    np.testing.assert_allclose(np.diff(phis), 2 * math.pi, rtol=0, atol=1e-12)
+    for f in frames:
+        # time_s is when the crank reaches the frame angle; rpm the mean over +-360 deg
+        assert abs(ramp.phi(f.time_s) - f.crank_angle_rad) < 1e-9
+        t_a, t_b = (
+            ramp.t_of_phi(f.crank_angle_rad - 2 * math.pi),
+            ramp.t_of_phi(f.crank_angle_rad + 2 * math.pi),
+        )
+        assert abs(f.rpm - 120.0 / (t_b - t_a)) < 1e-9 * f.rpm
+        expected_change = (ramp.rpm(t_b) - ramp.rpm(t_a)) / f.rpm
+        assert abs(f.rpm_change - expected_change) < 1e-9
+
+
+def test_latency_is_two_revolutions_plus_taper_plus_lookahead():
+    # one sample per block: a frame comes out with the block that completes it
+    bench = _bench(ramp=Ramp(3000.0, 3000.0, 1.0))
+    config = _config()
+    tracker = OrderTracker.from_layout(bench.layout, config)
+    worst = 0.0
+    for item in bench.items(1.0, block_s=1 / 5120):
+        frames, _ = tracker.process(item)
+        if isinstance(item, SampleBlock):
+            t_now = (item.first_index + item.n_samples) / 5120  # stream time when the item arrives
+        else:
+            t_now = item.times_s[-1]
+        if frames:
+            for f in frames:
+                # oldest sample in the window: 360 deg + taper/2 before the centre
+                t_first = bench.ramp.t_of_phi(
+                    f.crank_angle_rad - 2 * math.pi - math.radians(config.taper_deg) / 2
+                )
+                worst = max(worst, (t_now - t_first) * 3000 / 60)
+    # 2 revolutions + taper (45 deg) + about three teeth (6 deg each) of tacho look-ahead
+    assert 2.0 < worst < 2.0 + (config.taper_deg + 4 * 6.0) / 360.0
+
+
+def test_nan_clipped_and_gap_flag_only_the_frames_they_touch():
+    bench = _bench(ramp=Ramp(3000.0, 3000.0, 2.0))
+    items = list(bench.items(2.0, block_s=0.1))
+    out = []
+    for item in items:
+        if isinstance(item, SampleBlock) and item.first_index == 512 * 5:  # t = 0.5 s
+            data = item.data.copy()
+            data[1, 10] = np.nan
+            data[2, 200] = 1e3
+            item = SampleBlock(item.group, item.first_index, data)
+        if (
+            isinstance(item, SampleBlock) and item.first_index == 512 * 12
+        ):  # t = 1.2 s: dropped block
+            continue
+        out.append(item)
+    frames, _ = _run(bench, out, _config(clip_level=100.0))
+    t_nan = 0.5 + 10 / 5120
+    t_clip = 0.5 + 200 / 5120
+    taper = _config().taper_deg
+    half = (360 + taper / 2) / (3000 * 6)  # the window reaches 360 deg + taper/2 each side (s)
+    for f in frames:
+        near = lambda t, f=f: abs(f.time_s - t) < half  # noqa: E731
+        assert ("nan" in f.flags) == near(t_nan)
+        assert ("clipped" in f.flags) == near(t_clip)
+        gap = abs(f.time_s - 1.25) < 0.05 + half
+        assert ("missing_channel" in f.flags) == gap
+        if near(t_nan):
+            assert not f.channel_ok[1] and np.isnan(f.amplitudes[:, 1]).all()
+            assert f.channel_ok[0] and np.isfinite(f.amplitudes[:, 0]).all()
+        if gap:
+            assert not f.channel_ok.any()
+        if not f.flags - {"cycle_ambiguous", "leakage_uncorrected"}:
+            assert f.channel_ok.all()
+    assert frames[-1].time_s > 1.8  # the stream went on
+
+
+def test_rpm_out_of_range_is_flagged():
+    bench = _bench(ramp=Ramp(1000.0, 2000.0, 2.0))
+    frames, _ = _run(bench, bench.items(2.0), _config(rpm_min=1200.0, rpm_max=6000.0))
+    for f in frames:
+        assert ("rpm_out_of_range" in f.flags) == (f.rpm < 1200.0)
+    assert any("rpm_out_of_range" in f.flags for f in frames)
+
+
+def test_dead_tacho_drops_samples_reports_once_and_recovers():
+    bench = _bench(ramp=Ramp(3000.0, 3000.0, 8.0))
+    items = [
+        i
+        for i in bench.items(8.0, block_s=0.1)
+        if not (isinstance(i, EdgeBlock) and 2.0 < i.times_s[0] < 5.0)
+    ]
+    tracker = OrderTracker.from_layout(bench.layout, _config())
+    frames, events = [], []
+    sizes = []
+    for item in items:
+        f, e = tracker.process(item)
+        frames += f
+        events += e
+        sizes.append(sum(r.shape[1] for _, r in tracker.state.groups[0].pend))
+    kinds = [e.kind for e in events]
+    assert kinds.count("no_tacho") >= 1 and kinds.count("tacho_sync") == 2
+    assert max(sizes) <= 2.1 * 5120  # bounded by max_wait_s
+    times = np.array([f.time_s for f in frames])
+    # edges stop after the block that starts at 2.0 s (its last edge ~2.1 s) and resume at 5.0 s
+    assert not ((times > 2.15) & (times < 4.95)).any()
+    assert times.max() > 7.5
+    after = [f for f in frames if f.time_s > 5.2]
+    assert after and all("no_tacho" not in f.flags for f in after)
+
+
+def test_memory_stays_flat_on_a_long_stream():
+    bench = _bench(ramp=Ramp(4000.0, 4000.0, 30.0))
+    tracker = OrderTracker.from_layout(bench.layout, _config())
+    sizes = []
+    for k, item in enumerate(bench.items(30.0, block_s=0.5)):
+        tracker.process(item)
+        if k % 10 == 9:
+            st = tracker.state
+            sizes.append(
+                (st.table.t_lo.size, len(st.groups[0].acc), len(st.invalid), st.history[0].size)
+            )
+    early, late = np.array(sizes[: len(sizes) // 3]), np.array(sizes[len(sizes) // 3 :])
+    assert (late.max(axis=0) <= early.max(axis=0) + np.array([3, 1, 0, 0])).all()
+    assert late[:, 0].max() < 400
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"orders": (1.0, 1.25)}, "multiples of 0.5"),
+        ({"orders": (1.0, 40.0)}, "Nyquist"),
+        ({"tacho": {"teeth": 60, "missing": 60}}, "cannot miss"),
+        ({"tacho": {"teeth": 4, "missing": 2}}, "at least 3 teeth"),
+        ({"frames_per_rev": 4, "taper_deg": 95.0}, "frame spacing"),
+        ({"channels": ("a0", "nope")}, "'nope'"),
+        ({"tacho": {"channel": "crank"}}, "'crank'"),
+    ],
+)
+def test_configurations_that_cannot_work_raise_one_line(kwargs, message):
+    bench = _bench()
+    with pytest.raises(DspConfigError, match=message) as info:
+        if "tacho" in kwargs:
+            kwargs = {**kwargs, "tacho": TachoConfig(**kwargs["tacho"])}
+        OrderTracker.from_layout(bench.layout, replace(_config(), **kwargs))
+    assert "\n" not in str(info.value)
+    assert isinstance(info.value, ValueError)
+
+
+def test_sampled_tacho_too_slow_for_the_wheel_is_refused():
+    bench = _bench(tacho="sampled", tacho_rate_hz=20_000.0)
+    config = _config(tacho=TachoConfig(delivery="sampled", tdc_after_gap_deg=TDC))
+    with pytest.raises(DspConfigError, match="samples per tooth"):
+        OrderTracker.from_layout(bench.layout, config)
+
+
+def test_driver_yields_the_frames_and_events_of_the_stream_in_order():
+    from dsp.driver import track_items
+    from dsp.frames import OrderFrame
+
+    bench = _bench()
+    items = list(bench.items(1.0, block_s=0.1))
+    out = list(track_items(bench.layout, items, _config()))
+    frames = [o for o in out if isinstance(o, OrderFrame)]
+    events = [o for o in out if isinstance(o, SourceEvent)]
+    reference, ref_events = _run(bench, items)
+    _assert_same_frames(reference, frames, tol=0.0)
+    assert events == ref_events and events[0].kind == "tacho_sync"
+    assert out.index(events[0]) < out.index(frames[0])
+
+
+def test_four_frames_per_revolution_sit_every_90_deg_and_stay_exact():
+    ramp = Ramp(2400.0, 2400.0, 1.5)
+    bench = _bench(ramp=ramp)
+    config = _config(frames_per_rev=4, taper_deg=45.0)
+    frames, _ = _run(bench, bench.items(1.5), config)
+    np.testing.assert_allclose(
+        np.diff([f.crank_angle_rad for f in frames]), math.pi / 2, atol=1e-12
+    )
+    for f in frames:
+        assert abs(ramp.phi(f.time_s) - f.crank_angle_rad) < 1e-9
+        for c, content in enumerate(bench.contents):
+            exact = content.at(f.rpm)[0][: len(config.orders)]
+            np.testing.assert_allclose(
+                f.amplitudes[:, c], exact, rtol=0, atol=1e-5 * np.abs(exact).max()
+            )
+    rng = np.random.default_rng(2)
+    split, _ = _run(bench, bench.items(1.5, block_s=0.02, rng_blocks=rng), config)
+    _assert_same_frames(frames, split)
+
+
+def test_a_block_with_the_wrong_channel_count_is_dropped_and_reported():
+    bench = _bench(ramp=Ramp(3000.0, 3000.0, 1.5))
+    items = []
+    for item in bench.items(1.5, block_s=0.1):
+        if isinstance(item, SampleBlock) and item.first_index == 512 * 7:
+            item = SampleBlock(item.group, item.first_index, item.data[:2])  # a channel lost
+        items.append(item)
+    frames, events = _run(bench, items)
+    assert any(e.kind == "missing_channel" and "(2, 512)" in e.message for e in events)
+    hit = [f for f in frames if "missing_channel" in f.flags]
+    assert hit and all(not f.channel_ok.any() for f in hit)
+    assert all(abs(f.time_s - 0.75) < 0.05 + 0.022 for f in hit)
+    assert frames[-1].time_s > 1.4
