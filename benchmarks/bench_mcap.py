@@ -127,6 +127,7 @@ def make_stream(seconds: float) -> tuple[StreamLayout, list[Any]]:
                     150.0,
                     np.zeros(3),
                     int(next_frame / rev_s),
+                    int(next_frame / rev_s),
                     {"rpm_unsteady": 3},
                     {},
                     (1500.0, RPM),

@@ -82,6 +82,7 @@ class Estimate:
     mass_nominal: float
     unbalance_point: np.ndarray
     frames_used: int
+    frames_skipped: int
     frames_rejected: dict[str, int]
     orders_rejected: dict[str, int]
     rpm_range: tuple[float, float] | None
@@ -182,6 +183,7 @@ class Estimate:
             },
             "frames": {
                 "used": self.frames_used,
+                "skipped_overlapping": self.frames_skipped,
                 "rejected": dict(sorted(self.frames_rejected.items())),
                 "orders_rejected": dict(sorted(self.orders_rejected.items())),
             },
@@ -234,6 +236,7 @@ def build_estimate(est: InertiaEstimator) -> Estimate:
         mass_nominal=est.setup.mass_nominal,
         unbalance_point=np.asarray(est.setup.unbalance_point, float),
         frames_used=stats.used,
+        frames_skipped=stats.skipped,
         frames_rejected=dict(stats.rejected),
         orders_rejected=dict(stats.orders_rejected),
         rpm_range=(stats.rpm_lo, stats.rpm_hi) if stats.used else None,

@@ -60,6 +60,10 @@ class Gates:
     max_rpm_change: float = 0.03  # relative rpm change across the frame window
     min_mode_ratio: float = 1.25  # order frequency / highest rigid-body mode
     rpm_range: tuple[float, float] = (0.0, float("inf"))
+    # Use only frames 720 deg apart: the dsp's 720 deg windows overlap by one
+    # revolution at one frame per revolution, so neighbouring frames share half
+    # their samples and their errors; counting both would overstate the information.
+    independent_frames: bool = True
 
 
 @dataclass(frozen=True)

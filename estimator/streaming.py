@@ -38,6 +38,10 @@ from estimator.vec import cross
 # refresh them every few used frames rather than solving after every frame.
 RELINEARISE_EVERY = 8
 
+# Frame flags (dsp.frames.FLAGS) that make the crank angle, and so every phase, untrustworthy.
+# "nan", "clipped" and "missing_channel" only drop the affected channels (channel_ok).
+TACHO_FLAGS = frozenset({"no_tacho", "tacho_resync", "angle_ambiguous", "angle_rebased"})
+
 
 class FrameLike(Protocol):
     """The fields of ``dsp.frames.OrderFrame`` the estimator reads."""
@@ -85,6 +89,9 @@ class EstimatorStats:
     rpm_lo: float = float("inf")
     rpm_hi: float = float("-inf")
     ambiguous_frames: int = 0
+    skipped: int = (
+        0  # overlapping frames left out (not rejected: their data are in their neighbours)
+    )
 
 
 def systematic_names(setup: EstimatorSetup) -> list[str]:
@@ -187,8 +194,10 @@ class InertiaEstimator:
         gates = self.setup.gates
         if not np.isfinite(frame.rpm) or frame.rpm <= 0:
             return "no_rpm"
-        if "no_tacho" in frame.flags or "tacho_resync" in frame.flags:
+        if frame.flags & TACHO_FLAGS:
             return "tacho"
+        if "leakage_uncorrected" in frame.flags:
+            return "dsp_settling"
         if frame.rpm < gates.rpm_range[0] or frame.rpm > gates.rpm_range[1]:
             return "rpm_out_of_range"
         if abs(frame.rpm_change) > gates.max_rpm_change:
@@ -208,6 +217,9 @@ class InertiaEstimator:
     def update(self, frame: FrameLike) -> FrameOutcome:
         """Gate one frame and, if usable, add its rows to the estimate."""
         setup = self.setup
+        if setup.gates.independent_frames and _overlaps_previous(frame):
+            self.stats.skipped += 1
+            return FrameOutcome(frame.time_s, frame.rpm, (), {}, "overlapping", {})
         reason = self._frame_gate(frame)
         rejected: dict[float, str] = {}
         residuals: dict[float, float] = {}
@@ -434,18 +446,9 @@ class InertiaEstimator:
         return build_estimate(self)
 
 
-def _scaled(motion: RigidMotion, k: int, factor: float) -> RigidMotion:
-    g = motion.gamma_o.copy()
-    w = motion.omega_dot.copy()
-    g[k] *= factor
-    w[k] *= factor
-    return RigidMotion(
-        origin=motion.origin,
-        gamma_o=g,
-        omega_dot=w,
-        cov_unit=motion.cov_unit,
-        residual_rms=motion.residual_rms,
-        relative_residual=motion.relative_residual,
-        noise_var=motion.noise_var,
-        gain=motion.gain,
-    )
+def _overlaps_previous(frame: FrameLike) -> bool:
+    """True for the frames between the 720 deg-spaced ones (odd revolution numbers)."""
+    angle = getattr(frame, "crank_angle_rad", None)
+    if angle is None or not np.isfinite(angle):
+        return False
+    return round(float(angle) / (2 * np.pi)) % 2 == 1

@@ -11,10 +11,17 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
-from ptinertia.errors import user_error_types
+# The numerical work is many small matrices per frame: BLAS threads only add
+# overhead there (and compete with the acquisition thread). This module loads no
+# numpy, so setting the defaults here still reaches the BLAS library.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+from ptinertia.errors import user_error_types  # noqa: E402
 
 # subcommand -> (module, one-line help). Only commands that work are listed.
 COMMANDS: dict[str, tuple[str, str]] = {}
@@ -25,7 +32,9 @@ def register(name: str, module: str, help_text: str) -> None:
 
 
 # Commands (add one line per command, once it works):
-register("run", "ptinertia.commands.run", "acquire, track orders and estimate inertia, cog and mass")
+register(
+    "run", "ptinertia.commands.run", "acquire, track orders and estimate inertia, cog and mass"
+)
 register("replay", "ptinertia.commands.replay", "re-run dsp and estimator on recorded MCAP logs")
 register(
     "excitation",
@@ -33,8 +42,14 @@ register(
     "engine loads on the block per order (gas, inertia, total)",
 )
 register("modes", "ptinertia.commands.modes", "rigid-body modes of the powertrain on its mounts")
-register("simulate", "ptinertia.commands.simulate", "simulate a bench run and write it as CSV or MF4")
-register("can-sim", "ptinertia.commands.can_sim", "simulated bench as a CAN DAQ: send its frames on a bus or to a log")
+register(
+    "simulate", "ptinertia.commands.simulate", "simulate a bench run and write it as CSV or MF4"
+)
+register(
+    "can-sim",
+    "ptinertia.commands.can_sim",
+    "simulated bench as a CAN DAQ: send its frames on a bus or to a log",
+)
 register("pendulum", "ptinertia.commands.pendulum", "inertia and cog from a pendulum test")
 register("massline", "ptinertia.commands.massline", "mass, cog, inertia from UFF58 FRFs")
 register("compare", "ptinertia.commands.compare", "estimates of any methods side by side")

@@ -42,7 +42,7 @@ class ProgressLine(Sink):
         self.rpm = outcome.rpm
         if outcome.reason is None:
             self.used += 1
-        else:
+        elif outcome.reason != "overlapping":
             self.rejected += 1
         self._tick()
 

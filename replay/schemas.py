@@ -167,6 +167,7 @@ MESSAGES: dict[str, list[tuple[str, int, str, bool, str]]] = {
         ("rpm_range", 61, "double", True, "(lo, hi) rpm of the used frames; empty when none"),
         ("half_order_json", 62, "string", False, "half-order sign resolution, JSON"),
         ("final", 63, "bool", False, "the run's final estimate, written at the end (rpm is NaN)"),
+        ("frames_skipped", 64, "uint32", False, "overlapping frames left out (not rejected)"),
     ],
 }
 

@@ -398,6 +398,7 @@ def make_estimate(k: int, rng: np.random.Generator) -> Estimate:
         mass_nominal=150.0,
         unbalance_point=np.array([0.0, 0.1, 0.0]),
         frames_used=k + 1,
+        frames_skipped=k,
         frames_rejected={"rpm_unsteady": k, "tacho": 1},
         orders_rejected={"non_rigid": 2 * k},
         rpm_range=(1500.0, 1500.0 + k),
