@@ -159,7 +159,7 @@ def main() -> None:
         ("frames up to 3000 rpm", (I3, dur, (), 3000.0)),
         ("i4 (mass estimated)", (I4, dur, (), None)),
         (
-            "elastic mode 160 Hz",
+            "elastic mode 140 Hz",
             (
                 I3,
                 {
