@@ -166,7 +166,7 @@ def main() -> None:
                     **dur,
                     **REALISTIC,
                     "elastic_mode": {
-                        "frequency_hz": 160.0,
+                        "frequency_hz": 140.0,
                         "damping_ratio": 0.03,
                         "participation": 0.1,
                     },
