@@ -26,6 +26,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 
 from acquisition.stream import SourceError
 from ptinertia.units import normalise_keys
+from ptinertia.validation import format_validation_error
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 Positive = Annotated[float, Field(gt=0)]
@@ -166,21 +167,6 @@ class PendulumTestFile(TomlSection):
                     f"at least 2 [[lines]] (got {len(self.lines)})"
                 )
         return self
-
-
-def format_validation_error(err: ValidationError, where: str) -> str:
-    errors = err.errors()
-    first = next((e for e in errors if e["type"] == "extra_forbidden"), errors[0])
-    loc = ".".join(f"[{p}]" if isinstance(p, int) else str(p) for p in first["loc"]).replace(
-        ".[", "["
-    )
-    message = first["msg"].removeprefix("Value error, ")
-    if first["type"] == "extra_forbidden":
-        message = "unknown key (check spelling and unit suffix)"
-    elif first["type"] == "missing":
-        message = "required key is missing"
-    more = f" (+{err.error_count() - 1} more)" if err.error_count() > 1 else ""
-    return f"{where}: {loc}: {message}{more}" if loc else f"{where}: {message}{more}"
 
 
 def parse_pendulum_test(data: dict[str, Any], where: str = "pendulum test") -> PendulumTestFile:

@@ -38,8 +38,9 @@ from typing import Annotated, Any
 import numpy as np
 from pydantic import Field, ValidationError, field_validator
 
-from acquisition.pendulum_file import TomlSection, format_validation_error
+from acquisition.pendulum_file import TomlSection
 from acquisition.stream import SourceError
+from ptinertia.validation import format_validation_error
 
 G0 = 9.80665
 LBF = 4.4482216152605

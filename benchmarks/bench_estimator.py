@@ -22,18 +22,13 @@ from typing import Any
 
 import numpy as np
 
+from ptinertia.sources import REALISTIC_SIMULATION
+
 ROOT = Path(__file__).resolve().parent.parent
 I3 = ROOT / "examples" / "i3-bench.toml"
 I4 = ROOT / "examples" / "i4-bench.toml"
 TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
-REALISTIC = dict(
-    noise_snr_db=40.0,
-    gain_error_pct=1.0,
-    misalignment_deg=1.0,
-    position_error_m=0.002,
-    residual_unbalance_kgm=5e-4,
-    residual_unbalance_deg=40.0,
-)
+REALISTIC = REALISTIC_SIMULATION
 
 
 def run_case(

@@ -24,6 +24,10 @@ from pydantic import (
 )
 
 from ptinertia.units import normalise_keys
+from ptinertia.validation import format_validation_error
+
+# discriminator tags pydantic puts in error locations of the [gas] union
+GAS_MODELS = ("parametric", "trace", "orders")
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 Matrix3 = Annotated[list[Vec3], Field(min_length=3, max_length=3)]
@@ -403,31 +407,12 @@ class Bench(Section):
         return self
 
 
-def _format_error(err: ValidationError, where: str) -> str:
-    errors = err.errors()
-    # An unknown key usually explains the "missing" error beside it (a misspelling): report it first.
-    first = next((e for e in errors if e["type"] == "extra_forbidden"), errors[0])
-    loc = ".".join(
-        (f"[{p}]" if isinstance(p, int) else str(p))
-        for p in first["loc"]
-        if p not in {"parametric", "trace", "orders"}
-    ).replace(".[", "[")
-    message = first["msg"].removeprefix("Value error, ")
-    if first["type"] == "extra_forbidden":
-        message = "unknown key (check spelling and unit suffix)"
-    elif first["type"] == "missing":
-        message = "required key is missing"
-    count = err.error_count()
-    more = f" (+{count - 1} more)" if count > 1 else ""
-    return f"{where}: {loc}: {message}{more}" if loc else f"{where}: {message}{more}"
-
-
 def parse_bench(data: dict[str, Any], where: str = "bench") -> Bench:
     """Validate a bench mapping; raise :class:`ConfigError` with a one-line message."""
     try:
         return Bench.model_validate(data)
     except ValidationError as err:
-        raise ConfigError(_format_error(err, where)) from None
+        raise ConfigError(format_validation_error(err, where, hidden=GAS_MODELS)) from None
 
 
 def load_bench(path: str | Path) -> Bench:

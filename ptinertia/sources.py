@@ -28,6 +28,17 @@ SIM_OPTIONS = (
     "bench_text",
 )
 FILE_OPTIONS = ("block_s",)
+
+# The "realistic" bench of the accuracy figures (run --realistic, tests, benchmarks):
+# 40 dB noise, 1 % gain, 1 deg alignment and 2 mm position errors, a residual unbalance.
+REALISTIC_SIMULATION = {
+    "noise_snr_db": 40.0,
+    "gain_error_pct": 1.0,
+    "misalignment_deg": 1.0,
+    "position_error_m": 0.002,
+    "residual_unbalance_kgm": 5e-4,
+    "residual_unbalance_deg": 40.0,
+}
 FILE_SUFFIXES = (".csv", ".mf4", ".mdf", ".blf", ".asc", ".trc", ".log", ".mcap")
 
 

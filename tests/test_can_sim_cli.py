@@ -29,16 +29,9 @@ from ptinertia import cli
 from ptinertia.commands.can_sim import FaultInjector, FaultRates, simulate_to_bus
 from ptinertia.config import load_bench
 from ptinertia.runner import RunOptions, run_source
-from ptinertia.sources import open_source
+from ptinertia.sources import REALISTIC_SIMULATION, open_source
 
-REALISTIC = {
-    "noise_snr_db": 40.0,
-    "gain_error_pct": 1.0,
-    "misalignment_deg": 1.0,
-    "position_error_m": 0.002,
-    "residual_unbalance_kgm": 5e-4,
-    "residual_unbalance_deg": 40.0,
-}
+REALISTIC = REALISTIC_SIMULATION
 RUN = {**REALISTIC, "duration_s": 8.0, "rpm_start": 1500.0, "rpm_end": 4500.0, "seed": 3}
 TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 

@@ -16,19 +16,12 @@ import pytest
 from ptinertia.config import load_bench
 from ptinertia.paths import EXAMPLES_DIR
 from ptinertia.runner import RunOptions, run_source
-from ptinertia.sources import open_source
+from ptinertia.sources import REALISTIC_SIMULATION, open_source
 
 I3 = EXAMPLES_DIR / "i3-bench.toml"
 I4 = EXAMPLES_DIR / "i4-bench.toml"
 TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
-REALISTIC = {
-    "noise_snr_db": 40.0,
-    "gain_error_pct": 1.0,
-    "misalignment_deg": 1.0,
-    "position_error_m": 0.002,
-    "residual_unbalance_kgm": 5e-4,
-    "residual_unbalance_deg": 40.0,
-}
+REALISTIC = REALISTIC_SIMULATION
 
 
 def run(

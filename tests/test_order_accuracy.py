@@ -26,6 +26,7 @@ from dsp.synthetic import OrderContent, Ramp, SyntheticBench, random_content
 from dsp.tacho import TachoConfig
 from ptinertia.config import load_bench
 from ptinertia.sources import open_source
+from ptinertia.tracking import tracker_config
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 FLOOR = 1e-3  # -60 dB
@@ -41,24 +42,7 @@ def _with_tacho(bench, **kw):
 
 
 def _config(bench, orders, **kw) -> OrderTrackerConfig:
-    t = bench.tacho
-    tacho = TachoConfig(
-        kind=t.kind,
-        teeth=t.teeth,
-        missing=t.missing,
-        delivery=t.delivery,
-        channel=t.channel,
-        tdc_after_gap_deg=t.tdc_after_gap_deg,
-        tdc_offset_deg=t.tdc_offset_deg,
-        rpm_channel=t.rpm_channel,
-        phase_reference=t.phase_reference,
-        cam_channel=t.cam_channel,
-        cam_angle_deg=t.cam_angle_deg,
-        pressure_channel=t.pressure_channel,
-    )
-    return OrderTrackerConfig(
-        tacho=tacho, orders=tuple(orders), rpm_min=500.0, rpm_max=6000.0, **kw
-    )
+    return replace(tracker_config(bench, tuple(orders)), rpm_min=500.0, rpm_max=6000.0, **kw)
 
 
 def _track(layout, config, items: Iterable[StreamItem]):

@@ -83,14 +83,9 @@ def sim_overrides(args: argparse.Namespace) -> dict[str, Any]:
     """The ``[simulation]`` overrides given on the command line."""
     out: dict[str, Any] = {}
     if args.realistic:
-        out.update(
-            noise_snr_db=40.0,
-            gain_error_pct=1.0,
-            misalignment_deg=1.0,
-            position_error_m=0.002,
-            residual_unbalance_kgm=5e-4,
-            residual_unbalance_deg=40.0,
-        )
+        from ptinertia.sources import REALISTIC_SIMULATION
+
+        out.update(REALISTIC_SIMULATION)
     if args.sweep:
         try:
             lo, hi = (float(v) for v in args.sweep.split(":"))

@@ -1,0 +1,29 @@
+"""One-line messages from pydantic validation errors (bench files, test files, set-ups)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+from pydantic import ValidationError
+
+
+def format_validation_error(err: ValidationError, where: str, hidden: Iterable[str] = ()) -> str:
+    """``where: key.path[2].key: what was expected (+n more)``.
+
+    ``hidden`` are location parts to leave out (discriminator tags of union tables).
+    """
+    errors = err.errors()
+    # An unknown key usually explains the "missing" error beside it (a misspelling): report it first.
+    first = next((e for e in errors if e["type"] == "extra_forbidden"), errors[0])
+    skip = set(hidden)
+    loc = ".".join(
+        (f"[{p}]" if isinstance(p, int) else str(p)) for p in first["loc"] if p not in skip
+    ).replace(".[", "[")
+    message = first["msg"].removeprefix("Value error, ")
+    if first["type"] == "extra_forbidden":
+        message = "unknown key (check spelling and unit suffix)"
+    elif first["type"] == "missing":
+        message = "required key is missing"
+    count = err.error_count()
+    more = f" (+{count - 1} more)" if count > 1 else ""
+    return f"{where}: {loc}: {message}{more}" if loc else f"{where}: {message}{more}"
