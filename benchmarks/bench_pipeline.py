@@ -1,0 +1,143 @@
+"""The live pipeline's speed, latency and memory (issue 5 figures).
+
+Prints:
+1. ``run`` on the simulated i3, 10 channels (9 accelerometers + cylinder pressure) at 25.6 kHz,
+   60 s sweep, MCAP recording on, viewer off: real-time factor, MCAP size per hour;
+2. ``replay`` of that log: real-time factor, and whether the result is identical;
+3. a paced (real-time) run: the largest delay from a block's arrival to the estimate it
+   produced being in every sink;
+4. RSS over a long sweep (``--hours``, default 1 h at 5120 Hz, recording on): growth.
+
+Usage: python benchmarks/bench_pipeline.py [--hours 1.0] [--skip-long]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+I3 = ROOT / "examples" / "i3-bench.toml"
+
+
+def _bench(fs: float, duration: float, paced: bool = False) -> tuple[Any, Any, str]:
+    from ptinertia.config import load_bench
+    from ptinertia.sources import open_source
+
+    bench = load_bench(I3)
+    bench = bench.model_copy(
+        update={"tacho": bench.tacho.model_copy(update={"phase_reference": "pressure"})}
+    )
+    text = I3.read_text()
+    source = open_source(
+        "sim",
+        bench,
+        accel_rate_hz=fs,
+        duration_s=duration,
+        tacho={"phase_reference": "pressure"},
+        block_s=0.1 if paced else 0.5,
+        paced=paced,
+        bench_text=text,
+    )
+    return bench, source, text
+
+
+def live_and_replay(tmp: Path) -> None:
+    from ptinertia.runner import RunOptions, run_source
+    from replay.recorder import McapRecorder
+    from replay.source import McapSource
+
+    bench, source, text = _bench(25600.0, 60.0)
+    channels = sum(len(g.channels) for g in source.layout.groups if g.rate_hz == 25600.0)
+    log = tmp / "live.mcap"
+    t0 = time.perf_counter()
+    _, doc = run_source(
+        bench, text, source, "sim", RunOptions(quiet=True, sinks=(McapRecorder(log),))
+    )
+    live = time.perf_counter() - t0
+    size_h = log.stat().st_size * 60 / 1e9
+    print(f"live run, {channels} ch at 25.6 kHz + tacho edges + rpm, 60 s, MCAP on, viewer off:")
+    print(
+        f"  {live:.1f} s = {60 / live:.0f}x real time;  MCAP {log.stat().st_size / 1e6:.0f} MB per minute, {size_h:.2f} GB per hour"
+    )
+    t0 = time.perf_counter()
+    _, again = run_source(bench, text, McapSource(log), "sim", RunOptions(quiet=True))
+    rep = time.perf_counter() - t0
+    same = json.dumps(doc, sort_keys=True) == json.dumps(again, sort_keys=True)
+    print(
+        f"replay: {rep:.1f} s = {60 / rep:.0f}x real time; result identical to the live run: {same}"
+    )
+
+
+def paced_latency() -> None:
+    from ptinertia.runner import RunOptions, run_source
+
+    bench, source, text = _bench(25600.0, 15.0, paced=True)
+    summary, _ = run_source(bench, text, source, "sim", RunOptions(quiet=True, live=True))
+    print(
+        "paced run (0.1 s blocks, 15 s): largest delay from a block's arrival to its estimate in "
+        f"every sink {1e3 * summary.max_estimate_latency_s:.1f} ms; largest backlog "
+        f"{1e3 * summary.max_backlog_s:.1f} ms"
+    )
+
+
+def long_run(tmp: Path, hours: float) -> None:
+    from ptinertia.runner import RunOptions, run_source
+    from replay.recorder import McapRecorder
+
+    bench, source, text = _bench(5120.0, 3600.0 * hours)
+    samples: list[tuple[float, float]] = []
+    stop = threading.Event()
+
+    def watch() -> None:
+        t0 = time.perf_counter()
+        while not stop.wait(2.0):
+            samples.append((time.perf_counter() - t0, _rss_mb()))
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    log = tmp / "long.mcap"
+    t0 = time.perf_counter()
+    run_source(bench, text, source, "sim", RunOptions(quiet=True, sinks=(McapRecorder(log),)))
+    stop.set()
+    wall = time.perf_counter() - t0
+    if len(samples) >= 4:
+        early = max(rss for _, rss in samples[: len(samples) // 4])
+        late = max(rss for _, rss in samples[-len(samples) // 4 :])
+        print(
+            f"{hours:g} h sweep at 5120 Hz, recording on: {wall:.0f} s; RSS after the first quarter "
+            f"{early:.0f} MB, in the last quarter {late:.0f} MB (growth {late - early:+.0f} MB); "
+            f"MCAP {log.stat().st_size / 1e9:.2f} GB"
+        )
+
+
+def _rss_mb() -> float:
+    try:
+        with open("/proc/self/statm") as f:
+            pages = int(f.read().split()[1])
+        return pages * resource.getpagesize() / 1e6
+    except OSError:
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--hours", type=float, default=1.0)
+    ap.add_argument("--skip-long", action="store_true")
+    a = ap.parse_args()
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        live_and_replay(tmp)
+        paced_latency()
+        if not a.skip_long:
+            long_run(tmp, a.hours)
+
+
+if __name__ == "__main__":
+    main()
