@@ -43,9 +43,6 @@ def run_case(
 
     bench = load_bench(bench_path)
     overrides = dict(overrides)
-    if overrides.pop("_self_calibration", False):
-        est = bench.estimator.model_copy(update={"self_calibration": True})
-        bench = bench.model_copy(update={"estimator": est})
     if rpm_max is not None:
         est = bench.estimator.model_copy(update={"rpm_max": rpm_max})
         bench = bench.model_copy(update={"estimator": est})
@@ -147,7 +144,7 @@ def main() -> None:
             (
                 I3,
                 dur,
-                ("suspension", "gyroscopic", "unbalance", "crank_offset", "self_calibration"),
+                ("suspension", "gyroscopic", "unbalance", "crank_offset"),
                 None,
             ),
         ),
@@ -172,17 +169,9 @@ def main() -> None:
         ),
     ]
     realistic = [(I3, {**dur, **REALISTIC, "seed": s}, (), None) for s in range(seeds)]
-    realistic_cal = [
-        (I3, {**dur, **REALISTIC, "seed": s, "_self_calibration": True}, (), None)
-        for s in range(seeds)
-    ]
     with ProcessPoolExecutor(max_workers=a.jobs) as pool:
-        docs = list(pool.map(_job, [c for _, c in cases] + realistic + realistic_cal))
-    fixed, real, real_cal = (
-        docs[: len(cases)],
-        docs[len(cases) : len(cases) + seeds],
-        docs[len(cases) + seeds :],
-    )
+        docs = list(pool.map(_job, [c for _, c in cases] + realistic))
+    fixed, real = docs[: len(cases)], docs[len(cases) :]
 
     print(
         "== i3 noise-free, 1500 -> 4500 rpm, 5120 Hz (errors; products relative to their own value)"
@@ -200,10 +189,7 @@ def main() -> None:
         doc["frames"]["orders_rejected"],
     )
 
-    for label, group in (
-        ("default settings", real),
-        ("with experimental self-calibration", real_cal),
-    ):
+    for label, group in (("default settings", real),):
         errs = [errors(d) for d in group]
         cov = [covered(d) for d in group]
         print(f"== realistic i3 over {seeds} seeds, {label}")

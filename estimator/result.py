@@ -19,7 +19,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from estimator.calibration import calibration_solve
 from estimator.equations import INERTIA_TERMS
 from estimator.rls import rls_solve
 
@@ -88,7 +87,6 @@ class Estimate:
     rpm_range: tuple[float, float] | None
     half_order: dict[str, Any] | None
     variance_factor: float
-    sensor_errors: dict[str, float] | None = None
 
     def std(self, name: str) -> float:
         i = self.names.index(name)
@@ -210,24 +208,14 @@ def build_estimate(est: InertiaEstimator) -> Estimate:
     factor = max(1.0, sol.rss / sol.dof) if sol.dof > 0 else 1.0
     cov_rand[np.ix_(obs, obs)] *= factor
     cov_sys = np.zeros((n, n))
-    theta = sol.theta.copy()
-    calibration = None
     if np.any(obs):
         inv = sol.cov[np.ix_(obs, obs)]
         dtheta = -inv @ acc.sens[obs]  # (n_obs, n_sys): d theta / d p
-        if est.setup.corrections.self_calibration:
-            calibration = calibration_solve(est.calib, est.sys_std)
-            # theta was estimated from readings that carry the sensor errors p:
-            # remove their first-order effect, keep the posterior uncertainty of p.
-            theta[obs] -= dtheta @ calibration.p
-            cov_p = calibration.cov
-        else:
-            cov_p = np.diag(est.sys_std**2)
-        cov_sys[np.ix_(obs, obs)] = dtheta @ cov_p @ dtheta.T
+        cov_sys[np.ix_(obs, obs)] = (dtheta * est.sys_std**2) @ dtheta.T
     stats = est.stats
     return Estimate(
         names=est.layout.names,
-        theta=theta,
+        theta=sol.theta,
         cov=cov_rand + cov_sys,
         cov_random=cov_rand,
         cov_systematic=cov_sys,
@@ -242,7 +230,4 @@ def build_estimate(est: InertiaEstimator) -> Estimate:
         rpm_range=(stats.rpm_lo, stats.rpm_hi) if stats.used else None,
         half_order=est.half_order_resolution(),
         variance_factor=factor,
-        sensor_errors=None
-        if calibration is None
-        else dict(zip(est.sys_names, calibration.p.tolist(), strict=True)),
     )

@@ -35,9 +35,6 @@ class Corrections:
     gyroscopic: bool = True  # Omega x H of the spinning crank train
     unbalance: bool = True  # residual static unbalance at H1, estimated
     crank_offset: bool = True  # crank-angle reference offset, estimated
-    # Sensor gain/orientation/position errors from the rigid-fit residuals. Off by
-    # default: weakly observable with three sensors (see estimator/calibration.py).
-    self_calibration: bool = False
 
 
 @dataclass(frozen=True)

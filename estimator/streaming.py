@@ -27,9 +27,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from estimator.calibration import calibration_init, calibration_update
 from estimator.equations import Linearisation, ParameterLayout, frame_rows
-from estimator.kinematics import KinematicsError, RigidMotion, design_matrix, fit_rigid_motion
+from estimator.kinematics import KinematicsError, RigidMotion, fit_rigid_motion
 from estimator.rls import RlsState, rls_init, rls_solve, rls_update
 from estimator.setup import EstimatorSetup
 from estimator.vec import cross
@@ -162,7 +161,6 @@ class InertiaEstimator:
         n, n_sys = self.layout.size, len(self.sys_names)
         # one accumulator per half-order sign hypothesis (+1 as measured, -1 flipped)
         self.acc = {1: Accumulator.empty(n, n_sys), -1: Accumulator.empty(n, n_sys)}
-        self.calib = calibration_init(n_sys)  # sensor self-calibration normal equations
         self.stats = EstimatorStats()
         self.noise_var: dict[float, float] = {}  # smoothed channel noise variance per order
         self.residual_baseline: dict[float, list[float]] = {}  # first rigid-fit residuals per order
@@ -308,25 +306,6 @@ class InertiaEstimator:
         limit = gates.residual_growth * float(np.median(base)) + gates.residual_margin
         return "non_rigid" if res > limit else None
 
-    def _calibrate(
-        self,
-        motion: RigidMotion,
-        ks: np.ndarray,
-        amplitudes: np.ndarray,
-        used: np.ndarray,
-        derivs: np.ndarray,
-        var: np.ndarray,
-    ) -> None:
-        """Feed the rigid-fit residuals of these orders to the sensor self-calibration."""
-        setup = self.setup
-        jac = design_matrix(setup.positions[used], setup.directions[used], motion.origin)
-        projector = np.eye(jac.shape[0]) - jac @ motion.gain
-        readings = amplitudes[np.ix_(ks, np.flatnonzero(used))]
-        residual = readings @ projector.T
-        w = np.ones(jac.shape[0]) if setup.channel_weights is None else setup.channel_weights[used]
-        weights = w[None, :] / var[:, None]
-        self.calib = calibration_update(self.calib, residual, projector, derivs, weights)
-
     def _noise_var(
         self, motion: RigidMotion, ks: np.ndarray, orders: np.ndarray, floor: float
     ) -> np.ndarray:
@@ -357,8 +336,6 @@ class InertiaEstimator:
         var = self._noise_var(motion, ks, orders, max(1e-16 * frame_power, 1e-30))
         h = orders[ks]
         derivs = channel_derivatives(setup, motion, ks, amplitudes, used)  # (k, u, n_sys)
-        if setup.corrections.self_calibration:
-            self._calibrate(motion, ks, amplitudes, used, derivs, var)
         dmeas = np.einsum("iu,kus->kis", motion.gain, derivs)
         dm_real = np.concatenate([dmeas.real, dmeas.imag], axis=1)  # (k, 12, n_sys)
 

@@ -347,10 +347,6 @@ class EstimatorSettings(Section):
     gyroscopic: bool = True
     unbalance: bool = True
     crank_offset: bool = True
-    # Off by default: with three triaxial sensors the rigid-fit residual sees only
-    # about 18 of the 20 relative sensor errors, and small dsp errors get read as
-    # sensor errors (benchmarks/bench_estimator.py shows it hurting on average).
-    self_calibration: bool = False
     forgetting: Annotated[float, Field(gt=0, le=1)] = 1.0
     gain_tolerance_pct: NonNegative = 1.0
     alignment_tolerance_deg: NonNegative = 1.0

@@ -50,7 +50,6 @@ def estimator_setup(
         gyroscopic=corr.gyroscopic and engine.crank_spin_inertia > 0,
         unbalance=corr.unbalance,
         crank_offset=corr.crank_offset,
-        self_calibration=corr.self_calibration,
     )
     sensor_of_channel = np.array(
         [i for i, sensor in enumerate(bench.sensors) for name in sensor.channels if name]

@@ -48,7 +48,6 @@ def make_estimator(bench: Bench, corrections_off: tuple[str, ...] = ()) -> Inert
         gyroscopic=s.gyroscopic and "gyroscopic" not in corrections_off,
         unbalance=s.unbalance and "unbalance" not in corrections_off,
         crank_offset=s.crank_offset and "crank_offset" not in corrections_off,
-        self_calibration=s.self_calibration and "self_calibration" not in corrections_off,
     )
     tolerances = Tolerances(
         gain_rel=s.gain_tolerance_pct / 100.0,
