@@ -170,10 +170,11 @@ def frame_rows(
             r = mount.position - o
             sk_r, sk_p = skew(r), skew(mount.position)
             kw = mount.stiffness[None, :, :] / big_w2[:, None, None]  # (n_o, 3, 3)
-            gamma_i = gamma_o + cross(omega_dot, r)
+            # row-vector forms: a x v = a @ skew(v), v x a = a @ skew(v).T
+            gamma_i = gamma_o + omega_dot @ sk_r
             f_i = np.einsum("oij,oj->oi", kw, gamma_i)
             f_mounts += f_i
-            m_mounts_origin += cross(mount.position, f_i)
+            m_mounts_origin += f_i @ sk_p.T
             dfi_dw = -kw @ sk_r
             df_dgo += kw
             df_dw += dfi_dw
@@ -184,7 +185,7 @@ def frame_rows(
     c = setup.cylinder_axis
     t = cross(s, c)
     spin = (setup.spin_inertia / (1j * h)) if corr.gyroscopic else np.zeros(n_o, complex)
-    gyro = spin[:, None] * cross(omega_dot, s)
+    gyro = spin[:, None] * (omega_dot @ skew(s))
     dgyro_dw = -spin[:, None, None] * skew(s)[None]
 
     ht = np.zeros((n_o, 3, n), complex)  # translation rows
@@ -213,7 +214,7 @@ def frame_rows(
     # I Omega' + G x (F_exc + F_m) - (P_u - G) x F_unb = M_R + R x F_exc + sum p_i x f_i - gyro
     hr[:, :, :6] = inertia_columns_batch(omega_dot)
     hr[:, :, 6:9] = -skew_batch(f_known)
-    yr = moment_r + cross(setup.reference_point, force) + m_mounts_origin - gyro
+    yr = moment_r + force @ skew(setup.reference_point).T + m_mounts_origin - gyro
     sk_g = skew(lin.cog)
     dr_dgo = sk_g @ df_dgo - dmp_dgo
     dr_dw = lin.inertia[None] + dgyro_dw + sk_g @ df_dw - dmp_dw

@@ -37,6 +37,11 @@ from estimator.vec import cross
 # refresh them every few used frames rather than solving after every frame.
 RELINEARISE_EVERY = 8
 
+# The half-order sign is decided when, after this many ambiguous frames, the wrong
+# hypothesis leaves this many times the weighted residual of the right one.
+DECIDE_AFTER_FRAMES = 40
+DECIDE_RATIO = 100.0
+
 # Frame flags (dsp.frames.FLAGS) that make the crank angle, and so every phase, untrustworthy.
 # "nan", "clipped" and "missing_channel" only drop the affected channels (channel_ok).
 TACHO_FLAGS = frozenset({"no_tacho", "tacho_resync", "angle_ambiguous", "angle_rebased"})
@@ -162,8 +167,11 @@ class InertiaEstimator:
         # one accumulator per half-order sign hypothesis (+1 as measured, -1 flipped)
         self.acc = {1: Accumulator.empty(n, n_sys), -1: Accumulator.empty(n, n_sys)}
         self.stats = EstimatorStats()
+        self.decided_sign: int | None = None  # half-order sign, once the residuals decided it
+        self.decision: dict[str, Any] | None = None
         self.noise_var: dict[float, float] = {}  # smoothed channel noise variance per order
         self.residual_baseline: dict[float, list[float]] = {}  # first rigid-fit residuals per order
+        self.residual_limit: dict[float, float] = {}  # non-rigid gate per order, from the baseline
         self.lin = Linearisation(
             cog=np.asarray(setup.cog_nominal, float),
             inertia=np.asarray(setup.inertia_nominal, float),
@@ -302,8 +310,12 @@ class InertiaEstimator:
         base = self.residual_baseline.setdefault(h, [])
         if len(base) < gates.baseline_frames:
             base.append(res)
+            if len(base) == gates.baseline_frames:
+                self.residual_limit[h] = (
+                    gates.residual_growth * float(np.median(base)) + gates.residual_margin
+                )
             return None
-        limit = gates.residual_growth * float(np.median(base)) + gates.residual_margin
+        limit = self.residual_limit[h]
         return "non_rigid" if res > limit else None
 
     def _noise_var(
@@ -339,15 +351,19 @@ class InertiaEstimator:
         dmeas = np.einsum("iu,kus->kis", motion.gain, derivs)
         dm_real = np.concatenate([dmeas.real, dmeas.imag], axis=1)  # (k, 12, n_sys)
 
-        def rows_for(sel: np.ndarray, sign: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            """Whitened rows (k, 12, n), (k, 12) and sensitivities (k, 12, n_sys) of orders ks[sel]."""
+        def rows_for(
+            sel: np.ndarray, sign: np.ndarray
+        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            """Whitened rows (k, 12, n), (k, 12) and sensitivities (k, 12, n_sys) of orders ks[sel],
+            with the measured motion of each multiplied by ``sign`` (k,)."""
             kk = ks[sel]
+            sg = sign[sel]
             r = frame_rows(
                 setup,
                 self.layout,
                 self.lin,
-                sign * motion.gamma_o[kk],
-                sign * motion.omega_dot[kk],
+                sg[:, None] * motion.gamma_o[kk],
+                sg[:, None] * motion.omega_dot[kk],
                 motion.origin,
                 motion.cov_unit,
                 h[sel],
@@ -356,22 +372,29 @@ class InertiaEstimator:
                 moment[kk],
                 var[sel],
             )
-            return r.H, r.y, r.whiten @ r.d_meas @ (sign * dm_real[sel])
+            return r.H, r.y, r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[sel])
 
-        # Both sign hypotheses see every row; they differ only in the half orders of
-        # frames whose 720 deg cycle is unknown (there the motion, and with it every
-        # measurement-derived term, flips sign): only those are computed twice.
+        # The two sign hypotheses differ only in the half orders of frames whose 720 deg
+        # cycle is unknown (there the motion, and every measurement-derived term, flips
+        # sign): only those rows are computed twice, and only until the residuals have
+        # decided between the hypotheses.
         everything = np.ones(len(ks), dtype=bool)
-        H, y, dr = rows_for(everything, 1.0)
-        hyp = {1: (H, y, dr)}
         half = ((2 * h) % 2 == 1) & ("cycle_ambiguous" in frame.flags)
-        if np.any(half):
-            Hf, yf, drf = H.copy(), y.copy(), dr.copy()
-            Hf[half], yf[half], drf[half] = rows_for(half, -1.0)
-            hyp[-1] = (Hf, yf, drf)
-        else:
-            hyp[-1] = hyp[1]
+        flip = np.where(half, -1.0, 1.0)
         n = self.layout.size
+        if self.decided_sign is not None:
+            hyp = {
+                self.decided_sign: rows_for(
+                    everything, flip if self.decided_sign < 0 else everything * 1.0
+                )
+            }
+        else:
+            H, y, dr = rows_for(everything, np.ones(len(ks)))
+            hyp = {1: (H, y, dr), -1: (H, y, dr)}
+            if np.any(half):
+                Hf, yf, drf = H.copy(), y.copy(), dr.copy()
+                Hf[half], yf[half], drf[half] = rows_for(half, flip)
+                hyp[-1] = (Hf, yf, drf)
         for sign, (Hs, ys, drs) in hyp.items():
             acc = self.acc[sign]
             acc.state = rls_update(
@@ -379,7 +402,19 @@ class InertiaEstimator:
             )
             acc.sens = self.forgetting * acc.sens + np.einsum("kip,kis->ps", Hs, drs)
 
+    def _decide_half_order_sign(self) -> None:
+        """Stop carrying the losing sign hypothesis once the residuals leave no doubt."""
+        if self.decided_sign is not None or self.stats.ambiguous_frames < DECIDE_AFTER_FRAMES:
+            return
+        rss = {s: rls_solve(a.state, scale=self.scale).rss for s, a in self.acc.items()}
+        best = min(rss, key=lambda s: rss[s])
+        ratio = rss[-best] / rss[best] if rss[best] > 0 else float("inf")
+        if ratio >= DECIDE_RATIO:
+            self.decided_sign = best
+            self.decision = {"ratio": ratio, "after_frames": self.stats.ambiguous_frames}
+
     def _relinearise(self) -> None:
+        self._decide_half_order_sign()
         sol = rls_solve(self.best_state().state, scale=self.scale)
         if not np.all(sol.observable[:9]):
             return
@@ -399,6 +434,8 @@ class InertiaEstimator:
         """The sign hypothesis with the smaller weighted residual (+1 unless ambiguous)."""
         if self.stats.ambiguous_frames == 0:
             return self.acc[1]
+        if self.decided_sign is not None:
+            return self.acc[self.decided_sign]
         rss = {s: rls_solve(a.state, scale=self.scale).rss for s, a in self.acc.items()}
         return self.acc[min(rss, key=lambda s: rss[s])]
 
@@ -406,14 +443,22 @@ class InertiaEstimator:
         """How the 720 deg ambiguity was resolved (None when a phase reference existed)."""
         if self.stats.ambiguous_frames == 0:
             return None
+        if self.decided_sign is not None and self.decision is not None:
+            return {
+                "method": "residual",
+                "half_order_sign": self.decided_sign,
+                "residual_ratio": self.decision["ratio"],
+                "decided_after_frames": self.decision["after_frames"],
+                "frames": self.stats.ambiguous_frames,
+            }
         rss = {s: rls_solve(a.state, scale=self.scale).rss for s, a in self.acc.items()}
         best = min(rss, key=lambda s: rss[s])
-        other = -best
-        ratio = rss[other] / rss[best] if rss[best] > 0 else float("inf")
+        ratio = rss[-best] / rss[best] if rss[best] > 0 else float("inf")
         return {
             "method": "residual",
             "half_order_sign": best,
             "residual_ratio": ratio,
+            "decided_after_frames": None,
             "frames": self.stats.ambiguous_frames,
         }
 
