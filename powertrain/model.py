@@ -149,7 +149,9 @@ class BenchModel:
         coef, *_ = np.linalg.lstsq(rigid, pattern, rcond=None)
         shape = pattern - rigid @ coef
         size = float(np.abs(shape).max())
-        shape = shape + self.elastic_mode.rigid_share * (rigid @ coef) if self.elastic_mode else shape
+        shape = (
+            shape + self.elastic_mode.rigid_share * (rigid @ coef) if self.elastic_mode else shape
+        )
         if size < 1e-6 * max(float(np.abs(pattern).max()), 1e-300):
             raise PhysicsError(
                 f"elastic mode: {len(self._names)} channels leave no motion that is not rigid "
