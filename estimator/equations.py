@@ -131,19 +131,24 @@ def frame_rows(
     origin: np.ndarray,
     cov_unit: np.ndarray,
     orders: np.ndarray,
-    rpm: float,
+    rpm: float | np.ndarray,
     force: np.ndarray,
     moment_r: np.ndarray,
     noise_var: np.ndarray,
 ) -> FrameRows:
-    """Rows of every given order of one frame at ``rpm``.
+    """Rows of the given (frame, order) pairs: one row block per pair.
+
+    The pairs may come from several frames (the estimator assembles a few frames
+    at once: the per-call overhead of numpy dominates at these sizes); then
+    ``rpm``, ``origin`` and ``cov_unit`` are given per pair.
 
     Parameters
     ----------
     gamma_o, omega_dot : (n_o, 3) complex
         Fitted rigid motion per order (acceleration of ``origin``, angular acceleration).
-    origin : (3,) m; cov_unit : (6, 6) unit covariance of the fit (see kinematics).
+    origin : (3,) or (n_o, 3) m; cov_unit : (6, 6) or (n_o, 6, 6) unit covariance of the fit.
     orders : (n_o,) float.
+    rpm : scalar or (n_o,).
     force, moment_r : (n_o, 3) complex
         Known excitation force (N) and moment about ``setup.reference_point`` (N m).
     noise_var : (n_o,) float
@@ -152,9 +157,10 @@ def frame_rows(
     n_o = len(orders)
     n = layout.size
     h = np.asarray(orders, float)
-    w = rpm * 2 * np.pi / 60.0
+    w = np.broadcast_to(np.asarray(rpm, float) * 2 * np.pi / 60.0, (n_o,))
     big_w2 = (h * w) ** 2
-    o = origin
+    o = np.broadcast_to(np.asarray(origin, float), (n_o, 3))
+    sk_cog_o = skew_batch(lin.cog - o)  # (n_o, 3, 3)
     corr = setup.corrections
     eye = np.broadcast_to(np.eye(3), (n_o, 3, 3))
 
@@ -167,11 +173,10 @@ def frame_rows(
     dmp_dw = np.zeros((n_o, 3, 3), complex)
     if corr.suspension:
         for mount in setup.mounts:
-            r = mount.position - o
-            sk_r, sk_p = skew(r), skew(mount.position)
+            sk_r, sk_p = skew_batch(mount.position - o), skew(mount.position)
             kw = mount.stiffness[None, :, :] / big_w2[:, None, None]  # (n_o, 3, 3)
             # row-vector forms: a x v = a @ skew(v), v x a = a @ skew(v).T
-            gamma_i = gamma_o + omega_dot @ sk_r
+            gamma_i = gamma_o + np.einsum("oi,oij->oj", omega_dot, sk_r)
             f_i = np.einsum("oij,oj->oi", kw, gamma_i)
             f_mounts += f_i
             m_mounts_origin += f_i @ sk_p.T
@@ -193,7 +198,7 @@ def frame_rows(
     m_hat = lin.mass
     f_known = force + f_mounts
     sk_w = skew_batch(omega_dot)
-    sk_wo = np.einsum("oij,j->oi", sk_w, o)
+    sk_wo = np.einsum("oij,oj->oi", sk_w, o)
 
     if layout.mass:
         # gamma_O + Omega' x (G - O) = mu (F_exc + F_m) + w^2 mu z (c - i t)
@@ -201,14 +206,14 @@ def frame_rows(
         ht[:, :, layout.index("inv_mass")] = -f_known
         yt = -gamma_o + sk_wo
         dt_dgo = eye - df_dgo / m_hat
-        dt_dw = -skew(lin.cog - o)[None] - df_dw / m_hat
+        dt_dw = -sk_cog_o - df_dw / m_hat
         unb_scale = m_hat  # F_unb = w^2 m (z/m) (c - i t) in the rotation rows
     else:
         # m (gamma_O + Omega' x (G - O)) - w^2 z (c - i t) = F_exc + F_m
         ht[:, :, 6:9] = m_hat * sk_w
         yt = f_known - m_hat * gamma_o + m_hat * sk_wo
         dt_dgo = m_hat * eye - df_dgo
-        dt_dw = -m_hat * skew(lin.cog - o)[None] - df_dw
+        dt_dw = -m_hat * sk_cog_o - df_dw
         unb_scale = 1.0
 
     # I Omega' + G x (F_exc + F_m) - (P_u - G) x F_unb = M_R + R x F_exc + sum p_i x f_i - gyro
@@ -222,7 +227,9 @@ def frame_rows(
     if layout.unbalance:
         first = np.flatnonzero(h == 1.0)
         if first.size:
-            col_a = w**2 * (c - 1j * t)  # z = a + i b: F_unb = a col_a + b (i col_a)
+            col_a = (w[first] ** 2)[:, None] * (
+                c - 1j * t
+            )  # z = a + i b: F_unb = a col_a + b (i col_a)
             col_b = 1j * col_a
             arm = setup.unbalance_point - lin.cog
             ia, ib = layout.index("unb_re"), layout.index("unb_im")
@@ -252,7 +259,8 @@ def frame_rows(
     d_real[:, 6:, 6:] = d_c.real
     # Real and imaginary parts of the measurement are independent with the same
     # covariance: cov(rows) = D diag(C, C) D^T, C = noise_var * cov_unit.
-    cu = cov_unit[None] * np.asarray(noise_var, float)[:, None, None]
+    cov_unit = np.broadcast_to(np.asarray(cov_unit, float), (n_o, 6, 6))
+    cu = cov_unit * np.asarray(noise_var, float)[:, None, None]
     da, db = d_real[:, :, :6], d_real[:, :, 6:]
     cov_rows = da @ cu @ da.transpose(0, 2, 1) + db @ cu @ db.transpose(0, 2, 1)
     # Whitening with the Cholesky factor of the row covariance (tiny jitter keeps

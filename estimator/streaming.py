@@ -21,6 +21,7 @@ misfit is large); the ratio of the two residuals is reported.
 
 from __future__ import annotations
 
+import itertools
 from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -70,6 +71,23 @@ class Accumulator:
     @classmethod
     def empty(cls, n: int, n_sys: int) -> Accumulator:
         return cls(state=rls_init(n), sens=np.zeros((n, n_sys)))
+
+
+@dataclass(frozen=True)
+class _Pending:
+    """A used frame waiting for its rows: its fitted motion and what the rows need, per order."""
+
+    gamma_o: np.ndarray  # (k, 3) complex
+    omega_dot: np.ndarray  # (k, 3) complex
+    origin: np.ndarray  # (3,)
+    cov_unit: np.ndarray  # (6, 6)
+    orders: np.ndarray  # (k,)
+    rpm: float
+    force: np.ndarray  # (k, 3) complex
+    moment: np.ndarray  # (k, 3) complex
+    var: np.ndarray  # (k,)
+    dm_real: np.ndarray  # (k, 12, n_sys)
+    half: np.ndarray  # (k,) bool: a half order of a frame with an unknown 720 deg cycle
 
 
 @dataclass(frozen=True)
@@ -167,6 +185,7 @@ class InertiaEstimator:
         # one accumulator per half-order sign hypothesis (+1 as measured, -1 flipped)
         self.acc = {1: Accumulator.empty(n, n_sys), -1: Accumulator.empty(n, n_sys)}
         self.stats = EstimatorStats()
+        self._pending: list[_Pending] = []  # used frames whose rows are not assembled yet
         self.decided_sign: int | None = None  # half-order sign, once the residuals decided it
         self.decision: dict[str, Any] | None = None
         self.noise_var: dict[float, float] = {}  # smoothed channel noise variance per order
@@ -282,7 +301,12 @@ class InertiaEstimator:
         self.stats.ambiguous_frames += int(ambiguous)
         self.stats.rpm_lo = min(self.stats.rpm_lo, frame.rpm)
         self.stats.rpm_hi = max(self.stats.rpm_hi, frame.rpm)
+        # Relinearise after the first used frame (the nominal cog may be centimetres
+        # off) and then after every full batch.
+        # (Counted in used frames, not queued ones: an early flush for a published
+        # estimate must not move the relinearisation points.)
         if self.stats.used % RELINEARISE_EVERY == 1:
+            self._flush()
             self._relinearise()
         return FrameOutcome(
             frame.time_s, frame.rpm, tuple(used_orders), rejected, None, residuals, motion
@@ -344,63 +368,89 @@ class InertiaEstimator:
         moment: np.ndarray,
         frame_power: float,
     ) -> None:
-        setup = self.setup
+        """Queue the used orders of a frame; their rows are assembled a batch at a time."""
         var = self._noise_var(motion, ks, orders, max(1e-16 * frame_power, 1e-30))
         h = orders[ks]
-        derivs = channel_derivatives(setup, motion, ks, amplitudes, used)  # (k, u, n_sys)
+        derivs = channel_derivatives(self.setup, motion, ks, amplitudes, used)  # (k, u, n_sys)
         dmeas = np.einsum("iu,kus->kis", motion.gain, derivs)
-        dm_real = np.concatenate([dmeas.real, dmeas.imag], axis=1)  # (k, 12, n_sys)
-
-        def rows_for(
-            sel: np.ndarray, sign: np.ndarray
-        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            """Whitened rows (k, 12, n), (k, 12) and sensitivities (k, 12, n_sys) of orders ks[sel],
-            with the measured motion of each multiplied by ``sign`` (k,)."""
-            kk = ks[sel]
-            sg = sign[sel]
-            r = frame_rows(
-                setup,
-                self.layout,
-                self.lin,
-                sg[:, None] * motion.gamma_o[kk],
-                sg[:, None] * motion.omega_dot[kk],
-                motion.origin,
-                motion.cov_unit,
-                h[sel],
-                frame.rpm,
-                force[kk],
-                moment[kk],
-                var[sel],
+        self._pending.append(
+            _Pending(
+                gamma_o=motion.gamma_o[ks],
+                omega_dot=motion.omega_dot[ks],
+                origin=motion.origin,
+                cov_unit=motion.cov_unit,
+                orders=h,
+                rpm=float(frame.rpm),
+                force=force[ks],
+                moment=moment[ks],
+                var=var,
+                dm_real=np.concatenate([dmeas.real, dmeas.imag], axis=1),  # (k, 12, n_sys)
+                half=((2 * h) % 2 == 1) & ("cycle_ambiguous" in frame.flags),
             )
-            return r.H, r.y, r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[sel])
+        )
 
-        # The two sign hypotheses differ only in the half orders of frames whose 720 deg
-        # cycle is unknown (there the motion, and every measurement-derived term, flips
-        # sign): only those rows are computed twice, and only until the residuals have
-        # decided between the hypotheses.
-        everything = np.ones(len(ks), dtype=bool)
-        half = ((2 * h) % 2 == 1) & ("cycle_ambiguous" in frame.flags)
+    def _rows(
+        self, batch: list[_Pending], sign: np.ndarray, sel: np.ndarray
+    ) -> tuple[np.ndarray, ...]:
+        """Whitened rows (k, 12, n), (k, 12) and sensitivities (k, 12, n_sys) of the
+        selected (frame, order) pairs of ``batch``, motions multiplied by ``sign``."""
+        cat = lambda name: np.concatenate([getattr(p, name) for p in batch])[sel]  # noqa: E731
+        counts = [len(p.orders) for p in batch]
+
+        def rep(name):
+            return np.repeat(np.array([getattr(p, name) for p in batch]), counts, axis=0)[sel]
+
+        sg = sign[sel]
+        r = frame_rows(
+            self.setup,
+            self.layout,
+            self.lin,
+            sg[:, None] * cat("gamma_o"),
+            sg[:, None] * cat("omega_dot"),
+            rep("origin"),
+            rep("cov_unit"),
+            cat("orders"),
+            rep("rpm"),
+            cat("force"),
+            cat("moment"),
+            cat("var"),
+        )
+        return r.H, r.y, r.whiten @ r.d_meas @ (sg[:, None, None] * cat("dm_real"))
+
+    def _flush(self) -> None:
+        """Assemble the queued frames' rows and add them, frame by frame, to both hypotheses.
+
+        The two sign hypotheses differ only in the half orders of frames whose 720 deg
+        cycle is unknown (there the motion, and every measurement-derived term, flips
+        sign): only those rows are computed twice, and only until the residuals have
+        decided between the hypotheses.
+        """
+        batch, self._pending = self._pending, []
+        if not batch:
+            return
+        half = np.concatenate([p.half for p in batch])
         flip = np.where(half, -1.0, 1.0)
-        n = self.layout.size
+        everything = np.ones(len(half), dtype=bool)
         if self.decided_sign is not None:
-            hyp = {
-                self.decided_sign: rows_for(
-                    everything, flip if self.decided_sign < 0 else everything * 1.0
-                )
-            }
+            sign = flip if self.decided_sign < 0 else np.ones(len(half))
+            hyp = {self.decided_sign: self._rows(batch, sign, everything)}
         else:
-            H, y, dr = rows_for(everything, np.ones(len(ks)))
+            H, y, dr = self._rows(batch, np.ones(len(half)), everything)
             hyp = {1: (H, y, dr), -1: (H, y, dr)}
             if np.any(half):
                 Hf, yf, drf = H.copy(), y.copy(), dr.copy()
-                Hf[half], yf[half], drf[half] = rows_for(half, flip)
+                Hf[half], yf[half], drf[half] = self._rows(batch, flip, half)
                 hyp[-1] = (Hf, yf, drf)
-        for sign, (Hs, ys, drs) in hyp.items():
-            acc = self.acc[sign]
-            acc.state = rls_update(
-                acc.state, Hs.reshape(-1, n), ys.reshape(-1), None, self.forgetting
-            )
-            acc.sens = self.forgetting * acc.sens + np.einsum("kip,kis->ps", Hs, drs)
+        n = self.layout.size
+        bounds = np.cumsum([0] + [len(p.orders) for p in batch])
+        for sign_, (Hs, ys, drs) in hyp.items():
+            acc = self.acc[sign_]
+            # one update per frame, in stream order: the same sums whatever the batch
+            for a, b in itertools.pairwise(bounds):
+                acc.state = rls_update(
+                    acc.state, Hs[a:b].reshape(-1, n), ys[a:b].reshape(-1), None, self.forgetting
+                )
+                acc.sens = self.forgetting * acc.sens + np.einsum("kip,kis->ps", Hs[a:b], drs[a:b])
 
     def _decide_half_order_sign(self) -> None:
         """Stop carrying the losing sign hypothesis once the residuals leave no doubt."""
@@ -432,6 +482,7 @@ class InertiaEstimator:
 
     def best_state(self) -> Accumulator:
         """The sign hypothesis with the smaller weighted residual (+1 unless ambiguous)."""
+        self._flush()
         if self.stats.ambiguous_frames == 0:
             return self.acc[1]
         if self.decided_sign is not None:
@@ -441,6 +492,7 @@ class InertiaEstimator:
 
     def half_order_resolution(self) -> dict[str, Any] | None:
         """How the 720 deg ambiguity was resolved (None when a phase reference existed)."""
+        self._flush()
         if self.stats.ambiguous_frames == 0:
             return None
         if self.decided_sign is not None and self.decision is not None:
