@@ -22,32 +22,17 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, model_validator
 
 from acquisition.stream import SourceError
-from ptinertia.units import normalise_keys
-from ptinertia.validation import format_validation_error
+from ptinertia.validation import TomlTable, format_validation_error
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
 
 
-class TomlSection(BaseModel):
-    """Unknown keys refused, unit suffixes normalised (as the bench file)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    @model_validator(mode="before")
-    @classmethod
-    def _units(cls, data: Any) -> Any:
-        if isinstance(data, dict):
-            try:
-                return normalise_keys(data, set(cls.model_fields))
-            except KeyError as err:
-                key, message = err.args
-                raise ValueError(f"{key}: {message}") from None
-        return data
+TomlSection = TomlTable  # unknown keys refused, unit suffixes normalised (as the bench file)
 
 
 def _nonzero(v: list[float], what: str) -> list[float]:

@@ -15,16 +15,13 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import (
-    BaseModel,
-    ConfigDict,
     Field,
     ValidationError,
     field_validator,
     model_validator,
 )
 
-from ptinertia.units import normalise_keys
-from ptinertia.validation import format_validation_error
+from ptinertia.validation import TomlTable, format_validation_error
 
 # discriminator tags pydantic puts in error locations of the [gas] union
 GAS_MODELS = ("parametric", "trace", "orders")
@@ -41,21 +38,7 @@ class ConfigError(ValueError):
     """A bench file that cannot be used; the message is one line naming the key."""
 
 
-class Section(BaseModel):
-    """Base of every table: unknown keys refused, unit suffixes normalised."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    @model_validator(mode="before")
-    @classmethod
-    def _units(cls, data: Any) -> Any:
-        if isinstance(data, dict):
-            try:
-                return normalise_keys(data, set(cls.model_fields))
-            except KeyError as err:
-                key, message = err.args
-                raise ValueError(f"{key}: {message}") from None
-        return data
+Section = TomlTable  # base of every bench-file table
 
 
 def _orthonormal_rows(axes: list[list[float]], what: str) -> list[list[float]]:

@@ -1,10 +1,31 @@
-"""One-line messages from pydantic validation errors (bench files, test files, set-ups)."""
+"""Validation shared by our TOML files (bench, pendulum test, modal set-up): the table base
+class and one-line messages from pydantic errors."""
 
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import Any
 
-from pydantic import ValidationError
+from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
+
+from ptinertia.units import normalise_keys
+
+
+class TomlTable(BaseModel):
+    """Base of every table of our TOML files: unknown keys refused, unit suffixes normalised."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _units(cls, data: Any) -> Any:
+        if isinstance(data, dict):
+            try:
+                return normalise_keys(data, set(cls.model_fields))
+            except KeyError as err:
+                key, message = err.args
+                raise ValueError(f"{key}: {message}") from None
+        return data
 
 
 def format_validation_error(err: ValidationError, where: str, hidden: Iterable[str] = ()) -> str:
