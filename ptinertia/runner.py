@@ -171,11 +171,15 @@ def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO = sys.stdou
         print(f"{name:6} {value:11.4f} {ci:9.4f} {t:11.4f} {rel:>9}  {unit}", file=out)
     unb = doc.get("unbalance")
     if unb:
-        print(
-            f"residual unbalance {1e3 * unb['mr_kgm']['value']:.3f} g m at "
-            f"{unb['angle_deg']['value']:.1f} deg",
-            file=out,
-        )
+        mr, mr_std = unb["mr_kgm"]["value"], unb["mr_kgm"]["std"] or 0.0
+        if mr > 2 * mr_std:
+            print(
+                f"residual unbalance {1e3 * mr:.3f} +- {1e3 * Z95 * mr_std:.3f} g m at "
+                f"{unb['angle_deg']['value']:.1f} deg",
+                file=out,
+            )
+        else:  # its angle means nothing then
+            print(f"residual unbalance not detected (below {1e3 * 2 * mr_std:.3f} g m)", file=out)
     frames = doc["frames"]
     rejected = ", ".join(f"{k} {v}" for k, v in frames["rejected"].items()) or "none"
     lo, hi = doc["rpm_range"] or (math.nan, math.nan)
