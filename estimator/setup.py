@@ -54,6 +54,9 @@ class Gates:
     baseline_frames: int = 15  # first frames of each order that set its residual baseline
     residual_growth: float = 2.0  # reject when the residual exceeds growth * baseline + margin
     residual_margin: float = 0.002
+    # reject an order whose rigid motion bends by more than this over three frames
+    # 720 deg apart (relative second difference): off the mass line, near a mode
+    max_curvature: float = 0.005
     max_rpm_change: float = 0.03  # relative rpm change across the frame window
     min_mode_ratio: float = 1.25  # order frequency / highest rigid-body mode
     rpm_range: tuple[float, float] = (0.0, float("inf"))

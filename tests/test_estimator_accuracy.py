@@ -152,3 +152,11 @@ def test_elastic_mode_frames_are_rejected_and_the_principal_terms_hold(
 )
 def test_elastic_mode_cog_within_the_realistic_3_mm(elastic_run: dict[str, Any]) -> None:
     assert np.all(cog_error_m(elastic_run) < 0.003)
+
+
+def test_frames_whose_motion_bends_near_the_modes_are_rejected(noise_free: dict[str, Any]) -> None:
+    # A fast sweep through the upper rigid-body modes: the dsp's cycle-long window
+    # cannot follow the bend of the response there; the mass-line sweep never trips it.
+    near = run(I3, {"rpm_start": 600.0, "rpm_end": 900.0, "duration_s": 5.0})
+    assert near["frames"]["orders_rejected"].get("off_mass_line", 0) >= 10
+    assert "off_mass_line" not in noise_free["frames"]["orders_rejected"]
