@@ -40,6 +40,7 @@ from acquisition.stream import (  # noqa: E402
 )
 from replay.reader import open_log  # noqa: E402
 from replay.recorder import McapRecorder, RecordingInfo  # noqa: E402
+from replay.schemas import PARAMETERS  # noqa: E402
 from replay.source import McapSource  # noqa: E402
 
 FS = 25_600.0
@@ -63,20 +64,7 @@ def make_stream(seconds: float) -> tuple[StreamLayout, list[Any]]:
     layout = StreamLayout((acc,), ("tacho",))
     rev_s = 60.0 / RPM
     amp = rng.standard_normal((3, N_CH)) + 1j * rng.standard_normal((3, N_CH))
-    names = (
-        "Ixx",
-        "Iyy",
-        "Izz",
-        "Ixy",
-        "Ixz",
-        "Iyz",
-        "Gx",
-        "Gy",
-        "Gz",
-        "unb_re",
-        "unb_im",
-        "crank_offset",
-    )
+    names = tuple(p for p in PARAMETERS if p != "inv_mass")  # an i3: the mass is weighed
     n = len(names)
     items: list[Any] = []
     next_frame, next_estimate = rev_s, 0.25

@@ -40,15 +40,7 @@ INERTIA_TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 
 def inertia_columns(omega_dot: np.ndarray) -> np.ndarray:
     """(3, 6) matrix A with ``I @ omega_dot == A @ [Ixx, Iyy, Izz, Ixy, Ixz, Iyz]``."""
-    wx, wy, wz = omega_dot
-    zero = 0 * wx
-    return np.array(
-        [
-            [wx, zero, zero, -wy, -wz, zero],
-            [zero, wy, zero, -wx, zero, -wz],
-            [zero, zero, wz, zero, -wx, -wy],
-        ]
-    )
+    return inertia_columns_batch(np.asarray(omega_dot)[None, :])[0]
 
 
 @dataclass(frozen=True)

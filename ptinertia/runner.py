@@ -14,8 +14,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
-import numpy as np
-
 from acquisition.stream import Source
 from estimator.result import Z95, Estimate
 from estimator.setup import Corrections, Gates, Tolerances
@@ -194,7 +192,3 @@ def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO = sys.stdou
             + "; ".join(doc["principal"]["consistency"]["problems"]),
             file=out,
         )
-
-
-def finite(values: np.ndarray) -> bool:
-    return bool(np.all(np.isfinite(values)))

@@ -12,8 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 from acquisition.stream import SourceEvent, StreamItem, StreamLayout
 from estimator.result import Estimate
 from estimator.setup import EstimatorSetup
@@ -78,10 +76,3 @@ class Sink:
 
     def close(self, final: Estimate | None) -> None:
         """Called exactly once at the end (normal end, error or Ctrl-C)."""
-
-
-def estimate_vector(estimate: Estimate) -> dict[str, np.ndarray]:
-    """Names, values and standard deviations as arrays (for compact logging)."""
-    names = np.array(estimate.names)
-    std = np.array([estimate.std(n) for n in estimate.names])
-    return {"names": names, "value": estimate.theta.copy(), "std": std}
