@@ -86,6 +86,76 @@ def check_geometry(positions: np.ndarray, directions: np.ndarray) -> None:
         )
 
 
+@dataclass(frozen=True)
+class RigidFit:
+    """The part of the rigid fit that depends only on the channel geometry and weights.
+
+    A bench keeps the same channels frame after frame: decompose once, then a
+    frame's fit is two small matrix products (:meth:`fit`).
+    """
+
+    origin: np.ndarray  # (3,) m
+    jw: np.ndarray  # (n_ch, 6) weighted design matrix
+    sw: np.ndarray  # (n_ch,) square roots of the weights
+    pinv: np.ndarray  # (6, n_ch) of the weighted problem
+    cov_unit: np.ndarray  # (6, 6)
+    gain: np.ndarray  # (6, n_ch): motion = gain @ amplitudes
+    mean_w: float
+
+    @classmethod
+    def of(
+        cls,
+        positions: np.ndarray,
+        directions: np.ndarray,
+        weights: np.ndarray | None = None,
+    ) -> RigidFit:
+        """Decompose the geometry; :class:`KinematicsError` when it is degenerate."""
+        positions = np.asarray(positions, dtype=float)
+        n_ch = positions.shape[0]
+        w = np.ones(n_ch) if weights is None else np.asarray(weights, dtype=float)
+        origin = positions.mean(axis=0)
+        sw = np.sqrt(w)
+        jw = design_matrix(positions, directions, origin) * sw[:, None]
+        # Solve through the SVD: the geometry may be poorly conditioned, and the
+        # same decomposition gives the unit covariance for free.
+        u, s, vt = np.linalg.svd(jw, full_matrices=False)
+        if s[-1] < 1e-9 * s[0]:
+            raise KinematicsError("sensor geometry is degenerate: rigid-body motion not determined")
+        pinv = (vt.T / s) @ u.T
+        return cls(
+            origin=origin,
+            jw=jw,
+            sw=sw,
+            pinv=pinv,
+            cov_unit=(vt.T / s**2) @ vt,
+            gain=pinv * sw,
+            mean_w=float(np.mean(w)),
+        )
+
+    def fit(self, amplitudes: np.ndarray) -> RigidMotion:
+        """The motion per order from (n_orders, n_ch) complex amplitudes, m/s^2."""
+        amplitudes = np.atleast_2d(np.asarray(amplitudes, dtype=complex))
+        y = amplitudes * self.sw
+        x = y @ self.pinv.T  # (n_orders, 6)
+        resid = y - x @ self.jw.T
+        dof = max(self.sw.size - 6, 1)
+        resid_ss = np.sum(resid.real**2 + resid.imag**2, axis=1)
+        residual_rms = np.sqrt(resid_ss / dof / self.mean_w)
+        signal_rms = np.sqrt(np.mean(amplitudes.real**2 + amplitudes.imag**2, axis=1))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            relative = np.where(signal_rms > 0, residual_rms / signal_rms, 0.0)
+        return RigidMotion(
+            origin=self.origin,
+            gamma_o=x[:, :3],
+            omega_dot=x[:, 3:],
+            cov_unit=self.cov_unit,
+            residual_rms=residual_rms,
+            relative_residual=relative,
+            noise_var=resid_ss / (2 * dof),
+            gain=self.gain,
+        )
+
+
 def fit_rigid_motion(
     amplitudes: np.ndarray,
     positions: np.ndarray,
@@ -105,36 +175,4 @@ def fit_rigid_motion(
     weights : (n_ch,) float, optional
         Inverse noise variances (relative); default equal.
     """
-    amplitudes = np.atleast_2d(np.asarray(amplitudes, dtype=complex))
-    positions = np.asarray(positions, dtype=float)
-    n_ch = positions.shape[0]
-    w = np.ones(n_ch) if weights is None else np.asarray(weights, dtype=float)
-    origin = positions.mean(axis=0)
-    jac = design_matrix(positions, directions, origin)
-    sw = np.sqrt(w)
-    jw = jac * sw[:, None]
-    # Solve through the SVD: the geometry may be poorly conditioned, and the
-    # same decomposition gives the unit covariance for free.
-    u, s, vt = np.linalg.svd(jw, full_matrices=False)
-    if s[-1] < 1e-9 * s[0]:
-        raise KinematicsError("sensor geometry is degenerate: rigid-body motion not determined")
-    pinv = (vt.T / s) @ u.T  # (6, n_ch)
-    y = amplitudes * sw[None, :]
-    x = y @ pinv.T  # (n_orders, 6)
-    resid = y - x @ jw.T
-    dof = max(n_ch - 6, 1)
-    residual_rms = np.sqrt(np.sum(np.abs(resid) ** 2, axis=1) / dof / np.mean(w))
-    signal_rms = np.sqrt(np.mean(np.abs(amplitudes) ** 2, axis=1))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        relative = np.where(signal_rms > 0, residual_rms / signal_rms, 0.0)
-    cov_unit = (vt.T / s**2) @ vt
-    return RigidMotion(
-        origin=origin,
-        gamma_o=x[:, :3],
-        omega_dot=x[:, 3:],
-        cov_unit=cov_unit,
-        residual_rms=residual_rms,
-        relative_residual=relative,
-        noise_var=np.sum(np.abs(resid) ** 2, axis=1) / (2 * dof),
-        gain=pinv * sw[None, :],
-    )
+    return RigidFit.of(positions, directions, weights).fit(amplitudes)

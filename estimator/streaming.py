@@ -29,14 +29,24 @@ from typing import Any, Protocol
 import numpy as np
 
 from estimator.equations import Linearisation, ParameterLayout, frame_rows
-from estimator.kinematics import KinematicsError, RigidMotion, fit_rigid_motion
+from estimator.kinematics import KinematicsError, RigidFit, RigidMotion
 from estimator.rls import RlsState, rls_init, rls_solve, rls_update
 from estimator.setup import EstimatorSetup
 from estimator.vec import cross
 
 # The linearised terms (G x F_unb, row weighting) move slowly once a few frames are in:
-# refresh them every few used frames rather than solving after every frame.
+# refresh them every few used frames rather than solving after every frame, more
+# often while the estimate still moves (each refresh costs a solve and a row batch).
 RELINEARISE_EVERY = 8
+RELINEARISE_EVERY_LATER = 32
+RELINEARISE_LATER_AFTER = 64
+
+
+def relinearise_due(used: int) -> bool:
+    """True after the used frames at which the linearisation point is refreshed."""
+    every = RELINEARISE_EVERY if used <= RELINEARISE_LATER_AFTER else RELINEARISE_EVERY_LATER
+    return used % every == 1
+
 
 # The half-order sign is decided when, after this many ambiguous frames, the wrong
 # hypothesis leaves this many times the weighted residual of the right one.
@@ -86,7 +96,9 @@ class _Pending:
     force: np.ndarray  # (k, 3) complex
     moment: np.ndarray  # (k, 3) complex
     var: np.ndarray  # (k,)
-    dm_real: np.ndarray  # (k, 12, n_sys)
+    fit: RigidFit  # the channel geometry of the fit
+    used: np.ndarray  # (u,) setup indices of the fitted channels
+    amplitudes: np.ndarray  # (k, u) complex, the fitted readings
     half: np.ndarray  # (k,) bool: a half order of a frame with an unknown 720 deg cycle
 
 
@@ -131,36 +143,42 @@ def systematic_stds(setup: EstimatorSetup) -> np.ndarray:
     return np.array([tol.gain_rel] * n_ch + per_sensor * setup.n_sensors)
 
 
-def channel_derivatives(
+def motion_sensitivity(
     setup: EstimatorSetup,
-    motion: RigidMotion,
-    ks: np.ndarray,
-    amplitudes: np.ndarray,
+    fit: RigidFit,
     used: np.ndarray,
+    amplitudes: np.ndarray,
+    gamma_o: np.ndarray,
+    omega_dot: np.ndarray,
 ) -> np.ndarray:
-    """d(channel readings)/d(systematic parameters), (n_k, n_used, n_sys) complex, orders ks.
+    """d[gamma_O, Omega'] / d(systematic parameters), (P, 12, n_sys) real (Re rows, Im rows).
+
+    For P (frame, order) pairs fitted with the same channels ``used`` (indices)
+    and geometry ``fit``; ``amplitudes`` (P, n_used) complex, the motion (P, 3).
 
     A reading is ``n . gamma_P``. A relative gain error g scales it by (1 + g);
     turning the sensor by a small angle about bench axis e changes ``n`` by
     ``e x n``, so the reading by ``e . (n x gamma_P)``; moving it along e
     changes ``gamma_P`` by ``Omega' x e``, so the reading by ``e . (n x Omega')``.
+    The fit is linear (``motion = gain @ readings``), so each reading's change
+    reaches the motion through its column of the gain.
     """
     n_ch = len(setup.channels)
-    idx = np.flatnonzero(used)
-    out = np.zeros((len(ks), idx.size, n_ch + 6 * setup.n_sensors), complex)
-    n = setup.directions[idx]  # (u, 3)
-    r = setup.positions[idx] - motion.origin  # (u, 3)
-    omega_dot = motion.omega_dot[ks]  # (k, 3)
-    gamma_p = motion.gamma_o[ks][:, None, :] + cross(omega_dot[:, None, :], r[None])  # (k, u, 3)
-    rows = np.arange(idx.size)
-    out[:, rows, idx] = amplitudes[np.ix_(ks, idx)]
-    base = n_ch + 6 * setup.sensor_of_channel[idx]
-    turn = cross(n[None], gamma_p)  # (k, u, 3)
+    out = np.zeros((len(gamma_o), 6, n_ch + 6 * setup.n_sensors), complex)
+    n = setup.directions[used]  # (u, 3)
+    r = setup.positions[used] - fit.origin  # (u, 3)
+    gamma_p = gamma_o[:, None, :] + cross(omega_dot[:, None, :], r[None])  # (P, u, 3)
+    turn = cross(n[None], gamma_p)  # (P, u, 3)
     move = cross(n[None], omega_dot[:, None, :])
-    for ax in range(3):
-        out[:, rows, base + ax] = turn[:, :, ax]
-        out[:, rows, base + 3 + ax] = move[:, :, ax]
-    return out
+    # One channel at a time (elementwise products, a fixed summation order): the
+    # result of a pair does not depend on how many pairs are assembled together.
+    for j, c in enumerate(used):
+        g = fit.gain[:, j]  # (6,)
+        base = n_ch + 6 * int(setup.sensor_of_channel[c])
+        out[:, :, c] = g[None, :] * amplitudes[:, j, None]
+        out[:, :, base : base + 3] += g[None, :, None] * turn[:, j, None, :]
+        out[:, :, base + 3 : base + 6] += g[None, :, None] * move[:, j, None, :]
+    return np.concatenate([out.real, out.imag], axis=1)
 
 
 class InertiaEstimator:
@@ -191,16 +209,19 @@ class InertiaEstimator:
         self.noise_var: dict[float, float] = {}  # smoothed channel noise variance per order
         self.residual_baseline: dict[float, list[float]] = {}  # first rigid-fit residuals per order
         self.residual_limit: dict[float, float] = {}
-        # last two (revolution, Omega') per order, for the mass-line curvature gate
+        # the last two revolutions and their Omega' (k, 3) per tracked order set,
+        # for the mass-line curvature gate
         self.motion_history: dict[
-            float, list[tuple[int, np.ndarray]]
-        ] = {}  # non-rigid gate per order, from the baseline
+            tuple[float, ...], tuple[int, int, tuple[np.ndarray, np.ndarray]]
+        ] = {}
         self.lin = Linearisation(
             cog=np.asarray(setup.cog_nominal, float),
             inertia=np.asarray(setup.inertia_nominal, float),
             mass=float(setup.mass_nominal),
         )
         self.scale = self._parameter_scale()
+        self._columns: dict[tuple[str, ...], np.ndarray] = {}  # frame channels -> setup columns
+        self._fitters: dict[bytes, RigidFit | None] = {}  # channel mask -> geometry
 
     def _parameter_scale(self) -> np.ndarray:
         scale = []
@@ -233,14 +254,32 @@ class InertiaEstimator:
             return "rpm_unsteady"
         return None
 
-    def _channel_mask(self, frame: FrameLike) -> np.ndarray:
-        ok = np.zeros(len(self.setup.channels), dtype=bool)
-        index = {c: i for i, c in enumerate(frame.channels)}
-        for i, name in enumerate(self.setup.channels):
-            j = index.get(name)
-            if j is not None and bool(frame.channel_ok[j]):
-                ok[i] = bool(np.all(np.isfinite(frame.amplitudes[:, j])))
-        return ok
+    def _channel_mask(self, frame: FrameLike) -> tuple[np.ndarray, np.ndarray]:
+        """Usable setup channels (bool) and, per setup channel, its column in the frame."""
+        cols = self._columns.get(frame.channels)
+        if cols is None:
+            index = {c: i for i, c in enumerate(frame.channels)}
+            cols = np.array([index.get(name, -1) for name in self.setup.channels])
+            self._columns[frame.channels] = cols
+        present = cols >= 0
+        at = np.where(present, cols, 0)
+        finite = np.isfinite(frame.amplitudes[:, at]).all(axis=0)
+        ok = present & np.asarray(frame.channel_ok, bool)[at] & finite
+        return ok, cols
+
+    def _fitter(self, used: np.ndarray) -> RigidFit | None:
+        """The geometry decomposition of these channels (None: degenerate), cached per mask."""
+        key = used.tobytes()
+        if key not in self._fitters:
+            setup = self.setup
+            weights = None if setup.channel_weights is None else setup.channel_weights[used]
+            try:
+                self._fitters[key] = RigidFit.of(
+                    setup.positions[used], setup.directions[used], weights
+                )
+            except KinematicsError:
+                self._fitters[key] = None
+        return self._fitters[key]
 
     # -- update -------------------------------------------------------------------------
     def update(self, frame: FrameLike) -> FrameOutcome:
@@ -254,23 +293,18 @@ class InertiaEstimator:
         residuals: dict[float, float] = {}
         used_orders: list[float] = []
         if reason is None:
-            used = self._channel_mask(frame)
+            used, cols = self._channel_mask(frame)
             if used.sum() < 6:
                 reason = "too_few_channels"
         if reason is not None:
             return self._reject(frame, reason)
 
-        index = {c: i for i, c in enumerate(frame.channels)}
-        cols = [index[c] for c in np.asarray(setup.channels)[used]]
         amplitudes = np.zeros((len(frame.orders), len(setup.channels)), complex)
-        amplitudes[:, used] = frame.amplitudes[:, cols]
-        weights = None if setup.channel_weights is None else setup.channel_weights[used]
-        try:
-            motion = fit_rigid_motion(
-                amplitudes[:, used], setup.positions[used], setup.directions[used], weights
-            )
-        except KinematicsError:
+        amplitudes[:, used] = frame.amplitudes[:, cols[used]]
+        fitter = self._fitter(used)
+        if fitter is None:
             return self._reject(frame, "sensor_geometry")
+        motion = fitter.fit(amplitudes[:, used])
 
         ambiguous = "cycle_ambiguous" in frame.flags
         orders = np.asarray(frame.orders, dtype=float)
@@ -299,7 +333,17 @@ class InertiaEstimator:
         if used_orders:
             ks = np.array([k for k, h in enumerate(orders) if float(h) in used_orders])
             self._add_orders(
-                frame, motion, ks, orders, amplitudes, used, force, moment, frame_power, curvature
+                frame,
+                fitter,
+                motion,
+                ks,
+                orders,
+                amplitudes,
+                used,
+                force,
+                moment,
+                frame_power,
+                curvature,
             )
         if not used_orders:
             counts = Counter(rejected.values())
@@ -312,7 +356,7 @@ class InertiaEstimator:
         # off) and then after every full batch.
         # (Counted in used frames, not queued ones: an early flush for a published
         # estimate must not move the relinearisation points.)
-        if self.stats.used % RELINEARISE_EVERY == 1:
+        if relinearise_due(self.stats.used):
             self._flush()
             self._relinearise()
         return FrameOutcome(
@@ -337,28 +381,31 @@ class InertiaEstimator:
         modes, where the frame errors reach 0.2-28 %.
         """
         angle = getattr(frame, "crank_angle_rad", None)
-        rev = (
-            round(float(angle) / (2 * np.pi)) if angle is not None and np.isfinite(angle) else None
-        )
+        if angle is None or not np.isfinite(angle):
+            return {}
+        rev = round(float(angle) / (2 * np.pi))
+        w = motion.omega_dot  # (k, 3)
+        key = tuple(orders.tolist())
+        hist = self.motion_history.get(key)
         out: dict[float, float] = {}
-        for k, h in enumerate(orders):
-            key = float(h)
-            hist = self.motion_history.get(key, [])
-            w = motion.omega_dot[k]
-            if (
-                rev is not None
-                and len(hist) == 2
-                and hist[1][0] == rev - 2
-                and hist[0][0] == rev - 4
-            ):
-                size = max(float(np.linalg.norm(w)), 1e-300)
-                bend = float(np.linalg.norm(w - 2 * hist[1][1] + hist[0][1])) / size
-                # what noise alone puts into a second difference of three fits (sqrt 6
-                # sigma), sigma from this frame's rigid-fit residual: only the excess bends
-                sigma = np.sqrt(2 * motion.noise_var[k] * np.trace(motion.cov_unit[3:, 3:])) / size
-                out[key] = max(0.0, bend - 3 * np.sqrt(6.0) * float(sigma))
-            if rev is not None and np.all(np.isfinite(w)):
-                self.motion_history[key] = [*hist[-1:], (rev, w.copy())]
+        if hist is not None and hist[0] == rev - 4 and hist[1] == rev - 2:
+            w0, w1 = hist[2]
+            size = np.maximum(np.sqrt(np.sum(w.real**2 + w.imag**2, axis=1)), 1e-300)
+            d = w - 2 * w1 + w0
+            bend = np.sqrt(np.sum(d.real**2 + d.imag**2, axis=1)) / size
+            # what noise alone puts into a second difference of three fits (sqrt 6
+            # sigma), sigma from this frame's rigid-fit residual: only the excess bends
+            trace = float(np.trace(motion.cov_unit[3:, 3:]))
+            sigma = np.sqrt(2 * motion.noise_var * trace) / size
+            excess = np.maximum(0.0, bend - 3 * np.sqrt(6.0) * sigma)
+            out = {h: float(x) for h, x in zip(key, excess, strict=True) if np.isfinite(x)}
+        # Orders whose motion is not finite keep their previous value.
+        prev = hist[2][1] if hist is not None and hist[1] == rev - 2 else w
+        latest = np.where(np.isfinite(w).all(axis=1, keepdims=True), w, prev)
+        if hist is not None and hist[1] == rev - 2:
+            self.motion_history[key] = (rev - 2, rev, (hist[2][1], latest))
+        else:
+            self.motion_history[key] = (-(10**9), rev, (latest, latest))
         return out
 
     def _order_gate(self, h: float, rpm: float, motion: RigidMotion, k: int) -> str | None:
@@ -404,6 +451,7 @@ class InertiaEstimator:
     def _add_orders(
         self,
         frame: FrameLike,
+        fit: RigidFit,
         motion: RigidMotion,
         ks: np.ndarray,
         orders: np.ndarray,
@@ -422,8 +470,7 @@ class InertiaEstimator:
         bends = np.array([curvature.get(float(hh), 0.0) for hh in orders[ks]])
         var = np.maximum(var, bends**2 * power)
         h = orders[ks]
-        derivs = channel_derivatives(self.setup, motion, ks, amplitudes, used)  # (k, u, n_sys)
-        dmeas = np.einsum("iu,kus->kis", motion.gain, derivs)
+        idx = np.flatnonzero(used)
         self._pending.append(
             _Pending(
                 gamma_o=motion.gamma_o[ks],
@@ -435,13 +482,35 @@ class InertiaEstimator:
                 force=force[ks],
                 moment=moment[ks],
                 var=var,
-                dm_real=np.concatenate([dmeas.real, dmeas.imag], axis=1),  # (k, 12, n_sys)
+                fit=fit,
+                used=idx,
+                amplitudes=amplitudes[np.ix_(ks, idx)],
                 half=((2 * h) % 2 == 1) & ("cycle_ambiguous" in frame.flags),
             )
         )
 
+    def _sensitivity(self, batch: list[_Pending]) -> np.ndarray:
+        """(P, 12, n_sys): d motion / d systematic parameters of every pair of ``batch``."""
+        out = []
+        start = 0
+        for end in range(1, len(batch) + 1):
+            if end == len(batch) or batch[end].fit is not batch[start].fit:
+                run = batch[start:end]
+                out.append(
+                    motion_sensitivity(
+                        self.setup,
+                        run[0].fit,
+                        run[0].used,
+                        np.concatenate([p.amplitudes for p in run]),
+                        np.concatenate([p.gamma_o for p in run]),
+                        np.concatenate([p.omega_dot for p in run]),
+                    )
+                )
+                start = end
+        return np.concatenate(out)
+
     def _rows(
-        self, batch: list[_Pending], sign: np.ndarray, sel: np.ndarray
+        self, batch: list[_Pending], sign: np.ndarray, sel: np.ndarray, dm_real: np.ndarray
     ) -> tuple[np.ndarray, ...]:
         """Whitened rows (k, 12, n), (k, 12) and sensitivities (k, 12, n_sys) of the
         selected (frame, order) pairs of ``batch``, motions multiplied by ``sign``."""
@@ -466,7 +535,7 @@ class InertiaEstimator:
             cat("moment"),
             cat("var"),
         )
-        return r.H, r.y, r.whiten @ r.d_meas @ (sg[:, None, None] * cat("dm_real"))
+        return r.H, r.y, r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[sel])
 
     def _flush(self) -> None:
         """Assemble the queued frames' rows and add them, frame by frame, to both hypotheses.
@@ -482,15 +551,16 @@ class InertiaEstimator:
         half = np.concatenate([p.half for p in batch])
         flip = np.where(half, -1.0, 1.0)
         everything = np.ones(len(half), dtype=bool)
+        dm = self._sensitivity(batch)
         if self.decided_sign is not None:
             sign = flip if self.decided_sign < 0 else np.ones(len(half))
-            hyp = {self.decided_sign: self._rows(batch, sign, everything)}
+            hyp = {self.decided_sign: self._rows(batch, sign, everything, dm)}
         else:
-            H, y, dr = self._rows(batch, np.ones(len(half)), everything)
+            H, y, dr = self._rows(batch, np.ones(len(half)), everything, dm)
             hyp = {1: (H, y, dr), -1: (H, y, dr)}
             if np.any(half):
                 Hf, yf, drf = H.copy(), y.copy(), dr.copy()
-                Hf[half], yf[half], drf[half] = self._rows(batch, flip, half)
+                Hf[half], yf[half], drf[half] = self._rows(batch, flip, half, dm)
                 hyp[-1] = (Hf, yf, drf)
         n = self.layout.size
         bounds = np.cumsum([0] + [len(p.orders) for p in batch])

@@ -415,9 +415,32 @@ class Engine:
         force : (n_orders, 3) complex N, ``F(t) = Re{F_h exp(i h phi)}``.
         moment : (n_orders, 3) complex N m about ``about``.
         """
-        parts = self.excitation_parts(rpm, orders, about)
-        (fg, mg), (fi, mi) = parts["gas"], parts["inertia"]
-        return fg + fi, mg + mi
+        return self.order_excitation(orders, about).at(rpm)
+
+    def order_excitation(self, orders: npt.ArrayLike, about: npt.ArrayLike) -> OrderExcitation:
+        """The speed-independent parts of :meth:`excitation` for these orders, to reuse."""
+        fg, mg = self.gas_excitation(orders)
+        fi, mi = self.unit_inertia_orders(orders, about)
+        return OrderExcitation(fg, mg, fi, mi)
+
+
+@dataclass(frozen=True)
+class OrderExcitation:
+    """Excitation per order split by how it scales with speed (gas: not at all with our
+    pressure models; crank-train inertia: with omega^2). Each (n_orders, 3) complex."""
+
+    gas_force: np.ndarray  # N
+    gas_moment: np.ndarray  # N m
+    unit_inertia_force: np.ndarray  # N / (rad/s)^2
+    unit_inertia_moment: np.ndarray  # N m / (rad/s)^2
+
+    def at(self, rpm: float) -> tuple[np.ndarray, np.ndarray]:
+        """Force (N) and moment (N m) per order at ``rpm`` rev/min."""
+        w2 = float(rpm_to_omega(rpm)) ** 2
+        return (
+            self.gas_force + w2 * self.unit_inertia_force,
+            self.gas_moment + w2 * self.unit_inertia_moment,
+        )
 
 
 def _spectrum(x: np.ndarray) -> np.ndarray:

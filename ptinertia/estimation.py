@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from estimator.setup import Corrections, EstimatorSetup, Gates, MountStiffness, Tolerances
+from powertrain.engine import OrderExcitation
 from powertrain.model import BenchModel
 from ptinertia import config
 from ptinertia.bench import build_model
@@ -55,8 +56,14 @@ def estimator_setup(
         [i for i, sensor in enumerate(bench.sensors) for name in sensor.channels if name]
     )
 
+    # A stream tracks the same orders frame after frame: keep their speed-independent parts.
+    by_orders: dict[tuple[float, ...], OrderExcitation] = {}
+
     def excitation(rpm: float, orders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return engine.excitation(rpm, np.asarray(orders, float), about=reference)
+        key = tuple(np.asarray(orders, float).tolist())
+        if key not in by_orders:
+            by_orders[key] = engine.order_excitation(key, about=reference)
+        return by_orders[key].at(rpm)
 
     mode_max = float(np.max(model.modes().frequency_hz)) if has_mounts else None
     return EstimatorSetup(

@@ -126,9 +126,10 @@ class Pipeline:
         # frame update: do it every estimate_period_s of stream time (deterministic,
         # so a replay publishes the same estimates at the same frames).
         # A live run publishes after every used frame (a bench engineer watches it);
-        # as fast as possible, every 0.25 s of stream time is plenty.
+        # as fast as possible, every 0.5 s of stream time is plenty (a publish
+        # forces the queued frames' rows to be assembled: it is not free).
         self.estimate_period_s = (
-            (0.0 if live else 0.25) if estimate_period_s is None else estimate_period_s
+            (0.0 if live else 0.5) if estimate_period_s is None else estimate_period_s
         )
         self._last_estimate_t = -float("inf")
         self._published = False

@@ -173,7 +173,7 @@ def test_intervals_cover_the_truth_under_sensor_gain_errors() -> None:
 
 
 def test_publishing_estimates_midway_changes_no_bit_of_the_result() -> None:
-    # Live runs publish after every frame, replays every 0.25 s: the frames' rows are
+    # Live runs publish after every frame, replays every 0.5 s: the frames' rows are
     # assembled in batches, and flushing a batch early must not change any sum.
     body = Body(unbalance=5e-4 * np.exp(-1j * np.radians(40.0)))
     fr = [
