@@ -14,7 +14,7 @@ channel positions: it keeps the columns well scaled.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -101,6 +101,11 @@ class RigidFit:
     cov_unit: np.ndarray  # (6, 6)
     gain: np.ndarray  # (6, n_ch): motion = gain @ amplitudes
     mean_w: float
+    channels: np.ndarray | None = None  # (n_ch,) which channels of a larger set, if any
+
+    def on_channels(self, channels: np.ndarray) -> RigidFit:
+        """This fit, labelled with the indices of its channels in the caller's channel set."""
+        return replace(self, channels=np.asarray(channels))
 
     @classmethod
     def of(

@@ -97,7 +97,6 @@ class _Pending:
     moment: np.ndarray  # (k, 3) complex
     var: np.ndarray  # (k,)
     fit: RigidFit  # the channel geometry of the fit
-    used: np.ndarray  # (u,) setup indices of the fitted channels
     amplitudes: np.ndarray  # (k, u) complex, the fitted readings
     half: np.ndarray  # (k,) bool: a half order of a frame with an unknown 720 deg cycle
 
@@ -146,15 +145,14 @@ def systematic_stds(setup: EstimatorSetup) -> np.ndarray:
 def motion_sensitivity(
     setup: EstimatorSetup,
     fit: RigidFit,
-    used: np.ndarray,
     amplitudes: np.ndarray,
     gamma_o: np.ndarray,
     omega_dot: np.ndarray,
 ) -> np.ndarray:
     """d[gamma_O, Omega'] / d(systematic parameters), (P, 12, n_sys) real (Re rows, Im rows).
 
-    For P (frame, order) pairs fitted with the same channels ``used`` (indices)
-    and geometry ``fit``; ``amplitudes`` (P, n_used) complex, the motion (P, 3).
+    For P (frame, order) pairs fitted with the same geometry ``fit`` (its
+    ``channels``: setup indices); ``amplitudes`` (P, n_used) complex, the motion (P, 3).
 
     A reading is ``n . gamma_P``. A relative gain error g scales it by (1 + g);
     turning the sensor by a small angle about bench axis e changes ``n`` by
@@ -164,6 +162,8 @@ def motion_sensitivity(
     reaches the motion through its column of the gain.
     """
     n_ch = len(setup.channels)
+    assert fit.channels is not None
+    used = fit.channels
     out = np.zeros((len(gamma_o), 6, n_ch + 6 * setup.n_sensors), complex)
     n = setup.directions[used]  # (u, 3)
     r = setup.positions[used] - fit.origin  # (u, 3)
@@ -276,7 +276,7 @@ class InertiaEstimator:
             try:
                 self._fitters[key] = RigidFit.of(
                     setup.positions[used], setup.directions[used], weights
-                )
+                ).on_channels(np.flatnonzero(used))
             except KinematicsError:
                 self._fitters[key] = None
         return self._fitters[key]
@@ -299,12 +299,12 @@ class InertiaEstimator:
         if reason is not None:
             return self._reject(frame, reason)
 
-        amplitudes = np.zeros((len(frame.orders), len(setup.channels)), complex)
-        amplitudes[:, used] = frame.amplitudes[:, cols[used]]
         fitter = self._fitter(used)
         if fitter is None:
             return self._reject(frame, "sensor_geometry")
-        motion = fitter.fit(amplitudes[:, used])
+        readings = frame.amplitudes[:, cols[used]]  # (k, u) the usable channels
+        motion = fitter.fit(readings)
+        power = np.mean(readings.real**2 + readings.imag**2, axis=1)  # per order
 
         ambiguous = "cycle_ambiguous" in frame.flags
         orders = np.asarray(frame.orders, dtype=float)
@@ -312,9 +312,10 @@ class InertiaEstimator:
         force, moment = setup.excitation(frame.rpm, orders)
         # Excitation level per order (force times a typical 0.3 m arm, plus moment):
         # an order the engine does not excite carries no information, only noise.
-        level = 0.3 * np.linalg.norm(force, axis=1) + np.linalg.norm(moment, axis=1)
+        level = 0.3 * np.sqrt(np.sum(np.abs(force) ** 2, axis=1)) + np.sqrt(
+            np.sum(np.abs(moment) ** 2, axis=1)
+        )
         excited = level > 1e-6 * max(float(level.max()), 1e-300)
-        frame_power = float(np.mean(np.abs(amplitudes[:, used]) ** 2))
         for k, h in enumerate(orders):
             residuals[float(h)] = float(motion.relative_residual[k])
             why = (
@@ -333,17 +334,7 @@ class InertiaEstimator:
         if used_orders:
             ks = np.array([k for k, h in enumerate(orders) if float(h) in used_orders])
             self._add_orders(
-                frame,
-                fitter,
-                motion,
-                ks,
-                orders,
-                amplitudes,
-                used,
-                force,
-                moment,
-                frame_power,
-                curvature,
+                frame, fitter, motion, ks, orders, readings, power, force, moment, curvature
             )
         if not used_orders:
             counts = Counter(rejected.values())
@@ -455,22 +446,24 @@ class InertiaEstimator:
         motion: RigidMotion,
         ks: np.ndarray,
         orders: np.ndarray,
-        amplitudes: np.ndarray,
-        used: np.ndarray,
+        readings: np.ndarray,
+        power: np.ndarray,
         force: np.ndarray,
         moment: np.ndarray,
-        frame_power: float,
         curvature: dict[float, float],
     ) -> None:
-        """Queue the used orders of a frame; their rows are assembled a batch at a time."""
-        var = self._noise_var(motion, ks, orders, max(1e-16 * frame_power, 1e-30))
+        """Queue the used orders ``ks`` of a frame; their rows are assembled a batch at a time.
+
+        ``readings`` (k, u) are the fitted channels' amplitudes, ``power`` (k,) their
+        mean square per order.
+        """
+        floor = max(1e-16 * float(np.mean(power)), 1e-30)
+        var = self._noise_var(motion, ks, orders, floor)
         # Near a mode the dsp errs by about the bend of the motion across its window:
         # make that an error floor of the readings, so the intervals carry it.
-        power = np.mean(np.abs(amplitudes[np.ix_(ks, np.flatnonzero(used))]) ** 2, axis=1)
         bends = np.array([curvature.get(float(hh), 0.0) for hh in orders[ks]])
-        var = np.maximum(var, bends**2 * power)
+        var = np.maximum(var, bends**2 * power[ks])
         h = orders[ks]
-        idx = np.flatnonzero(used)
         self._pending.append(
             _Pending(
                 gamma_o=motion.gamma_o[ks],
@@ -483,8 +476,7 @@ class InertiaEstimator:
                 moment=moment[ks],
                 var=var,
                 fit=fit,
-                used=idx,
-                amplitudes=amplitudes[np.ix_(ks, idx)],
+                amplitudes=readings[ks],
                 half=((2 * h) % 2 == 1) & ("cycle_ambiguous" in frame.flags),
             )
         )
@@ -500,7 +492,6 @@ class InertiaEstimator:
                     motion_sensitivity(
                         self.setup,
                         run[0].fit,
-                        run[0].used,
                         np.concatenate([p.amplitudes for p in run]),
                         np.concatenate([p.gamma_o for p in run]),
                         np.concatenate([p.omega_dot for p in run]),
