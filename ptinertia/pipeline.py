@@ -18,7 +18,7 @@ import queue
 import threading
 import time
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -58,6 +58,7 @@ class RunSummary:
     max_backlog_s: float
     interrupted: bool
     max_estimate_latency_s: float = 0.0
+    rejected: dict[str, int] = field(default_factory=dict)  # frames rejected, per reason
 
 
 class _Reader(threading.Thread):
@@ -211,5 +212,11 @@ class Pipeline:
         if error is not None:
             raise error
         return RunSummary(
-            final, self.frames, self.items, self.max_backlog, interrupted, self.estimate_latency_max
+            final,
+            self.frames,
+            self.items,
+            self.max_backlog,
+            interrupted,
+            self.estimate_latency_max,
+            dict(self.estimator.stats.rejected),
         )

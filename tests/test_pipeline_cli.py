@@ -112,7 +112,24 @@ def test_sweep_outside_the_mass_line_range_ends_without_estimate(
     # 600 -> 700 rpm: H1, H1.5 and H2 all lie among the rigid-body modes (< 1.25 x 19.2 Hz)
     code = main(["run", "--sweep", "600:700", "--duration", "5", "--rerun", "off", "--quiet"])
     assert code == 1
-    assert "no estimate" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "no estimate" in err and "mass-line range" in err
+
+
+def test_a_dead_sensor_leaves_two_and_says_why_nothing_is_estimable(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # Two triaxial sensors do not measure the rotation about the line through them.
+    csv = tmp_path / "s.csv"
+    assert main(["simulate", "--duration", "6", "--out", str(csv)]) == 0
+    lines = csv.read_text().splitlines()
+    dead = [lines[0]] + [",".join(r.split(",")[:7] + ["nan"] * 3) for r in lines[1:]]
+    csv.write_text("\n".join(dead) + "\n")
+    capsys.readouterr()
+    code = main(["run", "--source", f"file:{csv}", "--rerun", "off", "--quiet"])
+    assert code == 1
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "no estimate" in err and "two triaxial sensors" in err, err
 
 
 def test_ctrl_c_finishes_the_recording(tmp_path: Path) -> None:

@@ -180,8 +180,7 @@ def run(args: argparse.Namespace) -> int:
     summary, doc = run_source(bench, bench_text, source, args.source, options)
     if doc is None or summary.estimate is None:
         print(
-            "ptinertia run: no estimate: no usable frame (see the rejection counts above)",
-            file=sys.stderr,
+            f"ptinertia run: no estimate: {no_estimate_reason(summary.rejected)}", file=sys.stderr
         )
         return 1
     print_table(summary.estimate, doc)
@@ -191,3 +190,26 @@ def run(args: argparse.Namespace) -> int:
     if args.record:
         print(f"recording written to {args.record}")
     return 130 if summary.interrupted else 0
+
+
+# Why nothing could be estimated, for the reasons a user can act on.
+_NO_ESTIMATE = {
+    "sensor_geometry": "the usable accelerometer channels do not determine the rigid-body "
+    "motion (with two triaxial sensors left, rotation about the line through them is not "
+    "measured): check the sensors flagged bad; three non-collinear triaxial sensors are needed",
+    "too_few_channels": "fewer than six usable accelerometer channels (see the channel flags)",
+    "rpm_out_of_range": "the sweep never entered the [estimator] rpm range",
+    "near_rigid_modes": "every frame was too close to the rigid-body modes: the sweep never "
+    "reached the mass-line range (order frequency above min_mode_ratio x the highest mode)",
+    "tacho": "no frame had a trustworthy crank angle (tacho lost or ambiguous)",
+    "no_rpm": "no rpm signal",
+}
+
+
+def no_estimate_reason(rejected: dict[str, int]) -> str:
+    """One line: the main reason no frame was usable."""
+    if not rejected:
+        return "no frame reached the estimator"
+    reason, count = max(rejected.items(), key=lambda kv: kv[1])
+    detail = _NO_ESTIMATE.get(reason, f"no usable frame ({reason})")
+    return f"{detail}; {count} frames rejected for this, {sum(rejected.values())} in all"
