@@ -139,26 +139,39 @@ class RigidFit:
 
     def fit(self, amplitudes: np.ndarray) -> RigidMotion:
         """The motion per order from (n_orders, n_ch) complex amplitudes, m/s^2."""
-        amplitudes = np.atleast_2d(np.asarray(amplitudes, dtype=complex))
-        y = amplitudes * self.sw
-        x = y @ self.pinv.T  # (n_orders, 6)
+        return self.fit_many(np.atleast_2d(np.asarray(amplitudes, dtype=complex))[None])[0]
+
+    def fit_many(self, amplitudes: np.ndarray) -> list[RigidMotion]:
+        """One motion per frame from (n_frames, n_orders, n_ch) complex amplitudes, m/s^2.
+
+        The frames are fitted together (a few array operations for all of them);
+        each frame's result depends on its own amplitudes only.
+        """
+        n_f, n_o, n_ch = amplitudes.shape
+        a = amplitudes.reshape(n_f * n_o, n_ch)
+        y = a * self.sw
+        x = y @ self.pinv.T  # (n_f n_o, 6)
         resid = y - x @ self.jw.T
         dof = max(self.sw.size - 6, 1)
         resid_ss = np.sum(resid.real**2 + resid.imag**2, axis=1)
         residual_rms = np.sqrt(resid_ss / dof / self.mean_w)
-        signal_rms = np.sqrt(np.mean(amplitudes.real**2 + amplitudes.imag**2, axis=1))
+        signal_rms = np.sqrt(np.mean(a.real**2 + a.imag**2, axis=1))
         with np.errstate(divide="ignore", invalid="ignore"):
             relative = np.where(signal_rms > 0, residual_rms / signal_rms, 0.0)
-        return RigidMotion(
-            origin=self.origin,
-            gamma_o=x[:, :3],
-            omega_dot=x[:, 3:],
-            cov_unit=self.cov_unit,
-            residual_rms=residual_rms,
-            relative_residual=relative,
-            noise_var=resid_ss / (2 * dof),
-            gain=self.gain,
-        )
+        noise_var = resid_ss / (2 * dof)
+        return [
+            RigidMotion(
+                origin=self.origin,
+                gamma_o=x[i : i + n_o, :3],
+                omega_dot=x[i : i + n_o, 3:],
+                cov_unit=self.cov_unit,
+                residual_rms=residual_rms[i : i + n_o],
+                relative_residual=relative[i : i + n_o],
+                noise_var=noise_var[i : i + n_o],
+                gain=self.gain,
+            )
+            for i in range(0, n_f * n_o, n_o)
+        ]
 
 
 def fit_rigid_motion(

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import itertools
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -204,12 +205,13 @@ class InertiaEstimator:
         self.acc = {1: Accumulator.empty(n, n_sys), -1: Accumulator.empty(n, n_sys)}
         self.stats = EstimatorStats()
         self._pending: list[_Pending] = []  # used frames whose rows are not assembled yet
+        self._hypotheses_equal = True  # acc[-1] not kept up to date until it can differ
         self.decided_sign: int | None = None  # half-order sign, once the residuals decided it
         self.decision: dict[str, Any] | None = None
         self.noise_var: dict[float, float] = {}  # smoothed channel noise variance per order
         self.residual_baseline: dict[float, list[float]] = {}  # first rigid-fit residuals per order
         self.residual_limit: dict[float, float] = {}
-        # the last two revolutions and their Omega' (k, 3) per tracked order set,
+        # the last two revolutions and their Omega' (k, 3) per tracked order set
         # for the mass-line curvature gate
         self.motion_history: dict[
             tuple[float, ...], tuple[int, int, tuple[np.ndarray, np.ndarray]]
@@ -284,31 +286,68 @@ class InertiaEstimator:
     # -- update -------------------------------------------------------------------------
     def update(self, frame: FrameLike) -> FrameOutcome:
         """Gate one frame and, if usable, add its rows to the estimate."""
+        return self.update_many([frame])[0]
+
+    def update_many(self, frames: Sequence[FrameLike]) -> list[FrameOutcome]:
+        """:meth:`update` for consecutive frames, their arithmetic done together.
+
+        The decisions are taken frame by frame in stream order, as :meth:`update`
+        would; only the rigid fits and the curvature gate run on all frames at once
+        (the per-call overhead of numpy dominates at one frame's size).
+        """
+        outcomes: list[FrameOutcome | None] = [None] * len(frames)
+        todo: list[tuple[int, RigidFit, np.ndarray]] = []  # (index, geometry, readings)
+        for i, frame in enumerate(frames):
+            if self.setup.gates.independent_frames and _overlaps_previous(frame):
+                self.stats.skipped += 1
+                outcomes[i] = FrameOutcome(frame.time_s, frame.rpm, (), {}, "overlapping", {})
+                continue
+            reason = self._frame_gate(frame)
+            fitter = None
+            if reason is None:
+                used, cols = self._channel_mask(frame)
+                if used.sum() < 6:
+                    reason = "too_few_channels"
+                elif (fitter := self._fitter(used)) is None:
+                    reason = "sensor_geometry"
+            if reason is not None:
+                outcomes[i] = self._reject(frame, reason)
+                continue
+            assert fitter is not None
+            todo.append((i, fitter, frame.amplitudes[:, cols[used]]))
+        # Fit runs of frames with the same channels and orders together.
+        start = 0
+        for end in range(1, len(todo) + 1):
+            first = todo[start]
+            if end < len(todo) and _same_run(
+                frames[todo[end][0]], todo[end], frames[first[0]], first
+            ):
+                continue
+            run = todo[start:end]
+            readings = np.stack([r for _, _, r in run])  # (n, k, u)
+            motions = first[1].fit_many(readings)
+            powers = np.mean(readings.real**2 + readings.imag**2, axis=2)  # (n, k)
+            orders = np.asarray(frames[first[0]].orders, dtype=float)
+            bends = self._curvature([frames[i] for i, _, _ in run], orders, motions)
+            for j, (i, fitter, r) in enumerate(run):
+                outcomes[i] = self._use(
+                    frames[i], fitter, motions[j], orders, r, powers[j], bends[j]
+                )
+            start = end
+        return [o for o in outcomes if o is not None]
+
+    def _use(
+        self,
+        frame: FrameLike,
+        fitter: RigidFit,
+        motion: RigidMotion,
+        orders: np.ndarray,
+        readings: np.ndarray,
+        power: np.ndarray,
+        curvature: np.ndarray,
+    ) -> FrameOutcome:
+        """Gate the orders of a fitted frame and queue the usable ones."""
         setup = self.setup
-        if setup.gates.independent_frames and _overlaps_previous(frame):
-            self.stats.skipped += 1
-            return FrameOutcome(frame.time_s, frame.rpm, (), {}, "overlapping", {})
-        reason = self._frame_gate(frame)
-        rejected: dict[float, str] = {}
-        residuals: dict[float, float] = {}
-        used_orders: list[float] = []
-        if reason is None:
-            used, cols = self._channel_mask(frame)
-            if used.sum() < 6:
-                reason = "too_few_channels"
-        if reason is not None:
-            return self._reject(frame, reason)
-
-        fitter = self._fitter(used)
-        if fitter is None:
-            return self._reject(frame, "sensor_geometry")
-        readings = frame.amplitudes[:, cols[used]]  # (k, u) the usable channels
-        motion = fitter.fit(readings)
-        power = np.mean(readings.real**2 + readings.imag**2, axis=1)  # per order
-
-        ambiguous = "cycle_ambiguous" in frame.flags
-        orders = np.asarray(frame.orders, dtype=float)
-        curvature = self._curvature(frame, orders, motion)
         force, moment = setup.excitation(frame.rpm, orders)
         # Excitation level per order (force times a typical 0.3 m arm, plus moment):
         # an order the engine does not excite carries no information, only noise.
@@ -316,31 +355,32 @@ class InertiaEstimator:
             np.sum(np.abs(moment) ** 2, axis=1)
         )
         excited = level > 1e-6 * max(float(level.max()), 1e-300)
-        for k, h in enumerate(orders):
-            residuals[float(h)] = float(motion.relative_residual[k])
+        off_line = curvature > setup.gates.max_curvature
+        rejected: dict[float, str] = {}
+        residuals: dict[float, float] = {}
+        ks: list[int] = []
+        for k, h in enumerate(orders.tolist()):
+            residuals[h] = float(motion.relative_residual[k])
             why = (
                 "no_excitation"
                 if not excited[k]
                 else "off_mass_line"
-                if curvature.get(float(h), 0.0) > setup.gates.max_curvature
-                else self._order_gate(float(h), frame.rpm, motion, k)
+                if off_line[k]
+                else self._order_gate(h, frame.rpm, motion, k)
             )
             if why:
-                rejected[float(h)] = why
+                rejected[h] = why
                 self.stats.orders_rejected[why] += 1
-                continue
-            used_orders.append(float(h))
-
-        if used_orders:
-            ks = np.array([k for k, h in enumerate(orders) if float(h) in used_orders])
-            self._add_orders(
-                frame, fitter, motion, ks, orders, readings, power, force, moment, curvature
-            )
-        if not used_orders:
+            else:
+                ks.append(k)
+        if not ks:
             counts = Counter(rejected.values())
             return self._reject(frame, counts.most_common(1)[0][0] if counts else "no_orders")
+        self._add_orders(
+            frame, fitter, motion, np.array(ks), orders, readings, power, force, moment, curvature
+        )
         self.stats.used += 1
-        self.stats.ambiguous_frames += int(ambiguous)
+        self.stats.ambiguous_frames += int("cycle_ambiguous" in frame.flags)
         self.stats.rpm_lo = min(self.stats.rpm_lo, frame.rpm)
         self.stats.rpm_hi = max(self.stats.rpm_hi, frame.rpm)
         # Relinearise after the first used frame (the nominal cog may be centimetres
@@ -350,19 +390,18 @@ class InertiaEstimator:
         if relinearise_due(self.stats.used):
             self._flush()
             self._relinearise()
-        return FrameOutcome(
-            frame.time_s, frame.rpm, tuple(used_orders), rejected, None, residuals, motion
-        )
+        used_orders = tuple(float(orders[k]) for k in ks)
+        return FrameOutcome(frame.time_s, frame.rpm, used_orders, rejected, None, residuals, motion)
 
     def _reject(self, frame: FrameLike, reason: str) -> FrameOutcome:
         self.stats.rejected[reason] += 1
         return FrameOutcome(frame.time_s, frame.rpm, (), {}, reason, {})
 
     def _curvature(
-        self, frame: FrameLike, orders: np.ndarray, motion: RigidMotion
-    ) -> dict[float, float]:
-        """Relative second difference of Omega' per order over three frames 720 deg apart,
-        less what the measurement noise explains.
+        self, frames: list[FrameLike], orders: np.ndarray, motions: list[RigidMotion]
+    ) -> np.ndarray:
+        """(n_frames, k): relative second difference of Omega' per order over three frames
+        720 deg apart, less what the measurement noise explains (0 where not known).
 
         Along the mass line the rigid motion of an order changes slowly and almost
         linearly with rpm; near a rigid-body mode it bends sharply, and there the
@@ -371,32 +410,30 @@ class InertiaEstimator:
         mass-line sweeps up to 150 rpm/s, 0.1-130 % in a 60 rpm/s sweep through the
         modes, where the frame errors reach 0.2-28 %.
         """
-        angle = getattr(frame, "crank_angle_rad", None)
-        if angle is None or not np.isfinite(angle):
-            return {}
-        rev = round(float(angle) / (2 * np.pi))
-        w = motion.omega_dot  # (k, 3)
+        out = np.zeros((len(frames), len(orders)))
+        revs = [_revolution(f) for f in frames]
+        at = [j for j, r in enumerate(revs) if r is not None]
+        if not at:
+            return out
         key = tuple(orders.tolist())
-        hist = self.motion_history.get(key)
-        out: dict[float, float] = {}
-        if hist is not None and hist[0] == rev - 4 and hist[1] == rev - 2:
-            w0, w1 = hist[2]
-            size = np.maximum(np.sqrt(np.sum(w.real**2 + w.imag**2, axis=1)), 1e-300)
-            d = w - 2 * w1 + w0
-            bend = np.sqrt(np.sum(d.real**2 + d.imag**2, axis=1)) / size
-            # what noise alone puts into a second difference of three fits (sqrt 6
-            # sigma), sigma from this frame's rigid-fit residual: only the excess bends
-            trace = float(np.trace(motion.cov_unit[3:, 3:]))
-            sigma = np.sqrt(2 * motion.noise_var * trace) / size
-            excess = np.maximum(0.0, bend - 3 * np.sqrt(6.0) * sigma)
-            out = {h: float(x) for h, x in zip(key, excess, strict=True) if np.isfinite(x)}
-        # Orders whose motion is not finite keep their previous value.
-        prev = hist[2][1] if hist is not None and hist[1] == rev - 2 else w
-        latest = np.where(np.isfinite(w).all(axis=1, keepdims=True), w, prev)
-        if hist is not None and hist[1] == rev - 2:
-            self.motion_history[key] = (rev - 2, rev, (hist[2][1], latest))
-        else:
-            self.motion_history[key] = (-(10**9), rev, (latest, latest))
+        none = np.full((len(orders), 3), np.nan + 0j)
+        r0, r1, (w0, w1) = self.motion_history.get(key, (-(10**9), -(10**9), (none, none)))
+        seq_rev = np.array([r0, r1] + [revs[j] for j in at])
+        seq_w = np.stack([w0, w1] + [motions[j].omega_dot for j in at])  # (2 + n, k, 3)
+        w = seq_w[2:]
+        chained = (seq_rev[1:-1] == seq_rev[2:] - 2) & (seq_rev[:-2] == seq_rev[2:] - 4)
+        size = np.maximum(np.sqrt(np.sum(w.real**2 + w.imag**2, axis=2)), 1e-300)  # (n, k)
+        d = w - 2 * seq_w[1:-1] + seq_w[:-2]
+        bend = np.sqrt(np.sum(d.real**2 + d.imag**2, axis=2)) / size
+        # what noise alone puts into a second difference of three fits (sqrt 6
+        # sigma), sigma from this frame's rigid-fit residual: only the excess bends
+        trace = np.array([np.trace(motions[j].cov_unit[3:, 3:]) for j in at])
+        noise = np.stack([motions[j].noise_var for j in at])  # (n, k)
+        sigma = np.sqrt(2 * noise * trace[:, None]) / size
+        excess = np.maximum(0.0, bend - 3 * np.sqrt(6.0) * sigma)
+        excess = np.where(chained[:, None] & np.isfinite(excess), excess, 0.0)
+        out[at] = excess
+        self.motion_history[key] = (int(seq_rev[-2]), int(seq_rev[-1]), (seq_w[-2], seq_w[-1]))
         return out
 
     def _order_gate(self, h: float, rpm: float, motion: RigidMotion, k: int) -> str | None:
@@ -450,7 +487,7 @@ class InertiaEstimator:
         power: np.ndarray,
         force: np.ndarray,
         moment: np.ndarray,
-        curvature: dict[float, float],
+        curvature: np.ndarray,
     ) -> None:
         """Queue the used orders ``ks`` of a frame; their rows are assembled a batch at a time.
 
@@ -461,8 +498,7 @@ class InertiaEstimator:
         var = self._noise_var(motion, ks, orders, floor)
         # Near a mode the dsp errs by about the bend of the motion across its window:
         # make that an error floor of the readings, so the intervals carry it.
-        bends = np.array([curvature.get(float(hh), 0.0) for hh in orders[ks]])
-        var = np.maximum(var, bends**2 * power[ks])
+        var = np.maximum(var, curvature[ks] ** 2 * power[ks])
         h = orders[ks]
         self._pending.append(
             _Pending(
@@ -546,7 +582,15 @@ class InertiaEstimator:
         if self.decided_sign is not None:
             sign = flip if self.decided_sign < 0 else np.ones(len(half))
             hyp = {self.decided_sign: self._rows(batch, sign, everything, dm)}
+        elif self.stats.ambiguous_frames == 0:
+            # No frame without a 720 deg reference yet: both hypotheses are the same
+            # sums; keep one, and copy it when the first ambiguous frame arrives.
+            hyp = {1: self._rows(batch, np.ones(len(half)), everything, dm)}
+            self._hypotheses_equal = True
         else:
+            if self._hypotheses_equal:
+                self.acc[-1] = Accumulator(state=self.acc[1].state, sens=self.acc[1].sens)
+                self._hypotheses_equal = False
             H, y, dr = self._rows(batch, np.ones(len(half)), everything, dm)
             hyp = {1: (H, y, dr), -1: (H, y, dr)}
             if np.any(half):
@@ -630,6 +674,24 @@ class InertiaEstimator:
         from estimator.result import build_estimate
 
         return build_estimate(self)
+
+
+def _revolution(frame: FrameLike) -> int | None:
+    """The frame's crank revolution number (None without a crank angle)."""
+    angle = getattr(frame, "crank_angle_rad", None)
+    if angle is None or not np.isfinite(angle):
+        return None
+    return round(float(angle) / (2 * np.pi))
+
+
+def _same_run(
+    frame: FrameLike,
+    item: tuple[int, RigidFit, np.ndarray],
+    first_frame: FrameLike,
+    first: tuple[int, RigidFit, np.ndarray],
+) -> bool:
+    """Whether a frame can be fitted together with the first of a run."""
+    return item[1] is first[1] and tuple(frame.orders) == tuple(first_frame.orders)
 
 
 def _overlaps_previous(frame: FrameLike) -> bool:
