@@ -197,7 +197,7 @@ def test_a_block_of_frames_gives_the_same_bits_as_one_frame_at_a_time() -> None:
     # The pipeline hands the estimator a block's frames together: the shared
     # arithmetic must not change any decision or any bit of the result.
     body = Body(unbalance=5e-4 * np.exp(-1j * np.radians(40.0)))
-    fr = frames(body, np.linspace(1500, 4500, 70))
+    fr = list(frames(body, np.linspace(1500, 4500, 70)))
     single = InertiaEstimator(make_setup(body))
     outcomes = [single.update(f) for f in fr]
     block = InertiaEstimator(make_setup(body))
