@@ -203,6 +203,24 @@ def test_recorded_raw_frames_decode_again(tmp_path, bench_path, bench, plan):
     check_same_stream(plan, *simulated(bench, **short), items)
     assert replayed.stats.frames_in == source.stats.frames_in > 6000
 
+    # The same through the CLI: decoding the raw frames again with the DBC gives the
+    # samples the live run decoded, so the same estimate as a plain replay.
+    plain, again = tmp_path / "plain.json", tmp_path / "again.json"
+    argv = ["replay", str(tmp_path / "run.mcap"), "--quiet"]
+    assert cli.main([*argv, "--json", str(plain)]) == 0
+    assert cli.main([*argv, "--dbc", str(DBC), "--json", str(again)]) == 0
+    a, b = json.loads(plain.read_text()), json.loads(again.read_text())
+    assert a["inertia_kgm2"] == b["inertia_kgm2"] and a["frames"] == b["frames"]
+
+
+def test_replay_dbc_of_a_log_without_can_frames_is_one_line(tmp_path, capsys):
+    log = tmp_path / "sim.mcap"
+    assert cli.main(["simulate", "--duration", "2", "--out", str(log)]) == 0
+    capsys.readouterr()
+    assert cli.main(["replay", str(log), "--dbc", str(DBC), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "holds no raw CAN frames" in err, err
+
 
 # -- the command itself ----------------------------------------------------------------------------
 

@@ -9,11 +9,18 @@ every ``*.mcap`` in it and writes one result per log.
 from __future__ import annotations
 
 import argparse
+import itertools
 import sys
 from pathlib import Path
 from typing import Any
 
-from ptinertia.commands.run import CORRECTIONS, parse_orders, recorder_sinks, viewer_sinks
+from ptinertia.commands.run import (
+    CORRECTIONS,
+    no_estimate_reason,
+    parse_orders,
+    recorder_sinks,
+    viewer_sinks,
+)
 from ptinertia.config import load_bench, loads_bench
 from ptinertia.errors import UsageError
 from ptinertia.runner import RunOptions, print_table, run_source, write_json
@@ -32,6 +39,12 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
         help="spawn | connect[=ADDR] | save=PATH | serve | off (default off)",
     )
     p.add_argument("--speed", default="max", help="max (default) or realtime, or a factor like 10")
+    p.add_argument(
+        "--dbc",
+        metavar="PATH",
+        help="decode the recorded raw CAN frames again with this DBC (a corrected one) "
+        "instead of replaying the samples decoded live",
+    )
     p.add_argument("--orders", help="orders to track (default: the bench's [dsp] orders)")
     p.add_argument("--no", action="append", default=[], choices=CORRECTIONS, metavar="CORRECTION")
     p.add_argument("--quiet", action="store_true")
@@ -64,16 +77,18 @@ def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None)
             raise UsageError(f"{log_path}: the log holds no bench file; give one with --bench")
         bench_text = log.bench_text
         bench = loads_bench(bench_text, f"{log_path}:bench.toml")
-    source = McapSource(log, speed=parse_speed(args.speed))
+    source: Any = McapSource(log, speed=parse_speed(args.speed))
     from ptinertia.sources import check_channels
 
+    if args.dbc:
+        source = redecoded_can(log, bench, args.dbc, log_path)
     check_channels(source.layout, bench, str(log_path))
     sinks = recorder_sinks(args.record) + viewer_sinks(args.rerun, args.record)
     options = RunOptions(
         orders=parse_orders(args.orders),
         corrections_off=tuple(args.no),
         quiet=args.quiet,
-        live=source.speed is not None,
+        live=getattr(source, "speed", None) is not None,
         sinks=tuple(sinks),
         attachments=dict(log.attachments),
     )
@@ -81,7 +96,7 @@ def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None)
     for line in log.report.lines():
         print(f"{log_path}: {line}", file=sys.stderr)
     if doc is None or summary.estimate is None:
-        print(f"{log_path}: no estimate: no usable frame", file=sys.stderr)
+        print(f"{log_path}: no estimate: {no_estimate_reason(summary.rejected)}", file=sys.stderr)
         return 1
     print(f"== {log_path}")
     print_table(summary.estimate, doc)
@@ -89,6 +104,22 @@ def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None)
         write_json(doc, json_path)
         print(f"result written to {json_path}")
     return 0
+
+
+def redecoded_can(log: Any, bench: Any, dbc: str, log_path: Path) -> Any:
+    """A source decoding the log's raw CAN frames again with ``dbc``."""
+    from acquisition.can_codec import load_plan
+    from acquisition.can_source import CanFrameSource
+    from replay.schemas import TOPIC_CAN
+
+    batches = iter(log.can_frames())
+    first = next(batches, None) if TOPIC_CAN in log.topics else None
+    if first is None:
+        raise UsageError(
+            f"--dbc: {log_path} holds no raw CAN frames (it was not recorded from a CAN bus)"
+        )
+    plan = load_plan(bench, dbc)
+    return CanFrameSource(plan, itertools.chain([first], batches))
 
 
 def run(args: argparse.Namespace) -> int:
