@@ -59,6 +59,7 @@ class RunSummary:
     interrupted: bool
     max_estimate_latency_s: float = 0.0
     rejected: dict[str, int] = field(default_factory=dict)  # frames rejected, per reason
+    orders_rejected: dict[str, int] = field(default_factory=dict)  # (frame, order)s, per reason
 
 
 class _Reader(threading.Thread):
@@ -226,4 +227,5 @@ class Pipeline:
             interrupted,
             self.estimate_latency_max,
             dict(self.estimator.stats.rejected),
+            dict(self.estimator.stats.orders_rejected),
         )

@@ -154,9 +154,26 @@ def test_elastic_mode_cog_within_the_realistic_3_mm(elastic_run: dict[str, Any])
     assert np.all(cog_error_m(elastic_run) < 0.003)
 
 
-def test_frames_whose_motion_bends_near_the_modes_are_rejected(noise_free: dict[str, Any]) -> None:
-    # A fast sweep through the upper rigid-body modes: the dsp's cycle-long window
-    # cannot follow the bend of the response there; the mass-line sweep never trips it.
-    near = run(I3, {"rpm_start": 600.0, "rpm_end": 900.0, "duration_s": 5.0})
-    assert near["frames"]["orders_rejected"].get("off_mass_line", 0) >= 10
-    assert "off_mass_line" not in noise_free["frames"]["orders_rejected"]
+def test_a_fast_sweep_just_above_the_modes_is_refused(noise_free: dict[str, Any]) -> None:
+    # 600 -> 900 rpm in 5 s: H2 just above the rigid-body modes, H1 and H1.5 among them.
+    # The dsp's cycle-long window cannot follow the bending response, and the bending
+    # orders leak into H2: every frame is rejected rather than estimated wrongly.
+    bench = load_bench(I3)
+    source = open_source("sim", bench, rpm_start=600.0, rpm_end=900.0, duration_s=5.0)
+    summary, doc = run_source(bench, I3.read_text(), source, "sim", RunOptions(quiet=True))
+    assert doc is None
+    bent = summary.orders_rejected
+    assert bent.get("off_mass_line", 0) + bent.get("neighbour_leakage", 0) >= 10, bent
+    for reason in ("off_mass_line", "neighbour_leakage"):
+        assert reason not in noise_free["frames"]["orders_rejected"]
+
+
+def test_a_quick_sweep_just_above_the_modes_keeps_honest_intervals() -> None:
+    # The same range in 10 s: the frames that bend or leak most are rejected, the rest
+    # carry the dsp's error as a floor, and every 95 % interval still holds the truth
+    # (without the leakage floor Ixz came out 9 % off with an interval of +-8 %).
+    doc = run(I3, {"rpm_start": 600.0, "rpm_end": 900.0, "duration_s": 10.0})
+    assert doc["frames"]["orders_rejected"].get("neighbour_leakage", 0) >= 5
+    truth = doc["truth"]["inertia_kgm2"]["value"]
+    for term, (lo, hi) in doc["inertia_kgm2"]["ci95"].items():
+        assert lo <= truth[term] <= hi, term

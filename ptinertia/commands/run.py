@@ -202,6 +202,10 @@ _NO_ESTIMATE = {
     "near_rigid_modes": "every frame was too close to the rigid-body modes: the sweep never "
     "reached the mass-line range (order frequency above min_mode_ratio x the highest mode)",
     "tacho": "no frame had a trustworthy crank angle (tacho lost or ambiguous)",
+    "off_mass_line": "every frame was off the mass line (the motion bends with rpm, near a "
+    "mode, faster than the dsp follows): sweep more slowly or further above the modes",
+    "neighbour_leakage": "every frame carried too much leakage from orders bending near a "
+    "mode (the sweep is too fast there): sweep more slowly or further above the modes",
     "no_rpm": "no rpm signal",
 }
 
