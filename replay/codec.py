@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from acquisition.stream import EdgeBlock, SampleBlock, SampleGroup, SourceEvent, StreamLayout
+from replay import wire
 from replay.schemas import PARAMETERS, wire_class
 
 
@@ -41,6 +42,21 @@ def encode_samples(block: SampleBlock, group: SampleGroup) -> bytes:
             f"sample block of group {group.name!r}: expected {len(group.channels)} channels, "
             f"got data of shape {block.data.shape}"
         )
+    return wire.sample_block(
+        sample_time(block, group),
+        group.name,
+        int(block.first_index),
+        group.rate_hz,
+        group.t0_s,
+        [c.name for c in group.channels],
+        block.n_samples,
+        data.tobytes(),
+    )
+
+
+def encode_samples_reference(block: SampleBlock, group: SampleGroup) -> bytes:
+    """:func:`encode_samples` through the protobuf class, for the tests to compare with."""
+    data = np.ascontiguousarray(block.data, dtype="<f4")
     msg = wire_class("SampleBlock")(
         time_s=sample_time(block, group),
         group=group.name,
@@ -153,7 +169,12 @@ def decode_can(data: bytes) -> list[Any]:
 
 
 def encode_frame(frame: Any) -> bytes:
-    """``/orders``: a ``dsp.frames.OrderFrame``."""
+    """``/orders``: a ``dsp.frames.OrderFrame`` (from a byte template, see :mod:`replay.wire`)."""
+    return wire.frame_wire(tuple(frame.orders), tuple(frame.channels)).encode(frame)
+
+
+def encode_frame_reference(frame: Any) -> bytes:
+    """:func:`encode_frame` through the protobuf classes: slower, for the tests to compare with."""
     amp = np.asarray(frame.amplitudes, dtype=complex)
     ok = np.asarray(frame.channel_ok, dtype=bool)
     cls = wire_class("OrderFrame")
@@ -195,13 +216,16 @@ def decode_frame(data: bytes) -> Any:
         raise BadMessage(
             f"order frame at {msg.time_s:.3f} s: {re.size} amplitudes for {n_o} orders x {n_ch} channels"
         )
+    amplitudes = np.empty((n_o, n_ch), complex)  # not re + 1j * im: that turns -0.0 into 0.0
+    amplitudes.real = re.reshape(n_o, n_ch)
+    amplitudes.imag = im.reshape(n_o, n_ch)
     return OrderFrame(
         time_s=msg.time_s,
         rpm=msg.rpm,
         crank_angle_rad=msg.crank_angle_rad,
         orders=tuple(msg.orders),
         channels=tuple(msg.channels),
-        amplitudes=(re + 1j * im).reshape(n_o, n_ch),
+        amplitudes=amplitudes,
         channel_ok=np.array(msg.channel_ok, dtype=bool),
         rpm_change=msg.rpm_change,
         leakage=np.array(msg.leakage, dtype=float),
