@@ -87,6 +87,9 @@ class Estimate:
     rpm_range: tuple[float, float] | None
     half_order: dict[str, Any] | None
     variance_factor: float
+    # the elastic mode the residual gate confirmed (order, frequency_hz where it was
+    # confirmed), when the f^2 tail was fitted out; None otherwise
+    elastic_mode: dict[str, float] | None = None
 
     def std(self, name: str) -> float:
         i = self.names.index(name)
@@ -187,6 +190,15 @@ class Estimate:
             },
             "rpm_range": list(self.rpm_range) if self.rpm_range else None,
             "half_order": self.half_order,
+            "elastic_mode": (
+                None
+                if self.elastic_mode is None
+                else {
+                    **self.elastic_mode,
+                    "correction": "inertia and cog fitted as theta + (f / 100 Hz)^2 a, "
+                    "theta (extrapolated to 0 Hz) reported",
+                }
+            ),
             "unobservable": unobservable,
             "variance_factor": self.variance_factor,
         }
@@ -230,4 +242,5 @@ def build_estimate(est: InertiaEstimator) -> Estimate:
         rpm_range=(stats.rpm_lo, stats.rpm_hi) if stats.used else None,
         half_order=est.half_order_resolution(),
         variance_factor=factor,
+        elastic_mode=None if est.elastic is None else dict(est.elastic),
     )

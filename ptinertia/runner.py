@@ -182,6 +182,14 @@ def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO = sys.stdou
     rejected = ", ".join(f"{k} {v}" for k, v in frames["rejected"].items()) or "none"
     lo, hi = doc["rpm_range"] or (math.nan, math.nan)
     print(f"frames used {frames['used']} ({lo:.0f}-{hi:.0f} rpm), rejected: {rejected}", file=out)
+    elastic = doc.get("elastic_mode")
+    if elastic:
+        print(
+            f"elastic mode detected (H{elastic['order']:g} non-rigid from "
+            f"{elastic['frequency_hz']:.0f} Hz): inertia and cog extrapolated to 0 Hz "
+            "past its f^2 growth",
+            file=out,
+        )
     if doc.get("unobservable"):
         print(
             "unobservable (no excitation reaches them): " + ", ".join(doc["unobservable"]), file=out

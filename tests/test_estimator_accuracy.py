@@ -145,13 +145,22 @@ def test_elastic_mode_frames_are_rejected_and_the_principal_terms_hold(
     assert max(abs(errs[k]) for k in ("Ixx", "Iyy", "Izz")) < 0.02, errs
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="the part of an elastic shape that looks rigid at three sensors is invisible to the "
-    "residual gate; below the mode it still shifts the cog along the crank axis by ~1 mm",
-)
 def test_elastic_mode_cog_within_the_realistic_3_mm(elastic_run: dict[str, Any]) -> None:
+    # Below the mode, the part of its shape that looks rigid grows like f^2 and shifts
+    # the cog (3.5 mm here) before the residual gate fires; once the gate confirms the
+    # mode, the f^2 tail is fitted out and the 0 Hz value reported.
+    assert elastic_run["elastic_mode"] is not None
     assert np.all(cog_error_m(elastic_run) < 0.003)
+    truth = elastic_run["truth"]["cog_m"]["value"]
+    std = np.array(elastic_run["cog_m"]["std"])
+    assert np.all(np.abs(np.array(elastic_run["cog_m"]["value"]) - truth) <= 1.96 * std)
+
+
+@pytest.mark.slow
+def test_no_elastic_mode_no_tail(
+    noise_free: dict[str, Any], realistic_default: dict[str, Any]
+) -> None:
+    assert noise_free["elastic_mode"] is None and realistic_default["elastic_mode"] is None
 
 
 def test_a_fast_sweep_just_above_the_modes_is_refused(noise_free: dict[str, Any]) -> None:
