@@ -168,10 +168,23 @@ def main() -> None:
             ),
         ),
     ]
+    cases.append(
+        (
+            "600 -> 900 rpm in 10 s",
+            (I3, {"rpm_start": 600.0, "rpm_end": 900.0, "duration_s": 10.0}, (), None),
+        )
+    )
+    elastic = cases[8][1][1]["elastic_mode"]
+    elastic_seeds = [
+        (I3, {**dur, **REALISTIC, "seed": s, "elastic_mode": elastic}, (), None)
+        for s in range(min(seeds, 6))
+    ]
     realistic = [(I3, {**dur, **REALISTIC, "seed": s}, (), None) for s in range(seeds)]
     with ProcessPoolExecutor(max_workers=a.jobs) as pool:
-        docs = list(pool.map(_job, [c for _, c in cases] + realistic))
-    fixed, real = docs[: len(cases)], docs[len(cases) :]
+        docs = list(pool.map(_job, [c for _, c in cases] + elastic_seeds + realistic))
+    fixed = docs[: len(cases)]
+    elastic_docs = docs[len(cases) : len(cases) + len(elastic_seeds)]
+    real = docs[len(cases) + len(elastic_seeds) :]
 
     print(
         "== i3 noise-free, 1500 -> 4500 rpm, 5120 Hz (errors; products relative to their own value)"
@@ -186,6 +199,23 @@ def main() -> None:
         line(cases[8][0], errors(doc)),
         " rejected:",
         doc["frames"]["rejected"],
+        doc["frames"]["orders_rejected"],
+    )
+
+    worst = [errors(d)["cog_mm"] for d in elastic_docs]
+    print(
+        f"   seeds 0-{len(elastic_docs) - 1}: cog error (length of the error vector) "
+        + ", ".join(f"{w:.1f}" for w in worst)
+        + " mm; elastic mode confirmed in "
+        + f"{sum(d.get('elastic_mode') is not None for d in elastic_docs)}/{len(elastic_docs)}"
+    )
+    print("== quick sweep just above the rigid-body modes (noise-free, 30 rpm/s)")
+    doc = fixed[9]
+    cov = covered(doc)
+    print(
+        line(cases[9][0], errors(doc)),
+        f" intervals cover {sum(cov[k] for k in TERMS)}/6 terms;",
+        "orders rejected:",
         doc["frames"]["orders_rejected"],
     )
 
