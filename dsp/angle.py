@@ -24,9 +24,12 @@ by pure functions: :func:`add_knots`, :func:`trim`, :func:`lookup`, :func:`time_
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, field, replace
+import math
+from dataclasses import dataclass, field
 
 import numpy as np
+
+from dsp.immutable import evolve
 
 
 def _f() -> np.ndarray:
@@ -89,13 +92,15 @@ def cubic_pieces(t: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, ...]:
     """
     # Newton divided differences on the nodes z0 = t_j, z1 = t_j+1, z2 = t_j-1, z3 = t_j+2,
     # in local coordinates (relative to t_j and phi_j) to avoid cancellation at hour-long times.
-    j = np.arange(1, t.size - 2)
-    z1 = t[j + 1] - t[j]
-    z2 = t[j - 1] - t[j]
-    z3 = t[j + 2] - t[j]
-    y1 = phi[j + 1] - phi[j]
-    y2 = phi[j - 1] - phi[j]
-    y3 = phi[j + 2] - phi[j]
+    # knots j-1, j, j+1, j+2 for j = 1 .. k-3, as slices
+    t_m, t_j, t_p, t_pp = t[:-3], t[1:-2], t[2:-1], t[3:]
+    p_m, p_j, p_p, p_pp = phi[:-3], phi[1:-2], phi[2:-1], phi[3:]
+    z1 = t_p - t_j
+    z2 = t_m - t_j
+    z3 = t_pp - t_j
+    y1 = p_p - p_j
+    y2 = p_m - p_j
+    y3 = p_pp - p_j
     f01 = y1 / z1
     f02 = y2 / z2
     f03 = y3 / z3
@@ -124,16 +129,16 @@ def add_knots(table: AngleTable, t: np.ndarray, phi: np.ndarray, run: np.ndarray
         if b - a >= 4:
             st, sp = kt[a:b], kp[a:b]
             c1, c2, c3 = cubic_pieces(st, sp)
-            j = np.arange(1, b - a - 2)
-            parts.append((st[j], st[j + 1], sp[j], sp[j + 1], c1, c2, c3, kr[a:b][j]))
+            # intervals j = 1 .. k-3 of the run: from knot j to knot j + 1
+            parts.append((st[1:-2], st[2:-1], sp[1:-2], sp[2:-1], c1, c2, c3, kr[a + 1 : b - 2]))
     a = bounds[-2]
     tail = slice(max(a, kt.size - 3), kt.size)
-    new = replace(table, tail_t=kt[tail], tail_phi=kp[tail], tail_run=kr[tail])
+    new = evolve(table, tail_t=kt[tail], tail_phi=kp[tail], tail_run=kr[tail])
     if not parts:
         return new
     cols = list(zip(*parts, strict=True))
     names = ("t_lo", "t_hi", "phi_lo", "phi_hi", "c1", "c2", "c3", "run")
-    return replace(
+    return evolve(
         new,
         **{
             name: np.concatenate((getattr(table, name), *col))
@@ -148,7 +153,7 @@ def trim(table: AngleTable, t_keep: float) -> AngleTable:
     if k == 0:
         return table
     names = ("t_lo", "t_hi", "phi_lo", "phi_hi", "c1", "c2", "c3", "run")
-    return replace(table, **{name: getattr(table, name)[k:] for name in names})
+    return evolve(table, **{name: getattr(table, name)[k:] for name in names})
 
 
 def lookup(
@@ -196,8 +201,13 @@ def lookup(
     omega += 2.0 * c2
     omega *= tau
     omega += c1
-    ok = tt < np.repeat(table.t_hi[sl], counts)
-    run = np.repeat(table.run[sl], counts)
+    if table.run[i0] == table.run[i1 - 1] and tt[-1] < table.t_hi[i1 - 1]:
+        # the pieces of one run follow each other: every sample lies inside one
+        ok = np.ones(tt.size, bool)
+        run = np.full(tt.size, table.run[i0])
+    else:
+        ok = tt < np.repeat(table.t_hi[sl], counts)
+        run = np.repeat(table.run[sl], counts)
     if head:
         pad = np.zeros(head)
         return (
@@ -222,15 +232,35 @@ def time_at(table: AngleTable, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]
         return nan, nan
     j = np.searchsorted(table.phi_lo, phi, side="right") - 1
     jj = np.maximum(j, 0)
-    ok = (j >= 0) & (phi <= table.phi_hi[jj])
-    target = phi - table.phi_lo[jj]
+    phi_lo, phi_hi, t_lo = table.phi_lo[jj], table.phi_hi[jj], table.t_lo[jj]
+    ok = (j >= 0) & (phi <= phi_hi)
+    target = phi - phi_lo
     c1, c2, c3 = table.c1[jj], table.c2[jj], table.c3[jj]
-    span_t = table.t_hi[jj] - table.t_lo[jj]
-    tau = target / (table.phi_hi[jj] - table.phi_lo[jj]) * span_t
+    c2_2 = 2.0 * c2
+    tau = target / (phi_hi - phi_lo) * (table.t_hi[jj] - t_lo)
+    for _ in range(4):
+        f = tau * (c1 + tau * (c2 + tau * c3)) - target
+        fp = c1 + tau * (c2_2 + 3.0 * tau * c3)
+        tau -= f / fp
+    omega = c1 + tau * (c2_2 + 3.0 * tau * c3)
+    return np.where(ok, t_lo + tau, np.nan), np.where(ok, omega, np.nan)
+
+
+def time_at_one(table: AngleTable, phi: float) -> float:
+    """:func:`time_at` of one angle (s), NaN outside the table: the same arithmetic in
+    Python floats, without the fixed cost of some thirty array operations."""
+    if not table.t_lo.size:
+        return math.nan
+    j = int(np.searchsorted(table.phi_lo, phi, side="right")) - 1
+    if j < 0 or not phi <= float(table.phi_hi[j]):
+        return math.nan
+    t_lo, t_hi = float(table.t_lo[j]), float(table.t_hi[j])
+    phi_lo, phi_hi = float(table.phi_lo[j]), float(table.phi_hi[j])
+    c1, c2, c3 = float(table.c1[j]), float(table.c2[j]), float(table.c3[j])
+    target = phi - phi_lo
+    tau = target / (phi_hi - phi_lo) * (t_hi - t_lo)
     for _ in range(4):
         f = tau * (c1 + tau * (c2 + tau * c3)) - target
         fp = c1 + tau * (2.0 * c2 + 3.0 * tau * c3)
         tau = tau - f / fp
-    omega = c1 + tau * (2.0 * c2 + 3.0 * tau * c3)
-    t = table.t_lo[jj] + tau
-    return np.where(ok, t, np.nan), np.where(ok, omega, np.nan)
+    return t_lo + tau

@@ -15,12 +15,12 @@ frames): at 4500 rpm a one-second block completes 75 of them.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import numpy as np
 
 from dsp import angle as ang
 from dsp.frames import OrderFrame
+from dsp.immutable import evolve
 from dsp.leakage import SLOPE_PERIODS
 from dsp.segments import decide_pressure
 from dsp.state import TWO_PI, TrackerState
@@ -46,7 +46,7 @@ def emit(st: TrackerState) -> tuple[TrackerState, list[OrderFrame]]:
         if any(math.isnan(f) for f in firsts):
             return st, []
         # the first window that starts after the first sample with an angle
-        st = replace(st, next_frame=math.ceil((max(firsts) + 0.5 * tw) / spacing) + n)
+        st = evolve(st, next_frame=math.ceil((max(firsts) + 0.5 * tw) / spacing) + n)
     front = min(st.groups[gi].last_phi for gi in watched)
     assert st.next_frame is not None
     j_max = math.floor((front - 0.5 * tw) / spacing) - n
@@ -58,9 +58,10 @@ def emit(st: TrackerState) -> tuple[TrackerState, list[OrderFrame]]:
             frames.extend(new)
             if not done:
                 return st, frames
-        st = replace(st, next_frame=b + 1)
+        if st.next_frame != b + 1:
+            st = evolve(st, next_frame=b + 1)
     if st.next_frame is not None and j_max + 1 > st.next_frame:
-        st = replace(st, next_frame=j_max + 1)
+        st = evolve(st, next_frame=j_max + 1)
     return st, frames
 
 
@@ -119,9 +120,10 @@ def _batch(
     end_phi = (js + n) * spacing + 0.5 * tw
     decided = np.array(
         [
-            int(c) in st.parity and st.parity[int(c)][1] <= e + wait
-            for c, e in zip(chains, end_phi, strict=True)
-        ]
+            c in st.parity and st.parity[c][1] <= e + wait
+            for c, e in zip(chains.tolist(), end_phi.tolist(), strict=True)
+        ],
+        dtype=bool,
     )
     done = True
     if referenced:
@@ -132,7 +134,11 @@ def _batch(
         if js.size == 0:
             return st, [], False
     parity = np.array(
-        [st.parity[int(c)][0] if d else 0 for c, d in zip(chains, decided, strict=True)]
+        [
+            st.parity[c][0] if d else 0
+            for c, d in zip(chains.tolist(), decided.tolist(), strict=True)
+        ],
+        dtype=np.int64,
     )
     raw = _raw(st, js)
     st, x, corrected = _correct(st, js, chains, raw["x"], raw["tacho_bad"])
@@ -148,10 +154,11 @@ def _raw(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]:
     spacing = TWO_PI / n
     tw = math.radians(cfg.taper_deg)
     f, n_ch, n_int = js.size, len(plan.channels), plan.k2.size
-    lo_phi, hi_phi = (js - n) * spacing - 0.5 * tw, (js + n) * spacing + 0.5 * tw
     flags: list[set[str]] = [set() for _ in range(f)]
     tacho_bad = np.zeros(f, bool)
     bad_group = np.zeros((f, len(plan.groups)), bool)
+    if st.invalid:
+        lo_phi, hi_phi = (js - n) * spacing - 0.5 * tw, (js + n) * spacing + 0.5 * tw
     for inv in st.invalid:
         hit = np.flatnonzero((inv.phi_a < hi_phi) & (inv.phi_b > lo_phi))
         for i in hit:
@@ -160,34 +167,40 @@ def _raw(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]:
             tacho_bad[hit] = True
         else:
             bad_group[hit, inv.group] = True
-    phis = np.stack(((js - n) * spacing, js * spacing, (js + n) * spacing), axis=1)
-    times, omegas = ang.time_at(st.table, phis.ravel())
+    # window start, centre and end of consecutive frames: f + 2 n distinct angles
+    span = np.arange(int(js[0]) - n, int(js[-1]) + n + 1)
+    at = (js[:, None] + np.array([-n - span[0], -span[0], n - span[0]])).ravel()
+    times, omegas = ang.time_at(st.table, span * spacing)
     if not np.isfinite(times).all():
-        times = _interpolate_times(st, phis.ravel(), times)
+        times = _interpolate_times(st, span * spacing, times)
+    times, omegas = times[at], omegas[at]
     x = np.full((f, n_int, n_ch), np.nan + 0j)
     ms = np.full((f, n_ch), np.nan)
     ok = np.zeros((f, n_ch), bool)
     for gi, g in enumerate(plan.groups):
         if not g.track_rows:
             continue
-        cols = list(g.track_cols)
+        cols = _columns(g.track_cols)
         s, w, msg, clipped = window_sums(
             st.groups[gi].acc, int(js[0]), int(js[-1]), n, len(g.track_rows), n_int
         )
         with np.errstate(invalid="ignore", divide="ignore"):
             xg = 2.0 * s / w[:, None, None]  # (f, n_ch_g, n_int)
         usable = ~(tacho_bad | bad_group[:, gi])
-        xg[~usable] = np.nan
-        msg[~usable] = np.nan
+        if not usable.all():
+            xg[~usable] = np.nan
+            msg[~usable] = np.nan
         x[:, :, cols] = xg.transpose(0, 2, 1)
         ms[:, cols] = msg
         nan = ~np.isfinite(xg).all(axis=2) & usable[:, None]
         clip = clipped & usable[:, None]
         ok[:, cols] = usable[:, None] & ~nan & ~clip
-        for i in np.flatnonzero(nan.any(axis=1)):
-            flags[i].add("nan")
-        for i in np.flatnonzero(clip.any(axis=1)):
-            flags[i].add("clipped")
+        if nan.any():
+            for i in np.flatnonzero(nan.any(axis=1)):
+                flags[i].add("nan")
+        if clip.any():
+            for i in np.flatnonzero(clip.any(axis=1)):
+                flags[i].add("clipped")
     return {
         "x": x,
         "ms": ms,
@@ -197,6 +210,13 @@ def _raw(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]:
         "omegas": omegas.reshape(f, 3),
         "tacho_bad": tacho_bad,
     }
+
+
+def _columns(cols: tuple[int, ...]) -> slice | list[int]:
+    """``cols`` as a slice when consecutive (a view to assign to, not a scatter)."""
+    if cols == tuple(range(cols[0], cols[0] + len(cols))):
+        return slice(cols[0], cols[0] + len(cols))
+    return list(cols)
 
 
 def _correct(
@@ -221,26 +241,30 @@ def _correct(
     all_c = np.concatenate((hc, chains))
     all_x = np.concatenate((hx, x))
     keep = slice(max(all_j.size - look, 0), None)
-    st = replace(st, history=(all_j[keep], all_c[keep], all_x[keep]))
+    st = evolve(st, history=(all_j[keep], all_c[keep], all_x[keep]))
     f, n_ch = js.size, x.shape[2]
     if not plan.config.leakage_correction:
         return st, x, np.zeros((f, n_ch), bool)
 
+    first = int(all_j[0])
+    gapless = int(all_j[-1]) - first == all_j.size - 1  # the rule: no frame skipped
+
     # frame j -> its position in all_* (increasing), -1 if absent
     def position(want: np.ndarray) -> np.ndarray:
+        if gapless:
+            pos = want - first
+            return np.where((pos >= 0) & (pos < all_j.size), pos, -1)
         pos = np.minimum(np.searchsorted(all_j, want), all_j.size - 1)
         return np.where(all_j[pos] == want, pos, -1)
 
     base = position(js)
     finite = np.isfinite(all_x).all(axis=1)  # (h + f, n_ch)
-    ref = np.full((f, n_ch), -1)
-    for k in range(SLOPE_PERIODS, 0, -1):  # newest last, so it wins
-        pos = position(js - k * period)
-        have = pos >= 0
-        same = np.zeros(f, bool)
-        same[have] = all_c[pos[have]] == chains[have]
-        usable = same[:, None] & finite[np.maximum(pos, 0)] & have[:, None]
-        ref = np.where(usable, pos[:, None], ref)
+    # candidates one, two, three cycles back (k, f); the newest usable one wins
+    pos = position(js[None, :] - np.arange(1, SLOPE_PERIODS + 1)[:, None] * period)
+    at = np.maximum(pos, 0)
+    usable = ((pos >= 0) & (all_c[at] == chains[None, :]))[:, :, None] & finite[at]
+    newest = np.argmax(usable, axis=0)  # (f, n_ch): first usable k, 0 if none
+    ref = np.where(usable.any(axis=0), pos[newest, np.arange(f)[:, None]], -1)
     good = (ref >= 0) & finite[base] & ~tacho_bad[:, None]
     refc = np.maximum(ref, 0)
     # all_x[ref[f, c], :, c]: advanced indices first, so (f, n_ch, n_int) -> (f, n_int, n_ch)
@@ -281,7 +305,8 @@ def _finish(
         explained = 0.5 * np.sum(absx**2, axis=1)
         rest = np.sqrt(2.0 * np.maximum(raw["ms"] - explained, 0.0))
         known = np.where(corrected, 0.0, absx.sum(axis=1))
-        leak = np.abs(rpm_change)[:, None] / math.pi * (known + rest) / np.max(np.abs(out), axis=1)
+        strongest = np.max(absx[:, plan.out, :], axis=1)  # of the output orders
+        leak = np.abs(rpm_change)[:, None] / math.pi * (known + rest) / strongest
     sign = (-1.0) ** (cfg.k2[None, :] * parity[:, None])  # half orders flip with the cycle
     out = out * sign[:, :, None]
     base = {"angle_ambiguous"} if tc.kind == "pulses" and tc.teeth > 1 else set()
@@ -290,38 +315,48 @@ def _finish(
     uncorrected = (
         (raw["ok"] & ~corrected).any(axis=1) if cfg.leakage_correction else in_range & False
     )
-    cache: dict[tuple[object, ...], frozenset[str]] = {}
+    cache: dict[tuple[bool, ...], frozenset[str]] = {}
     frames = []
-    for i, j in enumerate(js.tolist()):
+    # per-frame values as Python objects in one go: a few thousand frames a minute
+    keys = zip(
+        ambiguous.tolist(), (chains > 0).tolist(), in_range.tolist(), uncorrected.tolist(),
+        strict=True,
+    )  # fmt: skip
+    columns = zip(
+        js.tolist(), parity.tolist(), times[:, 1].tolist(), rpm.tolist(), rpm_change.tolist(),
+        list(out), list(raw["ok"]), list(leak), raw["flags"].tolist(), keys,
+        strict=True,
+    )  # fmt: skip
+    for j, p, t, r, dr, amp, ok, lk, raw_flags, key in columns:
         # most frames share one set of flags: build each distinct set once
-        key = (bool(ambiguous[i]), bool(chains[i] > 0), bool(in_range[i]), bool(uncorrected[i]))
-        flags = None if raw["flags"][i] else cache.get(key)
+        flags = None if raw_flags else cache.get(key)
         if flags is None:
-            new = raw["flags"][i] | base
-            if ambiguous[i]:
+            is_ambiguous, rebased, in_rpm_range, is_uncorrected = key
+            new = raw_flags | base
+            if is_ambiguous:
                 new.add("cycle_ambiguous")
-            if chains[i] > 0:
+            if rebased:
                 # an unbridged re-sync: revolution count and cycle may differ from the stream start's
                 new.add("angle_rebased")
-            if not in_range[i]:
+            if not in_rpm_range:
                 new.add("rpm_out_of_range")
-            if uncorrected[i]:
+            if is_uncorrected:
                 # no frame one cycle earlier (stream start, long re-sync): sweep leakage remains
                 new.add("leakage_uncorrected")
             flags = frozenset(new)
-            if not raw["flags"][i]:
+            if not raw_flags:
                 cache[key] = flags
         frames.append(
             OrderFrame(
-                time_s=float(times[i, 1]),
-                rpm=float(rpm[i]),
-                crank_angle_rad=float(j * spacing + TWO_PI * parity[i]),
+                time_s=t,
+                rpm=r,
+                crank_angle_rad=j * spacing + TWO_PI * p,
                 orders=orders,
                 channels=plan.channels,
-                amplitudes=out[i],
-                channel_ok=raw["ok"][i],
-                rpm_change=float(rpm_change[i]),
-                leakage=leak[i],
+                amplitudes=amp,
+                channel_ok=ok,
+                rpm_change=dr,
+                leakage=lk,
                 flags=flags,
             )
         )
@@ -345,9 +380,9 @@ def _forget(st: TrackerState, j_next: int) -> TrackerState:
     n = st.plan.config.frames_per_rev
     spacing = TWO_PI / n
     tw = math.radians(st.plan.config.taper_deg)
-    groups = tuple(replace(gs, acc=drop_before(gs.acc, j_next - n)) for gs in st.groups)
+    groups = tuple(evolve(gs, acc=drop_before(gs.acc, j_next - n)) for gs in st.groups)
     lo_phi = (j_next - n) * spacing - 0.5 * tw
     invalid = tuple(inv for inv in st.invalid if inv.phi_b >= lo_phi)
-    t_keep, _ = ang.time_at(st.table, np.array([lo_phi - spacing]))
-    table = ang.trim(st.table, float(t_keep[0])) if np.isfinite(t_keep[0]) else st.table
-    return replace(st, groups=groups, invalid=invalid, table=table, next_frame=j_next)
+    t_keep = ang.time_at_one(st.table, lo_phi - spacing)
+    table = ang.trim(st.table, t_keep) if math.isfinite(t_keep) else st.table
+    return evolve(st, groups=groups, invalid=invalid, table=table, next_frame=j_next)

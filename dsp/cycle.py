@@ -51,16 +51,17 @@ def pressure_sums(
         Sum of the pressure samples within +-60 deg of ``2 pi k`` (NaN samples skipped).
     count : (c,) int64
     """
-    k = np.rint(phi_w / (2.0 * math.pi)).astype(np.int64)
+    k = np.rint(phi_w / (2.0 * math.pi))  # whole numbers, as float: exactly 2 pi k below
     near = np.abs(phi_w - 2.0 * math.pi * k) < PRESSURE_HALF_WIDTH_RAD
     near &= np.isfinite(pressure)
     if not near.any():
         e = np.empty(0, dtype=np.int64)
         return e, np.empty(0), e
-    kk, pp = k[near], pressure[near]
+    kk, pp = k[near].astype(np.int64), pressure[near]
     base = int(kk.min())
-    total = np.bincount(kk - base, weights=pp)
-    count = np.bincount(kk - base)
+    kk -= base
+    total = np.bincount(kk, weights=pp)
+    count = np.bincount(kk)
     has = np.flatnonzero(count)
     return has + base, total[has], count[has]
 

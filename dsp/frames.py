@@ -127,9 +127,19 @@ def rise_table(s: np.ndarray) -> np.ndarray:
     """:func:`rise` by linear interpolation in a 8193-point table (error < 4e-8).
 
     The table is symmetric, so ``rise_table(s) + rise_table(1 - s) = 1`` still holds
-    to rounding; it costs a fifth of the five sines.
+    to rounding; it costs a fifth of the five sines. The same numbers as
+    ``np.interp(s, _S, _TABLE)``, bit for bit, in a fifth of its time: the grid is
+    uniform with a power-of-two step, so the interval is an exact ``floor`` instead of
+    a binary search per sample, and the formula is ``np.interp``'s.
     """
-    return np.interp(s, _S, _TABLE)
+    with np.errstate(invalid="ignore"):  # NaN in, NaN out, as np.interp
+        j = np.floor(s * _GRID).astype(np.int64)
+        np.clip(j, 0, _GRID - 1, out=j)
+        out = _SLOPE[j] * (s - _S[j]) + _TABLE[j]
+    # outside [0, 1): np.interp's end values
+    out[s >= 1.0] = _TABLE[-1]
+    out[s < 0.0] = _TABLE[0]
+    return out
 
 
 def rise(s: np.ndarray) -> np.ndarray:
@@ -182,3 +192,4 @@ def centre_phase(k2: np.ndarray, m: int, frames_per_rev: int) -> np.ndarray:
 
 _TABLE = rise(_S)
 _TABLE = 0.5 * (_TABLE + 1.0 - _TABLE[::-1])  # exactly antisymmetric about (1/2, 1/2)
+_SLOPE = (_TABLE[1:] - _TABLE[:-1]) / (_S[1:] - _S[:-1])  # as np.interp computes it

@@ -11,20 +11,21 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import replace
 
 import numpy as np
 
 from acquisition.stream import SourceEvent
 from dsp import angle as ang
 from dsp import cycle
+from dsp.config import GroupPlan
+from dsp.immutable import evolve
 from dsp.state import (
     TACHO_REASONS,
     TWO_PI,
     GroupState,
     Invalid,
     TrackerState,
-    chain_at,
+    chains_at,
     set_group,
 )
 from dsp.sums import add_samples
@@ -32,8 +33,30 @@ from dsp.sums import add_samples
 CHUNK = 16384
 
 
-def process_group(st: TrackerState, gi: int, events: list[SourceEvent]) -> TrackerState:
-    """Give an angle to every waiting sample of group ``gi`` that the tacho has reached."""
+# (t0_s, rate_hz, spans) -> (indices, times, ok, phi, omega, run), spans as (first index, count)
+Angles = dict[tuple[float, float, tuple[tuple[int, int], ...]], tuple[np.ndarray, ...]]
+
+
+def process_groups(st: TrackerState, events: list[SourceEvent]) -> TrackerState:
+    """:func:`process_group` for every group.
+
+    Groups on one sample clock (accelerometers and cylinder pressure from one DAQ)
+    usually wait for the same samples: their angles are looked up once.
+    """
+    angles: Angles = {}
+    for gi in range(len(st.plan.groups)):
+        st = process_group(st, gi, events, angles)
+    return st
+
+
+def process_group(
+    st: TrackerState, gi: int, events: list[SourceEvent], angles: Angles | None = None
+) -> TrackerState:
+    """Give an angle to every waiting sample of group ``gi`` that the tacho has reached.
+
+    ``angles`` carries lookups between the groups of one step (same table).
+    """
+    angles = {} if angles is None else angles
     gs = st.groups[gi]
     g = st.plan.groups[gi]
     if not gs.pend:
@@ -43,7 +66,10 @@ def process_group(st: TrackerState, gi: int, events: list[SourceEvent]) -> Track
     # samples the tacho has not reached within max_wait_s are dropped: memory stays bounded
     t_stale = t_new - st.plan.config.max_wait_s
     t_end = st.table.t_end
+    if max(t_end, t_stale) <= g.t0_s + gs.pend[0][0] / g.rate_hz:
+        return st  # the tacho has reached none of the samples and none is stale yet
     keep: list[tuple[int, np.ndarray]] = []
+    spans: list[tuple[int, np.ndarray]] = []  # ready samples, CHUNK at most per span
     dropped = None
     for first, rows in gs.pend:
         n = rows.shape[1]
@@ -54,13 +80,15 @@ def process_group(st: TrackerState, gi: int, events: list[SourceEvent]) -> Track
         # in pieces of CHUNK samples: temporaries stay small enough to be recycled by
         # the allocator instead of mapped and faulted in afresh (1.7x faster at 25.6 kHz)
         for a in range(0, n_ready, CHUNK):
-            b = min(a + CHUNK, n_ready)
-            idx = np.arange(first + a, first + b, dtype=np.int64)
-            t = g.t0_s + idx / g.rate_hz
-            st, gs = accumulate(st, gi, gs, idx, t, rows[:, a:b], events)
+            spans.append((first + a, rows[:, a : min(a + CHUNK, n_ready)]))
         start = max(n_ready, n_stale)
         if start < n:
             keep.append((first + start, rows[:, start:]))
+    # The tacho stops a few teeth short of a block's end, so a step usually finds the
+    # previous block's last samples and the new block: one pass over both, not two.
+    for batch in _batches(spans):
+        looked = _look_up(st, g, batch, angles)
+        st, gs = accumulate(st, gi, gs, looked, [rows for _, rows in batch], events)
     if dropped is not None:
         if not gs.starved:
             events.append(
@@ -72,12 +100,49 @@ def process_group(st: TrackerState, gi: int, events: list[SourceEvent]) -> Track
                     float(dropped),
                 )
             )
-        gs = replace(gs, starved=True, pend=tuple(keep))
+        gs = evolve(gs, starved=True, pend=tuple(keep))
     elif gs.starved and len(keep) < len(gs.pend):
-        gs = replace(gs, starved=False, pend=tuple(keep))
+        gs = evolve(gs, starved=False, pend=tuple(keep))
     else:
-        gs = replace(gs, pend=tuple(keep))
+        gs = evolve(gs, pend=tuple(keep))
     return set_group(st, gi, gs)
+
+
+def _batches(spans: list[tuple[int, np.ndarray]]) -> list[list[tuple[int, np.ndarray]]]:
+    """Consecutive spans in batches of at most CHUNK samples.
+
+    A one-sample span stays alone: numpy computes a one-element array on another path
+    than a longer one (the complex product differs in the last bit), so its carriers
+    are then those of a block of one sample, as they always were.
+    """
+    out: list[list[tuple[int, np.ndarray]]] = []
+    size = CHUNK
+    for span in spans:
+        n = span[1].shape[1]
+        if size + n > CHUNK or n == 1 or size == 1:
+            out.append([])
+            size = 0
+        out[-1].append(span)
+        size += n
+    return out
+
+
+def _look_up(
+    st: TrackerState, g: GroupPlan, batch: list[tuple[int, np.ndarray]], angles: Angles
+) -> tuple[np.ndarray, ...]:
+    """Grid indices, times and :func:`dsp.angle.lookup` of the samples of ``batch``."""
+    spans = tuple((first, r.shape[1]) for first, r in batch)
+    key = (g.t0_s, g.rate_hz, spans)
+    looked = angles.get(key)
+    if looked is None:
+        (first, _), (last, count) = spans[0], spans[-1]
+        if last + count - first == sum(n for _, n in spans):  # no sample missing in between
+            idx = np.arange(first, last + count, dtype=np.int64)
+        else:
+            idx = np.concatenate([np.arange(f, f + n, dtype=np.int64) for f, n in spans])
+        t = g.t0_s + idx / g.rate_hz
+        looked = angles[key] = (idx, t, *ang.lookup(st.table, t))
+    return looked
 
 
 def _count_before(first: int, n: int, t0: float, rate: float, t_lim: float) -> int:
@@ -97,19 +162,35 @@ def accumulate(
     st: TrackerState,
     gi: int,
     gs: GroupState,
-    idx: np.ndarray,
-    t: np.ndarray,
-    rows: np.ndarray,
+    looked: tuple[np.ndarray, ...],
+    pieces: list[np.ndarray],
     events: list[SourceEvent],
 ) -> tuple[TrackerState, GroupState]:
+    """Add samples to group ``gi``'s sums.
+
+    ``looked`` = (grid indices, times, ok, phi, omega, run) of the samples, which come
+    in ``pieces`` (kept rows, (n_keep, n_i)), the blocks they arrived in: the sums are
+    split where pieces meet, so they round exactly as they would block by block.
+    """
     g = st.plan.groups[gi]
     cfg = st.plan.config
-    ok, phi, omega, run = ang.lookup(st.table, t)
+    idx, t, ok, phi, omega, run = looked
     if not ok.all():
+        # samples without an angle (stream start, a tacho gap): rare, so piece by piece,
+        # as the blocks came, and without them
+        if len(pieces) > 1:
+            p0 = 0
+            for p in pieces:
+                p1 = p0 + p.shape[1]
+                one = tuple(v[p0:p1] for v in looked)
+                st, gs = accumulate(st, gi, gs, one, [p], events)
+                p0 = p1
+            return st, gs
         sel = np.flatnonzero(ok)
         if sel.size == 0:
             return st, gs
-        idx, t, rows = idx[sel], t[sel], rows[:, sel]
+        pieces = [pieces[0][:, sel]]
+        idx, t = idx[sel], t[sel]
         phi, omega, run = phi[sel], omega[sel], run[sel]
     # breaks against the previous sample with an angle: a sample gap or a new wheel run
     # (indices increase and runs never go back, so the ends tell when there is none)
@@ -139,31 +220,65 @@ def accumulate(
                     float(prev_phi[b]), float(phi[b]), float(prev_t[b]), float(t[b]), reason, group
                 )
             )
-        st = replace(st, invalid=tuple(inv))
-    if math.isnan(gs.first_phi):
-        gs = replace(gs, first_phi=float(phi[0]))
-    gs = replace(
+        st = evolve(st, invalid=tuple(inv))
+    bounds = np.cumsum([0] + [p.shape[1] for p in pieces]).tolist()  # where each piece begins
+    if g.pressure_at is not None:
+        skip_a, skip_b = _silent_pressure(st, phi)
+        for p, p0, p1 in zip(pieces, bounds[:-1], bounds[1:], strict=True):
+            for a, b in ((p0, min(p1, skip_a)), (max(p0, skip_b), p1)):
+                if b > a:
+                    gs = add_pressure(gs, phi[a:b], p[g.pressure_at, a - p0 : b - p0])
+    acc = gs.acc
+    n_track = len(g.track_rows)
+    if n_track:
+        # consecutive pieces only (a gap or a new run in between is an Invalid stretch)
+        cuts: list[int] = [0, *brk.tolist(), int(idx.size)]
+        for c0, c1 in itertools.pairwise(cuts):
+            if c1 > c0:
+                x = [
+                    p[:n_track, max(c0, p0) - p0 : min(c1, p1) - p0]
+                    for p, p0, p1 in zip(pieces, bounds[:-1], bounds[1:], strict=True)
+                    if p0 < c1 and p1 > c0
+                ]
+                acc = add_samples(
+                    acc, phi[c0:c1], omega[c0:c1], x, int(idx[c0]), g.rate_hz,
+                    st.plan.k2, cfg.frames_per_rev, cfg.taper_deg, cfg.clip_level,
+                )  # fmt: skip
+    gs = evolve(
         gs,
+        first_phi=float(phi[0]) if math.isnan(gs.first_phi) else gs.first_phi,
         last_index=int(idx[-1]),
         last_phi=float(phi[-1]),
         last_t=float(t[-1]),
         last_run=int(run[-1]),
+        acc=acc,
     )
-    n_track = len(g.track_rows)
-    if g.pressure_at is not None:
-        gs = add_pressure(gs, phi, rows[g.pressure_at])
-    if n_track:
-        acc = gs.acc
-        # consecutive pieces only (a gap or a new run in between is an Invalid stretch)
-        cuts: list[int] = [0, *brk.tolist(), int(idx.size)]
-        for p0, p1 in itertools.pairwise(cuts):
-            if p1 > p0:
-                acc = add_samples(
-                    acc, phi[p0:p1], omega[p0:p1], rows[:n_track, p0:p1], int(idx[p0]), g.rate_hz,
-                    st.plan.k2, cfg.frames_per_rev, cfg.taper_deg, cfg.clip_level,
-                )  # fmt: skip
-        gs = replace(gs, acc=acc)
     return st, gs
+
+
+def _silent_pressure(st: TrackerState, phi: np.ndarray) -> tuple[int, int]:
+    """Samples ``a .. b-1`` whose pressure can no longer vote for a cycle (a, b = 0, 0 if any can).
+
+    A TDC candidate ``k`` votes at ``2 pi k`` and ``2 pi (k + 1)`` for the chain of the run
+    there (:func:`decide_pressure`). When the table is one run whose cycle is known, the
+    votes of the candidates inside it are ignored: their sums are not worth the
+    arithmetic (a twentieth of the tracker's time at 25.6 kHz). Only the
+    newest candidates, whose next TDC lies beyond the table, are still summed.
+    """
+    table = st.table
+    if table.run.size < 3 or table.run[0] != table.run[-1]:
+        return 0, 0
+    if st.chain_of_run.get(int(table.run[0]), -1) not in st.parity:
+        return 0, 0
+    # candidates k_lo .. k_hi-1: both votes inside [phi_lo[1], phi_hi[-2]], where
+    # chains_at gives the run's chain whatever the rounding (and so will any later table)
+    k_lo = math.ceil(float(table.phi_lo[1]) / TWO_PI)
+    k_hi = math.floor(float(table.phi_hi[-2]) / TWO_PI)
+    if k_hi <= k_lo:
+        return 0, 0
+    # their samples lie within 60 deg of 2 pi k, so between the half-way angles
+    a, b = np.searchsorted(phi, (TWO_PI * (k_lo - 0.5), TWO_PI * (k_hi - 0.5)))
+    return int(a), int(b)
 
 
 def add_pressure(gs: GroupState, phi: np.ndarray, p: np.ndarray) -> GroupState:
@@ -174,13 +289,14 @@ def add_pressure(gs: GroupState, phi: np.ndarray, p: np.ndarray) -> GroupState:
     for kk, tt, cc in zip(k, total, count, strict=True):
         s0, c0 = cands.get(int(kk), (0.0, 0))
         cands[int(kk)] = (s0 + float(tt), c0 + int(cc))
-    return replace(gs, pressure=cands)
+    return evolve(gs, pressure=cands)
 
 
 def decide_pressure(st: TrackerState) -> TrackerState:
     """Decide the parity from complete pressure candidates (in crank-angle order)."""
     parity = None
     groups = list(st.groups)
+    changed = False
     for gi, g in enumerate(st.plan.groups):
         if g.pressure_row is None:
             continue
@@ -190,21 +306,30 @@ def decide_pressure(st: TrackerState) -> TrackerState:
         done = sorted(
             k for k in gs.pressure if TWO_PI * k + cycle.PRESSURE_HALF_WIDTH_RAD < gs.last_phi
         )
-        cands = dict(gs.pressure)
+        cands = gs.pressure
+        complete = set(done)
+        votes = []  # (k, parity) of the pairs that decide
         for k in done:
-            if k + 1 not in done:
+            if k + 1 not in complete:
                 continue
             s0, c0 = cands[k]
             s1, c1 = cands[k + 1]
             p = cycle.pressure_parity(s0 / max(c0, 1), s1 / max(c1, 1), k)
-            if p is None:
-                continue
-            chain = chain_at(st, TWO_PI * (k + 1))
+            if p is not None:
+                votes.append((k, p))
+        if votes:
+            # every vote's chain in one call: a block holds one candidate per revolution
+            chains = chains_at(st, TWO_PI * (np.array([k for k, _ in votes]) + 1))
             parity = dict(st.parity) if parity is None else parity
-            if chain is not None and chain not in parity:
-                parity[chain] = (p, TWO_PI * (k + 1) + cycle.PRESSURE_HALF_WIDTH_RAD)
-        for k in done[:-1]:
-            cands.pop(k, None)
-        groups[gi] = replace(gs, pressure=cands)
-    st = replace(st, groups=tuple(groups))
-    return st if parity is None else replace(st, parity=parity)
+            for (k, p), chain in zip(votes, chains.tolist(), strict=True):
+                if chain >= 0 and chain not in parity:
+                    parity[chain] = (p, TWO_PI * (k + 1) + cycle.PRESSURE_HALF_WIDTH_RAD)
+        if len(done) > 1:
+            # the newest complete candidate pairs with the next one: keep it
+            drop = set(done[:-1])
+            kept = {k: v for k, v in cands.items() if k not in drop}
+            groups[gi] = evolve(gs, pressure=kept)
+            changed = True
+    if parity is not None:
+        return evolve(st, groups=tuple(groups), parity=parity)
+    return evolve(st, groups=tuple(groups)) if changed else st

@@ -8,13 +8,14 @@ the old one valid (the pure ``track`` of :mod:`dsp.orders`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from acquisition.stream import SourceEvent
 from dsp import angle as ang
 from dsp.config import Plan
+from dsp.immutable import evolve
 from dsp.rpmangle import RpmAngleState
 from dsp.sums import Row
 from dsp.tacho import EdgeDetectorState
@@ -92,7 +93,7 @@ def set_group(st: TrackerState, gi: int, gs: GroupState) -> TrackerState:
     """``st`` with group ``gi`` replaced."""
     groups = list(st.groups)
     groups[gi] = gs
-    return replace(st, groups=tuple(groups))
+    return evolve(st, groups=tuple(groups))
 
 
 def chain_at(st: TrackerState, phi: float) -> int | None:
@@ -102,3 +103,25 @@ def chain_at(st: TrackerState, phi: float) -> int | None:
         return None
     ok, _, _, run = ang.lookup(st.table, t)
     return st.chain_of_run.get(int(run[0])) if ok[0] else None
+
+
+def chains_at(st: TrackerState, phis: np.ndarray) -> np.ndarray:
+    """:func:`chain_at` of every angle in ``phis`` (rad), -1 for None: (n,) int64.
+
+    One run in the table (the rule: a re-sync is rare) has contiguous intervals, so an
+    angle inside its second to second-last interval lies inside the run whatever the
+    rounding of the time :func:`chain_at` goes through; only angles near the ends, or a
+    table of several runs, take the exact path, one angle at a time.
+    """
+    phis = np.asarray(phis, dtype=float)
+    out = np.full(phis.size, -1, dtype=np.int64)
+    table = st.table
+    exact = np.ones(phis.size, bool)
+    if table.run.size >= 3 and table.run[0] == table.run[-1]:
+        inner = (phis >= table.phi_lo[1]) & (phis <= table.phi_hi[-2])
+        out[inner] = st.chain_of_run.get(int(table.run[0]), -1)
+        exact = ~inner
+    for i in np.flatnonzero(exact):
+        chain = chain_at(st, float(phis[i]))
+        out[i] = -1 if chain is None else chain
+    return out

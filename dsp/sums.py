@@ -18,12 +18,17 @@ so that the window of frame ``j`` (``c_j +- 360 deg``, ``n = frames_per_rev``) i
 
 (rising taper, full weight, falling taper). Each sample is touched once
 (twice in a zone). Rows are kept in a dict keyed by ``m`` so an hour-long
-tacho dropout costs nothing; values are tuples of arrays, never modified.
+tacho dropout costs nothing. A row is one float64 vector holding all of a
+segment's sums (:func:`unpack` gives named views), so that adding two partial
+rows, or stacking a window's rows, is one array operation; rows are never
+modified.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -31,27 +36,53 @@ from dsp.frames import rise_table
 
 POWER_STRIDE = 4
 
-# (a, d, s2, n2, wa, wd, clip)
-Row = tuple[np.ndarray, np.ndarray, np.ndarray, int, float, float, np.ndarray]
+# One float64 vector per segment, in three blocks (see unpack):
+#   plain:   a (n_ch x no complex, as Re/Im pairs), wa, s2 (n_ch), n2
+#   taper:   d (n_ch x no complex), wd, then zeros where plain has s2 and n2
+#   clip:    (n_ch) the number of clipped samples
+# so that a window, (a - d)[j-n] + a[j-n+1 .. j+n-1] + d[j+n], is the same few
+# operations on whole blocks for every sum (the zeros leave s2, n2 summed over
+# segments j-n .. j+n-1).
+Row = np.ndarray
 
 
-def _add(r: Row, s: Row) -> Row:
-    return (
-        r[0] + s[0],
-        r[1] + s[1],
-        r[2] + s[2],
-        r[3] + s[3],
-        r[4] + s[4],
-        r[5] + s[5],
-        r[6] | s[6],
-    )
+def _block(n_ch: int, no: int) -> int:
+    return 2 * n_ch * no + n_ch + 2
+
+
+def row_size(n_ch: int, no: int) -> int:
+    """Length of a :data:`Row` for ``n_ch`` channels and ``no`` orders."""
+    return 2 * _block(n_ch, no) + n_ch
+
+
+def unpack(
+    w: np.ndarray, n_ch: int, no: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Views of the sums in rows ``w`` (s, :func:`row_size`), last axis contiguous.
+
+    Returns ``a, d`` (s, n_ch, no) complex, ``s2`` (s, n_ch), ``n2, wa, wd`` (s,)
+    and ``clip`` (s, n_ch), the number of clipped samples (adding rows adds counts).
+    """
+    h = _block(n_ch, no)
+    a, wa, s2, n2 = _plain(w[:, :h], n_ch, no)
+    d, wd, _, _ = _plain(w[:, h : 2 * h], n_ch, no)
+    return a, d, s2, n2, wa, wd, w[:, 2 * h :]
+
+
+def _plain(
+    block: np.ndarray, n_ch: int, no: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``a`` (s, n_ch, no) complex, ``wa`` (s,), ``s2`` (s, n_ch), ``n2`` (s,) of a plain block."""
+    k = 2 * n_ch * no
+    a = block[:, :k].view(complex).reshape(block.shape[0], n_ch, no)
+    return a, block[:, k], block[:, k + 1 : k + 1 + n_ch], block[:, k + 1 + n_ch]
 
 
 def add_samples(
     rows: dict[int, Row],
     phi: np.ndarray,
     omega: np.ndarray,
-    x: np.ndarray,
+    x: Sequence[np.ndarray],
     first_index: int,
     rate_hz: float,
     k2: np.ndarray,
@@ -67,8 +98,11 @@ def add_samples(
         Segment ``m`` -> :data:`Row`; not modified (a new dict is returned).
     phi, omega : (n,) float64
         Crank angle (rad, increasing) and speed (rad/s) of each sample.
-    x : (n_ch, n) float64
-        The tracked channels.
+    x : sequence of (n_ch, n_i) float64, sum of n_i = n
+        The tracked channels, in the pieces (stream blocks) the samples came in,
+        not copied together (a megabyte per 0.5 s at 25.6 kHz); a segment two
+        pieces share gets a partial sum from each, so the sums round exactly as
+        with one call per piece.
     first_index : int
         Grid index of the first sample (picks the samples of the mean square).
     rate_hz : float
@@ -80,73 +114,131 @@ def add_samples(
     spacing = 2.0 * math.pi / frames_per_rev
     half = 0.5 * math.radians(taper_deg)
     no = k2.size
-    n_ch, n = x.shape
-    # segment boundaries c_m - tau/2 placed among the (increasing) angles
-    m0 = math.floor((phi[0] + half) / spacing)
-    m1 = math.floor((phi[-1] + half) / spacing)
-    mu = np.arange(m0, m1 + 1)
-    starts = np.searchsorted(phi, mu[1:] * spacing - half, side="left")
-    starts = np.concatenate(([0], starts))
-    ends = np.append(starts[1:], n)
-    # zone ends: c_m + tau/2, the zone opening each segment
-    zone_end = np.searchsorted(phi, mu * spacing + half, side="left")
-    zone_end = np.clip(zone_end, starts, ends)
+    n_ch = x[0].shape[0]
+    cuts = np.cumsum([0] + [xi.shape[1] for xi in x]).tolist()  # where each piece begins
+    n = cuts[-1]
+    # each piece cut into segments as a call of its own would: a segment split between
+    # two pieces appears twice, and its parts are added in order at the end
+    parts = [_segments(phi, p0, p1, spacing, half) for p0, p1 in itertools.pairwise(cuts)]
+    if len(parts) == 1:
+        mu, starts, ends, zone_end = parts[0]
+    else:
+        mu, starts, ends, zone_end = (np.concatenate(col) for col in zip(*parts, strict=True))
+    per_piece = [part[0].size for part in parts]  # segments of each piece
+    c = mu * spacing  # frame angles c_m
     q = omega * (1.0 / rate_hz)
     # carriers about each segment's own frame angle c_m (exact rotation applied below): the
     # same sample gets the same carrier whatever the block cut, and the angle stays small
-    e = _carriers(phi - np.repeat(mu * spacing, ends - starts), q, k2)
+    e = _carriers(phi - np.repeat(c, ends - starts), q, k2)
     # every zone's samples at once: falling-taper weights and weighted carriers
     z_len = zone_end - starts
-    z_off = np.concatenate(([0], np.cumsum(z_len)))
+    z_off = np.zeros(mu.size + 1, dtype=np.int64)
+    np.cumsum(z_len, out=z_off[1:])
     z = np.repeat(starts - z_off[:-1], z_len) + np.arange(z_off[-1])  # sample indices
     tw = 2.0 * half
-    r = phi[z] - np.repeat(mu * spacing - half, z_len)
+    r = phi[z] - np.repeat(c - half, z_len)
     fall = 1.0 - rise_table(r / tw)
-    ez = e[:, z] * fall
+    # (zone samples, 2 n_orders) in C order: the layout the zone sums were always taken
+    # in (BLAS rounds each layout its own way), and a row gather is 3x faster than e[:, z]
+    ezt = e.T[z]
+    ezt *= fall[:, None]
     wd = np.zeros(mu.size)
     has_zone = z_len > 0
     if has_zone.any():
         wd[has_zone] = np.add.reduceat(q[z] * fall, z_off[:-1][has_zone])
-    a = np.empty((mu.size, n_ch, 2 * no))
+    a = np.zeros((mu.size, n_ch, 2 * no))
     d = np.zeros_like(a)
-    bounds = zip(starts.tolist(), ends.tolist(), z_len.tolist(), z_off[:-1].tolist(), strict=True)
-    for i, (s0, s1, zl, zo) in enumerate(bounds):
-        if s1 > s0:
-            a[i] = x[:, s0:s1] @ e[:, s0:s1].T
-        else:
-            a[i] = 0.0
-        if zl:
-            d[i] = x[:, s0 : s0 + zl] @ ez[:, zo : zo + zl].T
+    s2 = np.zeros((mu.size, n_ch))
+    n2 = np.zeros(mu.size, dtype=np.int64)
+    clip = np.zeros((mu.size, n_ch), bool)
+    i = 0
+    for xp, p0, count in zip(x, cuts[:-1], per_piece, strict=True):
+        seg = slice(i, i + count)
+        local = zip(
+            (starts[seg] - p0).tolist(), (ends[seg] - p0).tolist(), z_len[seg].tolist(),
+            z_off[seg].tolist(), strict=True,
+        )  # fmt: skip
+        for s0, s1, zl, zo in local:
+            if s1 > s0:
+                np.matmul(xp[:, s0:s1], e[:, p0 + s0 : p0 + s1].T, out=a[i])
+            if zl:
+                np.matmul(xp[:, s0 : s0 + zl], ezt[zo : zo + zl], out=d[i])
+            i += 1
+        s2[seg], n2[seg] = _power(xp, first_index + p0, starts[seg] - p0)
+        if clip_level is not None:
+            clip[seg] = _clipped(xp, starts[seg] - p0, ends[seg] - p0, clip_level)
     wa = np.add.reduceat(q, starts) if n else np.zeros(mu.size)
     wa[starts == ends] = 0.0  # reduceat gives the next element for an empty segment
-    # mean square from the samples whose grid index is a multiple of POWER_STRIDE
-    off = (-first_index) % POWER_STRIDE
-    sub = x[:, off::POWER_STRIDE]
-    sub_starts = (starts - off + POWER_STRIDE - 1) // POWER_STRIDE
-    sub_ends = np.append(sub_starts[1:], sub.shape[1])
-    n2 = np.maximum(sub_ends - sub_starts, 0)
-    s2 = np.zeros((mu.size, n_ch))
-    has = np.flatnonzero(n2)
-    if has.size:
-        s2[has] = np.add.reduceat(np.square(sub), sub_starts[has], axis=1).T
-    if clip_level is not None:
-        big = np.abs(x) >= clip_level
-        clip = np.zeros((mu.size, n_ch), bool)
-        full = np.flatnonzero(ends > starts)
-        clip[full] = np.logical_or.reduceat(big, starts[full], axis=1).T
-    else:
-        clip = np.zeros((mu.size, n_ch), bool)
     # back to complex, rotated by the frame angle: exp(-i h c_m), reduced exactly with
     # integers (the carriers hold exp(-i h (phi - c_m)))
     period = 2 * frames_per_rev
     rot = np.exp(-2j * np.pi * ((mu[:, None] * k2[None, :]) % period) / period)[:, None, :]
     ac = (a[..., :no] + 1j * a[..., no:]) * rot
     dc = (d[..., :no] + 1j * d[..., no:]) * rot
+    w = np.zeros((mu.size, row_size(n_ch, no)))
+    w_a, w_d, w_s2, w_n2, w_wa, w_wd, w_clip = unpack(w, n_ch, no)
+    w_a[:] = ac
+    w_d[:] = dc
+    w_s2[:] = s2
+    w_n2[:] = n2
+    w_wa[:] = wa
+    w_wd[:] = wd
+    w_clip[:] = clip
     out = dict(rows)
-    for i, mm in enumerate(mu.tolist()):
-        row: Row = (ac[i], dc[i], s2[i], int(n2[i]), float(wa[i]), float(wd[i]), clip[i])
-        out[mm] = _add(out[mm], row) if mm in out else row
+    for mm, row in zip(mu.tolist(), w, strict=True):
+        out[mm] = out[mm] + row if mm in out else row
     return out
+
+
+def _power(x: np.ndarray, first_index: int, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``sum x^2`` (s, n_ch) and count (s,) over the samples of segments beginning at
+    ``starts`` whose grid index is a multiple of POWER_STRIDE (``x``: one piece)."""
+    off = (-first_index) % POWER_STRIDE
+    sub = x[:, off::POWER_STRIDE]
+    sub_starts = (starts - off + POWER_STRIDE - 1) // POWER_STRIDE
+    sub_ends = np.append(sub_starts[1:], sub.shape[1])
+    n2 = np.maximum(sub_ends - sub_starts, 0)
+    s2 = np.zeros((starts.size, x.shape[0]))
+    has = np.flatnonzero(n2)
+    if has.size:
+        s2[has] = np.add.reduceat(np.square(sub), sub_starts[has], axis=1).T
+    return s2, n2
+
+
+def _clipped(x: np.ndarray, starts: np.ndarray, ends: np.ndarray, level: float) -> np.ndarray:
+    """Whether a segment of one piece ``x`` holds a sample at or above ``level``: (s, n_ch)."""
+    big = np.abs(x) >= level
+    clip = np.zeros((starts.size, x.shape[0]), bool)
+    full = np.flatnonzero(ends > starts)
+    clip[full] = np.logical_or.reduceat(big, starts[full], axis=1).T
+    return clip
+
+
+def _segments(
+    phi: np.ndarray, p0: int, p1: int, spacing: float, half: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Segments ``m`` met by samples ``p0 .. p1-1``, their first and end sample, and zone ends.
+
+    A segment begins at ``c_m - tau/2``, its zone ends at ``c_m + tau/2``; the first
+    sample's segment is that of ``floor((phi + tau/2) / spacing)``.
+    """
+    piece = phi[p0:p1]
+    m0 = math.floor((piece[0] + half) / spacing)
+    m1 = math.floor((piece[-1] + half) / spacing)
+    mu = np.arange(m0, m1 + 1)
+    c = mu * spacing
+    starts = np.searchsorted(piece, c - half, side="left")
+    starts[0] = 0
+    starts += p0
+    ends = np.empty_like(starts)
+    ends[:-1] = starts[1:]
+    ends[-1] = p1
+    zone_end = np.searchsorted(piece, c + half, side="left")
+    zone_end += p0
+    # within the segment (np.clip costs 3x this)
+    np.maximum(zone_end, starts, out=zone_end)
+    np.minimum(zone_end, ends, out=zone_end)
+    return mu, starts, ends, zone_end
 
 
 def _carriers(delta: np.ndarray, q: np.ndarray, k2: np.ndarray) -> np.ndarray:
@@ -194,37 +286,24 @@ def window_sums(
         Mean square of the samples of segments ``j - n .. j + n - 1``.
     clipped : (f, n_ch) bool
     """
-    ms = range(j0 - n, j1 + n + 1)
-    zc = np.zeros((n_ch, no), complex)
-    zr = np.zeros(n_ch)
-    zb = np.zeros(n_ch, bool)
-    got = [rows.get(m) for m in ms]
-    a = np.stack([g[0] if g else zc for g in got])
-    d = np.stack([g[1] if g else zc for g in got])
-    s2 = np.stack([g[2] if g else zr for g in got])
-    n2 = np.array([g[3] if g else 0 for g in got], dtype=float)
-    wa = np.array([g[4] if g else 0.0 for g in got])
-    wd = np.array([g[5] if g else 0.0 for g in got])
-    cl = np.stack([g[6] if g else zb for g in got])
+    zero = np.zeros(row_size(n_ch, no))
+    rows_w = np.array([rows.get(m, zero) for m in range(j0 - n, j1 + n + 1)])  # 3x np.stack
+    h = _block(n_ch, no)
+    plain, taper, clip = rows_w[:, :h], rows_w[:, h : 2 * h], rows_w[:, 2 * h :]
     f = j1 - j0 + 1
     last = 2 * n  # offset of segment j + n from segment j - n
-    s = a[:f] - d[:f]
-    w = wa[:f] - wd[:f]
-    p = s2[:f].copy()
-    cnt = n2[:f].copy()
-    c = cl[:f].copy()
+    # rising taper, full weight, falling taper: every sum of the row at once
+    total = plain[:f] - taper[:f]
+    count = clip[:f].copy()
     for k in range(1, last):
-        s = s + a[k : k + f]
-        w = w + wa[k : k + f]
-        p += s2[k : k + f]
-        cnt += n2[k : k + f]
-        c |= cl[k : k + f]
-    s = s + d[last : last + f]
-    w = w + wd[last : last + f]
-    c |= cl[last : last + f]
+        total += plain[k : k + f]
+        count += clip[k : k + f]
+    total += taper[last : last + f]
+    count += clip[last : last + f]
+    s, w, p, cnt = _plain(total, n_ch, no)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_square = p / cnt[:, None]
-    return s, w, mean_square, c
+    return s, w, mean_square, count > 0
 
 
 def drop_before(rows: dict[int, Row], m: int) -> dict[int, Row]:

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from acquisition.stream import SourceEvent
+from dsp.immutable import evolve
 from dsp.tacho import TachoConfig
 
 # Revolutions across which a lost stretch is still bridged (speed assumed to vary linearly).
@@ -144,17 +145,17 @@ def decode_edges(
     out_r: list[np.ndarray] = []
     runs: list[RunStart] = []
     events: list[SourceEvent] = []
-    st = replace(state, buf=buf)
+    st = evolve(state, buf=buf)
     while True:
         buf = st.buf
         if not st.synced:
             d = np.diff(buf)
             g = _find_sync(d, cfg)
             if g < 0:
-                st = replace(st, buf=buf[-3:])  # keep what a gap straddling the next block needs
+                st = evolve(st, buf=buf[-3:])  # keep what a gap straddling the next block needs
                 break
             # buf[g] is the last tooth before the gap (count -1), buf[g + 1] tooth 0
-            st = replace(
+            st = evolve(
                 st,
                 buf=buf[g:],
                 synced=True,
@@ -178,7 +179,7 @@ def decode_edges(
             # a full revolution, up to the next gap's tooth 0, must pass before anything commits
             need = per_rev + 1 if gap else max(per_rev, 3) + 1
             if b >= 0 and b < need:
-                st = replace(st, buf=buf[b + 1 :], synced=False)
+                st = evolve(st, buf=buf[b + 1 :], synced=False)
                 continue
             if d.size < need:
                 break
@@ -192,10 +193,11 @@ def decode_edges(
             out_t.append(buf[sl])
             out_n.append(n_abs)
             out_r.append(np.full(end - lo, st.run, dtype=np.int64))
-        st = replace(st, confirmed=True)
+        if not st.confirmed:
+            st = evolve(st, confirmed=True)
         if b < 0:
             keep = buf.size - 2
-            st = replace(
+            st = evolve(
                 st,
                 buf=buf[keep:],
                 c0=int(c[keep]),
@@ -207,7 +209,7 @@ def decode_edges(
             break
         # pattern broken at interval b
         last = max(end - 1, 0)
-        st = replace(
+        st = evolve(
             st,
             last_t=float(buf[last]),
             last_n=int(st.run_base_n + n_rel[last]),
@@ -227,17 +229,18 @@ def decode_edges(
                 float(buf[b]),
             )
         )
-        st = replace(st, buf=buf[b + 1 :], synced=False, lost_reason=kind)
-    knots = (
-        Knots(
+        st = evolve(st, buf=buf[b + 1 :], synced=False, lost_reason=kind)
+    if len(out_t) == 1:  # the rule: one stretch of committed edges per block
+        knots = Knots(out_t[0], out_n[0].astype(np.int64), out_r[0], tuple(runs))
+    elif out_t:
+        knots = Knots(
             np.concatenate(out_t),
             np.concatenate(out_n).astype(np.int64),
             np.concatenate(out_r),
             tuple(runs),
         )
-        if out_t
-        else replace(Knots.empty(), runs=tuple(runs))
-    )
+    else:
+        knots = replace(Knots.empty(), runs=tuple(runs))
     return st, knots, events
 
 
@@ -284,4 +287,4 @@ def _start_run(
             message += f"; revolution count uncertain ({why}): angle rebased"
     events.append(SourceEvent("tacho_sync", message, t0))
     runs.append(RunStart(run, t0, base, reason, bridged))
-    return replace(st, run=run, run_base_n=base)
+    return evolve(st, run=run, run_base_n=base)

@@ -6,6 +6,7 @@ content, independent of the simulated bench).
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import replace
 
@@ -346,3 +347,38 @@ def test_a_block_with_the_wrong_channel_count_is_dropped_and_reported():
     assert hit and all(not f.channel_ok.any() for f in hit)
     assert all(abs(f.time_s - 0.75) < 0.05 + 0.022 for f in hit)
     assert frames[-1].time_s > 1.4
+
+
+def test_pieces_summed_in_one_call_round_as_one_call_per_piece():
+    """The tracker adds the samples waiting from the last block and the new block in one
+    pass; a segment the two share keeps a partial sum from each, bit for bit. (Pieces of
+    one sample stay alone: numpy computes a one-element array on another path.)"""
+    from dsp.sums import add_samples
+
+    rng = np.random.default_rng(4)
+    n = 3000
+    phi = 100.0 + np.cumsum(rng.uniform(0.005, 0.015, n))  # several segments
+    omega = rng.uniform(250.0, 350.0, n)
+    x = rng.standard_normal((3, n))
+    k2 = np.arange(1, 9)
+    args = (25_600.0, k2, 1, 45.0, 1.5)
+    cuts = [0, 37, 39, 1900, n]  # short pieces, then long ones
+    one_by_one: dict = {}
+    for a, b in itertools.pairwise(cuts):
+        one_by_one = add_samples(one_by_one, phi[a:b], omega[a:b], [x[:, a:b]], 1000 + a, *args)
+    pieces = [x[:, a:b] for a, b in itertools.pairwise(cuts)]
+    together = add_samples({}, phi, omega, pieces, 1000, *args)
+    assert one_by_one.keys() == together.keys()
+    for m, row in one_by_one.items():
+        np.testing.assert_array_equal(together[m], row)
+
+
+def test_taper_table_is_np_interp_bit_for_bit():
+    from dsp.frames import _S, _TABLE, rise_table
+
+    rng = np.random.default_rng(5)
+    grid = np.arange(_S.size) / (_S.size - 1)
+    s = np.concatenate(
+        (rng.uniform(-0.1, 1.1, 100_000), grid, np.nextafter(grid, 2), np.nextafter(grid, -1))
+    )
+    np.testing.assert_array_equal(rise_table(s), np.interp(s, _S, _TABLE))
