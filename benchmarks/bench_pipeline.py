@@ -15,12 +15,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import tempfile
 import threading
 import time
 from pathlib import Path
 from typing import Any
+
+# as the CLI does: BLAS threads only spin for matrices this small, and steal the core
+# the acquisition and MCAP writer threads need
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
 ROOT = Path(__file__).resolve().parent.parent
 I3 = ROOT / "examples" / "i3-bench.toml"
