@@ -21,6 +21,7 @@ misfit is large); the ratio of the two residuals is reported.
 
 from __future__ import annotations
 
+import functools
 import itertools
 from collections import Counter
 from collections.abc import Sequence
@@ -769,6 +770,12 @@ def leak_share(n_half_orders: np.ndarray) -> np.ndarray:
         return np.where((n >= 1) & (n <= 2), 1.0 / (2.0 * np.pi * n), 0.0)
 
 
+@functools.lru_cache(maxsize=8)
+def _leak_matrix(orders: tuple[float, ...]) -> np.ndarray:
+    h = np.asarray(orders)
+    return leak_share(2 * np.abs(h[:, None] - h[None, :])) ** 2
+
+
 def _neighbour_leakage(orders: np.ndarray, bend: np.ndarray, power: np.ndarray) -> np.ndarray:
     """(k,) channel variance, (m/s^2)^2, that the bending of the nearby orders leaks
     into each order (from their relative bend and mean-square readings).
@@ -776,8 +783,7 @@ def _neighbour_leakage(orders: np.ndarray, bend: np.ndarray, power: np.ndarray) 
     Measured on the simulated i3 in 30-60 rpm/s sweeps just above its modes, where
     H1.5 and H1 bend by 2-15 %: the H2 error is 0.3-0.9 times this estimate.
     """
-    share = leak_share(2 * np.abs(orders[:, None] - orders[None, :]))  # (k, k)
-    return (share**2) @ (bend**2 * power)
+    return _leak_matrix(tuple(orders.tolist())) @ (bend**2 * power)
 
 
 def _revolution(frame: FrameLike) -> int | None:
