@@ -164,3 +164,24 @@ def test_ctrl_c_finishes_the_recording(tmp_path: Path) -> None:
     recording = open_log(log)
     assert recording.finished  # footer written: the shutdown was clean
     assert b"Traceback" not in err
+
+
+def test_a_confirmed_elastic_mode_is_reported_and_logged(tmp_path: Path) -> None:
+    text = I3.read_text().replace(
+        "[simulation]",
+        "[simulation]\nelastic_mode = { frequency_hz = 140.0, damping_ratio = 0.03, "
+        "participation = 0.1 }",
+    )
+    bench = tmp_path / "elastic.toml"
+    bench.write_text(text)
+    (tmp_path / "bench.dbc").write_text((EXAMPLES_DIR / "bench.dbc").read_text())
+    log, result = tmp_path / "e.mcap", tmp_path / "e.json"
+    argv = ["run", "--bench", str(bench), "--duration", "20", "--rerun", "off", "--quiet"]
+    assert main([*argv, "--record", str(log), "--json", str(result)]) == 0
+    doc = json.loads(result.read_text())
+    assert doc["elastic_mode"]["order"] == 2.0 and 40 < doc["elastic_mode"]["frequency_hz"] < 140
+
+    from replay.reader import open_log
+
+    kinds = [event.kind for _, event in open_log(log).events()]
+    assert kinds.count("elastic_mode") == 1
