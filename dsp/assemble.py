@@ -224,10 +224,12 @@ def _correct(
 ) -> tuple[TrackerState, np.ndarray, np.ndarray]:
     """Remove ramp leakage (:mod:`dsp.leakage`); keep raw amplitudes as the next history.
 
-    The ramp of frame ``j`` is ``(X_j - X_j') * 2 fpr / (j - j')`` with ``j'`` the newest
-    valid frame at the same phase of the 720 deg cycle (``j - j'`` a multiple of
-    ``2 fpr``): leakage from an odd number of half orders away flips sign from one
-    revolution to the next and would pollute a ramp taken across it.
+    The ramp of frame ``j`` is the slope at ``u = 0`` of the parabola through ``X_j`` and
+    the two newest valid frames ``j'``, ``j''`` at the same phase of the 720 deg cycle
+    (``j - j'`` a multiple of ``2 fpr``; ``u`` in windows, ``(j' - j) / (2 fpr)``):
+    leakage from an odd number of half orders away flips sign from one revolution to
+    the next and would pollute a ramp taken across it. With ``j'`` alone it is the
+    chord ``(X_j - X_j') * 2 fpr / (j - j')``; with neither the frame is uncorrected.
     """
     plan = st.plan
     fpr = plan.config.frames_per_rev
@@ -259,20 +261,34 @@ def _correct(
 
     base = position(js)
     finite = np.isfinite(all_x).all(axis=1)  # (h + f, n_ch)
-    # candidates one, two, three cycles back (k, f); the newest usable one wins
+    # candidates one, two, three cycles back (k, f, n_ch): the newest usable one gives the
+    # ramp, the next older one, where there is one, its bend
     pos = position(js[None, :] - np.arange(1, SLOPE_PERIODS + 1)[:, None] * period)
     at = np.maximum(pos, 0)
     usable = ((pos >= 0) & (all_c[at] == chains[None, :]))[:, :, None] & finite[at]
+    rows = np.arange(f)[:, None]
     newest = np.argmax(usable, axis=0)  # (f, n_ch): first usable k, 0 if none
-    ref = np.where(usable.any(axis=0), pos[newest, np.arange(f)[:, None]], -1)
+    ref = np.where(usable.any(axis=0), pos[newest, rows], -1)
+    older = usable & (np.arange(SLOPE_PERIODS)[:, None, None] > newest[None])
+    ref2 = np.where(older.any(axis=0), pos[np.argmax(older, axis=0), rows], -1)
     good = (ref >= 0) & finite[base] & ~tacho_bad[:, None]
-    refc = np.maximum(ref, 0)
+    bent = good & (ref2 >= 0)
+    refc, ref2c = np.maximum(ref, 0), np.maximum(ref2, 0)
     # all_x[ref[f, c], :, c]: advanced indices first, so (f, n_ch, n_int) -> (f, n_int, n_ch)
-    x_ref = all_x[refc, :, np.arange(n_ch)[None, :]].transpose(0, 2, 1)
-    dj = (js[:, None] - all_j[refc]).astype(float)  # (f, n_ch)
+    cols = np.arange(n_ch)[None, :]
+    x1 = all_x[refc, :, cols].transpose(0, 2, 1)
+    x2 = all_x[ref2c, :, cols].transpose(0, 2, 1)
+    # how far back, in windows (720 deg): the frames sit at u = 0, -d1, -d2
+    d1 = ((js[:, None] - all_j[refc]) / period)[:, None, :]
+    d2 = ((js[:, None] - all_j[ref2c]) / period)[:, None, :]
     with np.errstate(invalid="ignore", divide="ignore"):
-        b = (x - x_ref) * (period / dj)[:, None, :]  # ramp per 720 deg window
-    b = np.where(good[:, None, :], b, 0.0)
+        s1 = (x - x1) / d1  # the slope of the chord, i.e. the ramp half a chord back
+        # the parabola through the three frames, A(u) = a + b u + c u^2 (Newton form), has
+        # the slope b = s1 + c d1 at the window's centre; with d1 = 1, d2 = 2 it is
+        # b = (3 X_j - 4 X_j' + X_j'') / 2
+        c = (s1 - (x1 - x2) / (d2 - d1)) / d2
+        b = s1 + np.where(bent[:, None, :], c, 0.0) * d1
+    b = np.where(good[:, None, :], b, 0.0)  # ramp per 720 deg window
     phase = js % period
     corr = plan.same[phase] @ b
     corr += plan.image[phase] @ np.conj(b)

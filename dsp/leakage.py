@@ -13,10 +13,14 @@ so a neighbour three times larger shifts ``h`` by ~0.25 %, more than the
 0.1 % an inertia estimate can afford. Resolving the ramp inside one cycle is
 impossible (0.5 order is the Rayleigh limit of a 720 deg window) and a longer
 window would break the two-revolution latency, so the ramps are taken from
-the *previous* frames instead: the change of every internally tracked half
-order (0.5 up to ``correction_max_order``) since the frame one cycle (720 deg)
-earlier gives ``b`` (one cycle, because leakage from an odd number of half
-orders away flips sign every revolution and cancels only over a whole cycle), and
+the *previous* frames instead: the frames one and two cycles (720 deg) earlier,
+with the frame itself, give a parabola ``A(u) = a + b u + c u^2`` of every
+internally tracked half order (0.5 up to ``correction_max_order``), whose slope
+at the window's centre ``b = (3 X_j - 4 X_j' + X_j'') / 2`` is the change across
+the window. Whole cycles, because leakage from an odd number of half orders
+away flips sign every revolution and cancels only over a whole cycle; the fit
+is in crank angle, like the window and ``kappa``, so the frames sit at
+``u = 0, -1, -2`` exactly. Then
 
     X_h <- X_h - sum_h' [ b_h' e^{i (h'-h) c} kappa(2(h'-h)) + conj(b_h') e^{-i (h'+h) c} kappa(-2(h'+h)) ]
 
@@ -24,10 +28,27 @@ orders away flips sign every revolution and cancels only over a whole cycle), an
 inside the internal set are corrected for; what lies outside is estimated by
 the frame's ``leakage`` figure. On the simulated i3 bench, 1500 -> 4500 rpm at
 50 rpm/s, the worst H1/H1.5/H2 error (a channel whose H1.5 lies 66 dB below
-its H1) falls from 2 % to 5e-4; leaving H3 out of the internal set (orders up
-to 2.5) would leave 1.2 %, up to 3 gives 5.8e-4, up to 4 (the default for
-orders 1, 1.5, 2) 5.1e-4. The ramp of the previous cycle lags by one cycle:
-the residual grows as rate^2 / rpm^3 (see :mod:`dsp.orders` for the limits).
+its H1) falls from 2 % to 1.8e-4 (phase 0.006 deg), 5e-4 in the stream's
+second cycle, which has one earlier cycle and takes the chord; leaving H3 out
+of the internal set (orders up to 2.5) would leave 1.2 %, up to 3 gives
+3.1e-4, up to 4 (the default for orders 1, 1.5, 2) 1.8e-4.
+
+Why the parabola: a chord of the previous cycle, ``X_j - X_j'``, is the ramp
+half a cycle back; where an amplitude bends (near a rigid-body mode in a quick
+sweep: at 60 rpm/s the i3's H1.5 bends by 6-9 % of itself per cycle, second
+difference, between 670 and 720 rpm) that lag leaks the bend, 1/(2 pi) of it,
+into the neighbours. The parabola's own ``c u^2`` term, though it leaks too (``int w u^2 exp(...)``, a
+third of the ramp's coefficient), is not subtracted: fitted from raw frames it
+carries the second difference of the neighbours' leaked ramps, of the same
+size, and subtracting it made the measured cases worse (the i3's H2 at
+600 -> 900 rpm in 5 s: median error 0.63 % with it, 0.24 % without; a
+closed-form rpm^8 order at 60 rpm/s: median leak 2.7e-4 with it, 8.8e-5
+without). The price of the parabola is noise: the ramp is ``(3, -4, 1) / 2``
+of three noisy frames instead of ``(1, -1)`` of two, and at 40 dB SNR the
+scatter of ``X`` rises from 1.03-1.11 to 1.18-1.26 of the window's white-noise
+prediction. A frame with one earlier cycle only (the second cycle of a stream,
+or a re-sync gap that leaves one) falls back to the chord; without any it stays
+uncorrected (``leakage_uncorrected``).
 """
 
 from __future__ import annotations
@@ -39,8 +60,8 @@ import numpy as np
 
 from dsp.frames import rise
 
-# The ramp is taken between the frame and the newest valid frame one, two or three
-# cycles (720 deg) before it: a short re-sync gap is bridged.
+# The ramp is fitted through the frame and the two newest valid frames one, two or three
+# cycles (720 deg) before it (one, if only one is there): a short re-sync gap is bridged.
 SLOPE_PERIODS = 3
 
 

@@ -20,24 +20,27 @@ measured by ``benchmarks/bench_order_tracking.py`` and ``tests/test_order_accura
 * Sweeps. What does leak is each order's amplitude *change* across the window,
   ``Delta A / (2 pi)`` into each adjacent half order; resolving it inside one
   cycle is impossible (0.5 order is the Rayleigh limit of 720 deg), so it is
-  taken from the frame one cycle earlier and subtracted. At 50 rpm/s the worst
-  H1/H1.5/H2 error over the 1500 -> 4500 rpm sweep is 5e-4 of the amplitude
-  (0.05 deg), including a channel whose H1.5 lies 66 dB below its H1
-  (uncorrected: 2 %). The 0.1 % / 0.1 deg bound holds over the whole sweep up
-  to 60 rpm/s; faster, it holds above a speed that grows with the rate
-  (100 rpm/s: from 1670 rpm; 200 rpm/s: from 2040 rpm): the ramp taken from
-  the previous cycle lags, an error ~ rate^2 / rpm^3.
+  predicted from the frames one and two cycles earlier (a parabola through
+  them and the frame) and subtracted. At 50 rpm/s the worst H1/H1.5/H2 error
+  over the 1500 -> 4500 rpm sweep is 1.8e-4 of the amplitude (0.006 deg),
+  including a channel whose H1.5 lies 66 dB below its H1 (uncorrected: 2 %);
+  5e-4 (0.05 deg) in the stream's second cycle, which has one earlier cycle
+  and takes the chord. The 0.1 % / 0.1 deg bound holds over the whole sweep up
+  to 60 rpm/s; at 100 rpm/s from the third corrected frame on (1520 rpm), at
+  200 rpm/s from 1660 rpm (with the chord of the previous cycle alone: 1670 and
+  2040 rpm). Near rigid-body modes in a quick sweep amplitudes bend fast: at
+  600 -> 900 rpm in 5 s the i3's H2 errs by a median 0.24 % (chord: 1.6 %).
 * Noise. White noise of std ``sigma`` scatters Re X and Im X by
   ``sigma sqrt(2 int w^2 / L / N)`` (``N`` samples per cycle,
   :func:`dsp.frames.noise_std`); measured at 40 dB SNR: 0.94 .. 1.07 of it
-  without the sweep correction, 1.02 .. 1.17 with it (the ramp is a
-  difference of two noisy frames).
+  without the sweep correction, 1.18 .. 1.26 with it (the ramp is
+  ``(3, -4, 1) / 2`` of three noisy frames; the chord of two gave 1.03 .. 1.11).
 * Against resampling (computed order tracking) and Vold-Kalman, on the same
   signals (``rota-order`` 0.3, given the exact rpm, judged 1 s away from the
   record's ends): spline resampling plus a one-cycle DFT errs by up to 17 %
   (median 2e-4) and takes 16x the time; phase-locked Hann averaging over
-  4 revolutions and a 2 Hz Vold-Kalman reach a worst case of 5e-4 like this
-  tracker (4e-4) but a median of 1e-6 and 3e-7 against 1e-7, need the whole
+  4 revolutions and a 2 Hz Vold-Kalman reach a worst case of 5e-4 (this
+  tracker: 1.3e-4) and a median of 1e-6 and 3e-7 (1e-7), need the whole
   record, and take 2x and 40x the time of this tracker fed 1 s blocks.
 * Latency. A frame needs its 720 deg window, half a taper on each side
   (45 deg in all), and about three teeth of tacho look-ahead (the knot two
