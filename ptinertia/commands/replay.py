@@ -96,7 +96,10 @@ def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None)
     for line in log.report.lines():
         print(f"{log_path}: {line}", file=sys.stderr)
     if doc is None or summary.estimate is None:
-        print(f"{log_path}: no estimate: {no_estimate_reason(summary.rejected)}", file=sys.stderr)
+        print(
+            f"{log_path}: no estimate: {no_estimate_reason(summary.rejected, summary.orders_rejected)}",
+            file=sys.stderr,
+        )
         return 1
     print(f"== {log_path}")
     print_table(summary.estimate, doc)

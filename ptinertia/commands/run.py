@@ -180,7 +180,8 @@ def run(args: argparse.Namespace) -> int:
     summary, doc = run_source(bench, bench_text, source, args.source, options)
     if doc is None or summary.estimate is None:
         print(
-            f"ptinertia run: no estimate: {no_estimate_reason(summary.rejected)}", file=sys.stderr
+            f"ptinertia run: no estimate: {no_estimate_reason(summary.rejected, summary.orders_rejected)}",
+            file=sys.stderr,
         )
         return 1
     print_table(summary.estimate, doc)
@@ -210,10 +211,23 @@ _NO_ESTIMATE = {
 }
 
 
-def no_estimate_reason(rejected: dict[str, int]) -> str:
-    """One line: the main reason no frame was usable."""
+BENDING = ("off_mass_line", "neighbour_leakage")
+
+
+def no_estimate_reason(
+    rejected: dict[str, int], orders_rejected: dict[str, int] | None = None
+) -> str:
+    """One line: the main reason no frame was usable (``rejected`` per frame, and per
+    frame and order)."""
     if not rejected:
         return "no frame reached the estimator"
     reason, count = max(rejected.items(), key=lambda kv: kv[1])
+    bent = {k: v for k, v in (orders_rejected or {}).items() if k in BENDING}
+    if reason == "near_rigid_modes" and bent:
+        # a frame's reason is its orders' most common one: the low orders sit among the
+        # modes, but the orders above them bent or leaked, which is what to act on
+        reason, count = max(bent.items(), key=lambda kv: kv[1])
+        detail = _NO_ESTIMATE[reason]
+        return f"{detail}; {count} orders rejected for this, the lower ones among the modes"
     detail = _NO_ESTIMATE.get(reason, f"no usable frame ({reason})")
     return f"{detail}; {count} frames rejected for this, {sum(rejected.values())} in all"
