@@ -50,6 +50,7 @@ class ParameterLayout:
     unbalance: bool
     mass: bool
     offset: bool
+    mount_scales: tuple[str, ...] = ()  # mounts whose stiffness scale is estimated
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -60,6 +61,7 @@ class ParameterLayout:
             names += ["inv_mass"]
         if self.offset:
             names += ["crank_offset"]
+        names += [f"kscale:{m}" for m in self.mount_scales]
         return tuple(names)
 
     @property
@@ -77,6 +79,7 @@ class Linearisation:
     cog: np.ndarray
     inertia: np.ndarray
     mass: float
+    mount_scale: np.ndarray | None = None  # (n_mounts,) current stiffness scales; None: 1
 
 
 @dataclass(frozen=True)
@@ -112,6 +115,10 @@ def inertia_columns_batch(w: np.ndarray) -> np.ndarray:
     a[:, 1, 1], a[:, 1, 3], a[:, 1, 5] = wy, -wx, -wz
     a[:, 2, 2], a[:, 2, 4], a[:, 2, 5] = wz, -wx, -wy
     return a
+
+
+def _scales(lin: Linearisation, n: int) -> np.ndarray:
+    return np.ones(n) if lin.mount_scale is None else np.asarray(lin.mount_scale, float)[:n]
 
 
 def frame_rows(
@@ -163,15 +170,20 @@ def frame_rows(
     df_dw = np.zeros((n_o, 3, 3), complex)
     dmp_dgo = np.zeros((n_o, 3, 3), complex)  # d(sum p_i x f_i)/d gamma_O
     dmp_dw = np.zeros((n_o, 3, 3), complex)
+    scale_cols = []  # per estimated mount scale: its reaction f_i at nominal stiffness
     if corr.suspension:
-        for mount in setup.mounts:
+        for i_m, mount in enumerate(setup.mounts):
             sk_r, sk_p = skew_batch(mount.position - o), skew(mount.position)
-            kw = mount.stiffness[None, :, :] / big_w2[:, None, None]  # (n_o, 3, 3)
+            s_i = 1.0 if lin.mount_scale is None else float(lin.mount_scale[i_m])
+            kw = s_i * mount.stiffness[None, :, :] / big_w2[:, None, None]  # (n_o, 3, 3)
             # row-vector forms: a x v = a @ skew(v), v x a = a @ skew(v).T
             gamma_i = gamma_o + np.einsum("oi,oij->oj", omega_dot, sk_r)
             f_i = np.einsum("oij,oj->oi", kw, gamma_i)
-            f_mounts += f_i
-            m_mounts_origin += f_i @ sk_p.T
+            if layout.mount_scales:
+                scale_cols.append((f_i / s_i, mount.position))
+            else:
+                f_mounts += f_i
+                m_mounts_origin += f_i @ sk_p.T
             dfi_dw = -kw @ sk_r
             df_dgo += kw
             df_dw += dfi_dw
@@ -189,6 +201,12 @@ def frame_rows(
     hr = np.zeros((n_o, 3, n), complex)  # rotation rows
     m_hat = lin.mass
     f_known = force + f_mounts
+    # With estimated scales s_i the reactions sum s_i f_i are unknowns: f_known holds none
+    # of them, and G x sum s_i f_i is linearised about the current (G0, s0):
+    # G x F0 + G0 x sum s_i f_i - G0 x F0, F0 = sum s0_i f_i.
+    f_scaled = np.zeros((n_o, 3), complex)  # F0
+    for (f_nom, _), s0 in zip(scale_cols, _scales(lin, len(scale_cols)), strict=True):
+        f_scaled += s0 * f_nom
     sk_w = skew_batch(omega_dot)
     sk_wo = np.einsum("oij,oj->oi", sk_w, o)
 
@@ -210,8 +228,16 @@ def frame_rows(
 
     # I Omega' + G x (F_exc + F_m) - (P_u - G) x F_unb = M_R + R x F_exc + sum p_i x f_i - gyro
     hr[:, :, :6] = inertia_columns_batch(omega_dot)
-    hr[:, :, 6:9] = -skew_batch(f_known)
+    hr[:, :, 6:9] = -skew_batch(f_known + f_scaled)
     yr = moment_r + force @ skew(setup.reference_point).T + m_mounts_origin - gyro
+    if scale_cols:
+        if layout.mass:
+            raise ValueError("mount stiffness scales need a known mass")
+        yr = yr + cross(lin.cog, f_scaled)
+        for name, (f_nom, p_i) in zip(layout.mount_scales, scale_cols, strict=True):
+            j = layout.index(f"kscale:{name}")
+            ht[:, :, j] = -f_nom
+            hr[:, :, j] = cross(lin.cog - p_i, f_nom)
     sk_g = skew(lin.cog)
     dr_dgo = sk_g @ df_dgo - dmp_dgo
     dr_dw = lin.inertia[None] + dgyro_dw + sk_g @ df_dw - dmp_dw

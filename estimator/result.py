@@ -189,6 +189,12 @@ class Estimate:
                 "orders_rejected": dict(sorted(self.orders_rejected.items())),
             },
             "rpm_range": list(self.rpm_range) if self.rpm_range else None,
+            "mount_stiffness_scale": {
+                n.split(":", 1)[1]: _vs(self.value(n), self.std(n))
+                for n in self.names
+                if n.startswith("kscale:")
+            }
+            or None,
             "half_order": self.half_order,
             "elastic_mode": (
                 None

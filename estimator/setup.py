@@ -35,6 +35,10 @@ class Corrections:
     gyroscopic: bool = True  # Omega x H of the spinning crank train
     unbalance: bool = True  # residual static unbalance at H1, estimated
     crank_offset: bool = True  # crank-angle reference offset, estimated
+    # one stiffness scale per mount estimated with the rest (the reactions scale like
+    # 1 / (h omega)^2, the inertia terms do not: a sweep separates them); for benches
+    # whose mount data are uncertain. Needs a known mass (the scales and 1/m multiply).
+    mount_scale: bool = False
 
 
 @dataclass(frozen=True)

@@ -243,7 +243,10 @@ class InertiaEstimator:
         self.forgetting = forgetting
         corr = setup.corrections
         self.layout = ParameterLayout(
-            unbalance=corr.unbalance, mass=not setup.mass_known, offset=corr.crank_offset
+            unbalance=corr.unbalance,
+            mass=not setup.mass_known,
+            offset=corr.crank_offset,
+            mount_scales=tuple(m.name for m in setup.mounts) if corr.mount_scale else (),
         )
         self.sys_names = systematic_names(setup)
         self.sys_std = systematic_stds(setup)
@@ -288,6 +291,8 @@ class InertiaEstimator:
                 scale.append(1e-3 / (self.setup.mass_nominal if self.layout.mass else 1.0))
             elif name == "inv_mass":
                 scale.append(1.0 / self.setup.mass_nominal)
+            elif name.startswith("kscale:"):
+                scale.append(1.0)
             else:
                 scale.append(0.01)
         return np.array(scale)
@@ -707,7 +712,13 @@ class InertiaEstimator:
             inv = sol.theta[self.layout.index("inv_mass")]
             if inv > 0:
                 mass = 1.0 / inv
-        self.lin = Linearisation(cog=sol.theta[6:9].copy(), inertia=inertia, mass=mass)
+        scales = None
+        if self.layout.mount_scales:
+            at = [self.layout.index(f"kscale:{m}") for m in self.layout.mount_scales]
+            scales = np.where(sol.observable[at], sol.theta[at], 1.0)
+        self.lin = Linearisation(
+            cog=sol.theta[6:9].copy(), inertia=inertia, mass=mass, mount_scale=scales
+        )
 
     def _effective(self, sign: int) -> Accumulator:
         """A sign hypothesis's state of theta: with a confirmed elastic mode, the tail

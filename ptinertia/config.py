@@ -330,6 +330,8 @@ class EstimatorSettings(Section):
     gyroscopic: bool = True
     unbalance: bool = True
     crank_offset: bool = True
+    # estimate one stiffness scale per mount (uncertain mount data); needs mass_known
+    mount_scale: bool = False
     forgetting: Annotated[float, Field(gt=0, le=1)] = 1.0
     gain_tolerance_pct: NonNegative = 1.0
     alignment_tolerance_deg: NonNegative = 1.0

@@ -51,7 +51,13 @@ def estimator_setup(
         gyroscopic=corr.gyroscopic and engine.crank_spin_inertia > 0,
         unbalance=corr.unbalance,
         crank_offset=corr.crank_offset,
+        mount_scale=corr.mount_scale and corr.suspension and has_mounts,
     )
+    if corr.mount_scale and not bench.powertrain.mass_known:
+        raise config.ConfigError(
+            "[estimator] mount_scale: needs [powertrain] mass_known = true "
+            "(estimated mass and mount scales would multiply)"
+        )
     sensor_of_channel = np.array(
         [i for i, sensor in enumerate(bench.sensors) for name in sensor.channels if name]
     )

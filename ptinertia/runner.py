@@ -46,6 +46,7 @@ def make_estimator(bench: Bench, corrections_off: tuple[str, ...] = ()) -> Inert
         gyroscopic=s.gyroscopic and "gyroscopic" not in corrections_off,
         unbalance=s.unbalance and "unbalance" not in corrections_off,
         crank_offset=s.crank_offset and "crank_offset" not in corrections_off,
+        mount_scale=s.mount_scale and "mount_scale" not in corrections_off,
     )
     tolerances = Tolerances(
         gain_rel=s.gain_tolerance_pct / 100.0,
@@ -182,6 +183,18 @@ def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO = sys.stdou
     rejected = ", ".join(f"{k} {v}" for k, v in frames["rejected"].items()) or "none"
     lo, hi = doc["rpm_range"] or (math.nan, math.nan)
     print(f"frames used {frames['used']} ({lo:.0f}-{hi:.0f} rpm), rejected: {rejected}", file=out)
+    scales = doc.get("mount_stiffness_scale")
+    if scales:
+        print(
+            "mount stiffness scale (x the bench file's): "
+            + ", ".join(
+                f"{name} {v['value']:.3f} +- {Z95 * v['std']:.3f}"
+                if v["std"] is not None
+                else f"{name} not observed"
+                for name, v in scales.items()
+            ),
+            file=out,
+        )
     elastic = doc.get("elastic_mode")
     if elastic:
         print(
