@@ -194,3 +194,18 @@ def test_no_estimate_names_the_bending_orders_over_the_low_ones_among_the_modes(
     assert "mass-line range" in no_estimate_reason(frames, {"near_rigid_modes": 58})
     fast = no_estimate_reason(frames, {"near_rigid_modes": 58, "neighbour_leakage": 17})
     assert "too fast" in fast and "17 orders" in fast
+
+
+def test_replay_with_mount_scale_estimates_the_mounts(
+    recorded: tuple[Path, Path], tmp_path: Path
+) -> None:
+    out = tmp_path / "scaled.json"
+    assert main(["replay", str(recorded[0]), "--mount-scale", "--quiet", "--json", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    scales = doc["mount_stiffness_scale"]
+    assert set(scales) == {"engine_rh", "gearbox_lh", "torque_rod"}
+    for name, s in scales.items():
+        assert s["value"] == pytest.approx(1.0, abs=0.01), name  # the simulation used the file's
+    truth = doc["truth"]["inertia_kgm2"]["value"]
+    for term, value in doc["inertia_kgm2"]["value"].items():
+        assert value == pytest.approx(truth[term], rel=0.002), term

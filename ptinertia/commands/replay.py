@@ -16,10 +16,12 @@ from typing import Any
 
 from ptinertia.commands.run import (
     CORRECTIONS,
+    add_mount_scale_flag,
     no_estimate_reason,
     parse_orders,
     recorder_sinks,
     viewer_sinks,
+    with_mount_scale,
 )
 from ptinertia.config import load_bench, loads_bench
 from ptinertia.errors import UsageError
@@ -47,6 +49,7 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
     )
     p.add_argument("--orders", help="orders to track (default: the bench's [dsp] orders)")
     p.add_argument("--no", action="append", default=[], choices=CORRECTIONS, metavar="CORRECTION")
+    add_mount_scale_flag(p)
     p.add_argument("--quiet", action="store_true")
 
 
@@ -77,6 +80,7 @@ def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None)
             raise UsageError(f"{log_path}: the log holds no bench file; give one with --bench")
         bench_text = log.bench_text
         bench = loads_bench(bench_text, f"{log_path}:bench.toml")
+    bench = with_mount_scale(bench, args.mount_scale)
     source: Any = McapSource(log, speed=parse_speed(args.speed))
     from ptinertia.sources import check_channels
 

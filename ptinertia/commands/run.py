@@ -50,6 +50,7 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
         metavar="CORRECTION",
         help=f"switch a correction off (repeatable): {', '.join(CORRECTIONS)}",
     )
+    add_mount_scale_flag(p)
     p.add_argument("--quiet", action="store_true", help="no progress line")
     sim = p.add_argument_group("simulated source (--source sim)")
     sim.add_argument("--sweep", metavar="FROM:TO", help="rpm sweep, e.g. 1500:4500")
@@ -149,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
     from ptinertia.sources import open_source
 
     bench_path = Path(args.bench)
-    bench = load_bench(bench_path)
+    bench = with_mount_scale(load_bench(bench_path), args.mount_scale)
     bench_text = bench_path.read_text(encoding="utf-8")
     overrides = sim_overrides(args) if args.source == "sim" else {}
     if args.source != "sim" and any(
@@ -209,6 +210,24 @@ _NO_ESTIMATE = {
     "mode (the sweep is too fast there): sweep more slowly or further above the modes",
     "no_rpm": "no rpm signal",
 }
+
+
+def add_mount_scale_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--mount-scale",
+        action="store_true",
+        help="estimate one stiffness scale per mount (as [estimator] mount_scale = true): "
+        "for mount data you do not trust",
+    )
+
+
+def with_mount_scale(bench: Any, on: bool) -> Any:
+    """``bench`` with ``[estimator] mount_scale`` switched on when ``on``."""
+    if not on:
+        return bench
+    return bench.model_copy(
+        update={"estimator": bench.estimator.model_copy(update={"mount_scale": True})}
+    )
 
 
 BENDING = ("off_mass_line", "neighbour_leakage")
