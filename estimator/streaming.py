@@ -371,25 +371,23 @@ class InertiaEstimator:
                 continue
             assert fitter is not None
             todo.append((i, fitter, frame.amplitudes[:, cols[used]]))
-        # Fit runs of frames with the same channels and orders together.
-        start = 0
-        for end in range(1, len(todo) + 1):
-            first = todo[start]
-            if end < len(todo) and _same_run(
-                frames[todo[end][0]], todo[end], frames[first[0]], first
-            ):
-                continue
-            run = todo[start:end]
+
+        # Fit runs of consecutive frames with the same channels and orders together.
+        def same_fit(item: tuple[int, RigidFit, np.ndarray]) -> tuple[int, tuple[float, ...]]:
+            return id(item[1]), tuple(frames[item[0]].orders)
+
+        for _, group in itertools.groupby(todo, key=same_fit):
+            run = list(group)
+            first_index, fit, _ = run[0]
             readings = np.stack([r for _, _, r in run])  # (n, k, u)
-            motions = first[1].fit_many(readings)
+            motions = fit.fit_many(readings)
             powers = np.mean(readings.real**2 + readings.imag**2, axis=2)  # (n, k)
-            orders = np.asarray(frames[first[0]].orders, dtype=float)
+            orders = np.asarray(frames[first_index].orders, dtype=float)
             bends = self._curvature([frames[i] for i, _, _ in run], orders, motions)
             for j, (i, fitter, r) in enumerate(run):
                 outcomes[i] = self._use(
                     frames[i], fitter, motions[j], orders, r, powers[j], bends[j]
                 )
-            start = end
         return [o for o in outcomes if o is not None]
 
     def _use(
@@ -803,16 +801,6 @@ def _revolution(frame: FrameLike) -> int | None:
     if angle is None or not np.isfinite(angle):
         return None
     return round(float(angle) / (2 * np.pi))
-
-
-def _same_run(
-    frame: FrameLike,
-    item: tuple[int, RigidFit, np.ndarray],
-    first_frame: FrameLike,
-    first: tuple[int, RigidFit, np.ndarray],
-) -> bool:
-    """Whether a frame can be fitted together with the first of a run."""
-    return item[1] is first[1] and tuple(frame.orders) == tuple(first_frame.orders)
 
 
 def _overlaps_previous(frame: FrameLike) -> bool:
