@@ -134,6 +134,7 @@ def frame_rows(
     force: np.ndarray,
     moment_r: np.ndarray,
     noise_var: np.ndarray,
+    measured_moment: np.ndarray | None = None,
 ) -> FrameRows:
     """Rows of the given (frame, order) pairs: one row block per pair.
 
@@ -152,6 +153,9 @@ def frame_rows(
         Known excitation force (N) and moment about ``setup.reference_point`` (N m).
     noise_var : (n_o,) float
         Channel noise variance (m/s^2)^2 per order; scales ``cov_unit``.
+    measured_moment : (n_o, 3) complex or None
+        The part of ``moment_r`` measured in the frames' crank angle (the gas moment
+        from a pressure channel): a reference offset turns it like the motion.
     """
     n_o = len(orders)
     n = layout.size
@@ -265,6 +269,9 @@ def frame_rows(
         col = np.einsum("oij,oj->oi", d_c, -1j * h[:, None] * meas)
         ht[:, :, layout.index("crank_offset")] = col[:, :3]
         hr[:, :, layout.index("crank_offset")] = col[:, 3:]
+        if measured_moment is not None:
+            # moment_r enters the residual with -1 and turns by exp(-i h d) as well
+            hr[:, :, layout.index("crank_offset")] += 1j * h[:, None] * measured_moment
 
     hc = np.concatenate([ht, hr], axis=1)  # (n_o, 6, n)
     yc = np.concatenate([yt, yr], axis=1)  # (n_o, 6)

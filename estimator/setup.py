@@ -16,6 +16,8 @@ import numpy as np
 
 # (rpm, orders) -> (force (n_o, 3) complex N, moment about reference_point (n_o, 3) complex N m)
 ExcitationFn = Callable[[float, np.ndarray], tuple[np.ndarray, np.ndarray]]
+#: (orders, pressure spectrum of a frame) -> (n_orders, 3) complex N m gas moment
+GasMomentFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True)
@@ -88,6 +90,10 @@ class EstimatorSetup:
     mass_nominal, mass_known : kg, and whether it is an input (weighed) or estimated.
     cog_nominal : (3,) m; inertia_nominal : (3, 3) kg m^2.
     mode_max_hz : highest rigid-body mode of the nominal model (None: unknown).
+    gas_moment : the gas moment from a frame's measured cylinder-pressure spectrum
+        (``frame.spectrum``); None when ``excitation`` includes a modelled gas torque.
+        Measured in the frame's own crank angle, it turns with the motion under a
+        reference offset or a 360 deg slip, so half orders need no sign hypothesis.
     """
 
     channels: tuple[str, ...]
@@ -110,6 +116,7 @@ class EstimatorSetup:
     corrections: Corrections = field(default_factory=Corrections)
     tolerances: Tolerances = field(default_factory=Tolerances)
     gates: Gates = field(default_factory=Gates)
+    gas_moment: GasMomentFn | None = None
 
     @property
     def n_sensors(self) -> int:

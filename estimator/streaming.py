@@ -147,6 +147,7 @@ class _Pending:
     fit: RigidFit  # the channel geometry of the fit
     amplitudes: np.ndarray  # (k, u) complex, the fitted readings
     half: np.ndarray  # (k,) bool: a half order of a frame with an unknown 720 deg cycle
+    measured_moment: np.ndarray | None  # (k, 3) complex: the part of moment measured (gas)
 
 
 @dataclass(frozen=True)
@@ -403,6 +404,13 @@ class InertiaEstimator:
         """Gate the orders of a fitted frame and queue the usable ones."""
         setup = self.setup
         force, moment = setup.excitation(frame.rpm, orders)
+        gas = None
+        if setup.gas_moment is not None:
+            spectrum = getattr(frame, "spectrum", None)
+            if spectrum is None or not np.all(np.isfinite(spectrum)):
+                return self._reject(frame, "no_pressure")
+            gas = setup.gas_moment(orders, spectrum)
+            moment = moment + gas
         # Excitation level per order (force times a typical 0.3 m arm, plus moment):
         # an order the engine does not excite carries no information, only noise.
         level = 0.3 * np.sqrt(np.sum(np.abs(force) ** 2, axis=1)) + np.sqrt(
@@ -441,10 +449,10 @@ class InertiaEstimator:
         # the intervals carry them.
         floor = curvature**2 * power + leak_var
         self._add_orders(
-            frame, fitter, motion, np.array(ks), orders, readings, power, force, moment, floor
+            frame, fitter, motion, np.array(ks), orders, readings, power, force, moment, floor, gas
         )
         self.stats.used += 1
-        self.stats.ambiguous_frames += int("cycle_ambiguous" in frame.flags)
+        self.stats.ambiguous_frames += int(self._cycle_unknown(frame))
         self.stats.rpm_lo = min(self.stats.rpm_lo, frame.rpm)
         self.stats.rpm_hi = max(self.stats.rpm_hi, frame.rpm)
         # Relinearise after the first used frame (the nominal cog may be centimetres
@@ -561,12 +569,13 @@ class InertiaEstimator:
         force: np.ndarray,
         moment: np.ndarray,
         dsp_var: np.ndarray,
+        gas: np.ndarray | None,
     ) -> None:
         """Queue the used orders ``ks`` of a frame; their rows are assembled a batch at a time.
 
         ``readings`` (k, u) are the fitted channels' amplitudes, ``power`` (k,) their
         mean square per order, ``dsp_var`` (k,) a floor for the channel noise variance
-        (what the dsp errs by near modes).
+        (what the dsp errs by near modes), ``gas`` the measured gas moment in ``moment``.
         """
         floor = max(1e-16 * float(np.mean(power)), 1e-30)
         var = self._noise_var(motion, ks, orders, floor)
@@ -585,9 +594,15 @@ class InertiaEstimator:
                 var=var,
                 fit=fit,
                 amplitudes=readings[ks],
-                half=((2 * h) % 2 == 1) & ("cycle_ambiguous" in frame.flags),
+                half=((2 * h) % 2 == 1) & self._cycle_unknown(frame),
+                measured_moment=None if gas is None else gas[ks],
             )
         )
+
+    def _cycle_unknown(self, frame: FrameLike) -> bool:
+        """Whether the frame's half orders may be seen through phi + 360 deg with a sign
+        that matters: not when the gas moment is measured in the same angle (it flips too)."""
+        return "cycle_ambiguous" in frame.flags and self.setup.gas_moment is None
 
     def _sensitivity(self, batch: list[_Pending]) -> np.ndarray:
         """(P, 12, n_sys): d motion / d systematic parameters of every pair of ``batch``."""
@@ -633,6 +648,7 @@ class InertiaEstimator:
             cat("force"),
             cat("moment"),
             cat("var"),
+            measured_moment=None if batch[0].measured_moment is None else cat("measured_moment"),
         )
         return r.H, r.y, r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[sel])
 

@@ -29,6 +29,7 @@ class Frame:
     channel_ok: np.ndarray
     rpm_change: float = 0.0
     flags: frozenset[str] = field(default_factory=frozenset)
+    spectrum: np.ndarray | None = None  # a pressure channel's half orders 0, 0.5, ...
 
 
 @dataclass
