@@ -51,6 +51,7 @@ class ParameterLayout:
     mass: bool
     offset: bool
     mount_scales: tuple[str, ...] = ()  # mounts whose stiffness scale is estimated
+    calibrate: tuple[str, ...] = ()  # systematic parameters estimated (sensor gains, alignment)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -62,6 +63,7 @@ class ParameterLayout:
         if self.offset:
             names += ["crank_offset"]
         names += [f"kscale:{m}" for m in self.mount_scales]
+        names += [f"cal:{c}" for c in self.calibrate]
         return tuple(names)
 
     @property

@@ -41,6 +41,9 @@ class Corrections:
     # 1 / (h omega)^2, the inertia terms do not: a sweep separates them); for benches
     # whose mount data are uncertain. Needs a known mass (the scales and 1/m multiply).
     mount_scale: bool = False
+    # each channel's gain and each sensor's alignment estimated with the rest, the
+    # declared tolerances as their priors (the sweep's varied motion separates them)
+    self_calibration: bool = False
 
 
 @dataclass(frozen=True)

@@ -248,14 +248,23 @@ class InertiaEstimator:
             mass=not setup.mass_known,
             offset=corr.crank_offset,
             mount_scales=tuple(m.name for m in setup.mounts) if corr.mount_scale else (),
+            calibrate=tuple(n for n in systematic_names(setup) if n.startswith(("gain:", "align:")))
+            if corr.self_calibration
+            else (),
         )
         self.sys_names = systematic_names(setup)
+        self._cal = [self.sys_names.index(n) for n in self.layout.calibrate]
+        self._cal_cols = [self.layout.index(f"cal:{n}") for n in self.layout.calibrate]
         self.sys_std = systematic_stds(setup)
         n, n_sys = self.layout.size, len(self.sys_names)
         # one accumulator per half-order sign hypothesis (+1 as measured, -1 flipped)
         # (over theta and the elastic-tail terms: see ELASTIC_WINDOW)
         n_all = n + ELASTIC_TERMS
         self.acc = {1: Accumulator.empty(n_all, n_sys), -1: Accumulator.empty(n_all, n_sys)}
+        # The declared tolerances are the calibrated parameters' priors (mean 0): the
+        # rows are whitened to unit variance, so their information is 1 / sigma^2.
+        for acc in self.acc.values():
+            acc.state.info[self._cal_cols, self._cal_cols] += 1.0 / self.sys_std[self._cal] ** 2
         self.elastic: dict[str, float] | None = None  # set once the residual gate confirms one
         self._non_rigid_recent: dict[float, list[bool]] = {}
         self.stats = EstimatorStats()
@@ -650,7 +659,12 @@ class InertiaEstimator:
             cat("var"),
             measured_moment=None if batch[0].measured_moment is None else cat("measured_moment"),
         )
-        return r.H, r.y, r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[sel])
+        dr = r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[sel])
+        if self._cal:
+            # self-calibration: what was a systematic error becomes an unknown
+            r.H[:, :, self._cal_cols] = dr[:, :, self._cal]
+            dr[:, :, self._cal] = 0.0
+        return r.H, r.y, dr
 
     def _flush(self) -> None:
         """Assemble the queued frames' rows and add them, frame by frame, to both hypotheses.
