@@ -35,7 +35,11 @@ def emit(st: TrackerState) -> tuple[TrackerState, list[OrderFrame]]:
     cfg = plan.config
     st = decide_pressure(st)
     tracked = [gi for gi, g in enumerate(plan.groups) if g.track_rows]
-    watched = [gi for gi, g in enumerate(plan.groups) if g.track_rows or g.pressure_row is not None]
+    watched = [
+        gi
+        for gi, g in enumerate(plan.groups)
+        if g.track_rows or g.pressure_row is not None or g.spectrum_row is not None
+    ]
     if not tracked:
         return st, []
     n = cfg.frames_per_rev
@@ -48,6 +52,8 @@ def emit(st: TrackerState) -> tuple[TrackerState, list[OrderFrame]]:
         # the first window that starts after the first sample with an angle
         st = evolve(st, next_frame=math.ceil((max(firsts) + 0.5 * tw) / spacing) + n)
     front = min(st.groups[gi].last_phi for gi in watched)
+    if not math.isfinite(front):
+        return st, []  # a watched group (the spectrum's own, say) has had no angle yet
     assert st.next_frame is not None
     j_max = math.floor((front - 0.5 * tw) / spacing) - n
     frames: list[OrderFrame] = []
@@ -142,7 +148,8 @@ def _batch(
     )
     raw = _raw(st, js)
     st, x, corrected = _correct(st, js, chains, raw["x"], raw["tacho_bad"])
-    frames = _finish(st, js, raw, x, corrected, parity, ~decided, chains)
+    st, spectrum = _spectrum(st, js, chains, raw)
+    frames = _finish(st, js, raw, x, corrected, parity, ~decided, chains, spectrum)
     return _forget(st, int(js[-1]) + 1), frames, done
 
 
@@ -161,8 +168,10 @@ def _raw(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]:
         lo_phi, hi_phi = (js - n) * spacing - 0.5 * tw, (js + n) * spacing + 0.5 * tw
     for inv in st.invalid:
         hit = np.flatnonzero((inv.phi_a < hi_phi) & (inv.phi_b > lo_phi))
-        for i in hit:
-            flags[i].add(inv.reason)
+        # a gap in a group that holds nothing but the spectrum channel only NaNs the spectrum
+        if inv.group is None or not plan.groups[inv.group].spectrum_only:
+            for i in hit:
+                flags[i].add(inv.reason)
         if inv.group is None:
             tacho_bad[hit] = True
         else:
@@ -209,6 +218,7 @@ def _raw(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]:
         "times": times.reshape(f, 3),
         "omegas": omegas.reshape(f, 3),
         "tacho_bad": tacho_bad,
+        "bad_group": bad_group,
     }
 
 
@@ -222,7 +232,72 @@ def _columns(cols: tuple[int, ...]) -> slice | list[int]:
 def _correct(
     st: TrackerState, js: np.ndarray, chains: np.ndarray, x: np.ndarray, tacho_bad: np.ndarray
 ) -> tuple[TrackerState, np.ndarray, np.ndarray]:
+    """Remove ramp leakage from the tracked channels (:func:`ramp_correction`)."""
+    plan = st.plan
+    history, x, good = ramp_correction(
+        st.history, js, chains, x, tacho_bad, plan.same, plan.image,
+        plan.config.frames_per_rev, plan.config.leakage_correction,
+    )  # fmt: skip
+    return evolve(st, history=history), x, good
+
+
+def _spectrum(
+    st: TrackerState, js: np.ndarray, chains: np.ndarray, raw: dict[str, np.ndarray]
+) -> tuple[TrackerState, np.ndarray | None]:
+    """The spectrum channel's orders 0, 0.5, .. of frames ``js``, leakage-corrected:
+    ``(f, n_spec_internal, 1)`` complex, NaN in full where the window is not usable.
+
+    Order 0 is the window mean, ``sum w x q / sum w q``: half the sum the other orders
+    are taken with. The ramp correction then sees it with the right weight as a source
+    (``Re{X_0}`` leaks like any order's real part); as a target its coupling rows are
+    halved in the plan (:func:`dsp.config.make_plan`).
+    """
+    plan = st.plan
+    gi = plan.spectrum_group
+    if gi is None or plan.spectrum_k2 is None:
+        return st, None
+    assert plan.spectrum_same is not None and plan.spectrum_image is not None
+    cfg = plan.config
+    n = cfg.frames_per_rev
+    spacing = TWO_PI / n
+    tw = math.radians(cfg.taper_deg)
+    sk2 = plan.spectrum_k2
+    gs = st.groups[gi]
+    s, w, _, _ = window_sums(gs.spec, int(js[0]), int(js[-1]), n, 1, sk2.size)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        x = 2.0 * s / w[:, None, None]  # (f, 1, n_spec)
+    x[:, :, 0] *= 0.5
+    x = x.transpose(0, 2, 1)  # (f, n_spec, 1), as the tracked channels' (f, n_int, n_ch)
+    # a window that begins before the channel's first sample (its group may start later
+    # than the tracked ones) has missing sums, not zeros
+    lo_phi = (js - n) * spacing - 0.5 * tw
+    usable = ~(raw["tacho_bad"] | raw["bad_group"][:, gi]) & (lo_phi >= gs.first_phi)
+    usable &= np.isfinite(x).all(axis=(1, 2))
+    x[~usable] = np.nan
+    history, x, _ = ramp_correction(
+        st.spec_history, js, chains, x, raw["tacho_bad"], plan.spectrum_same,
+        plan.spectrum_image, n, cfg.leakage_correction,
+    )  # fmt: skip
+    return evolve(st, spec_history=history), x
+
+
+def ramp_correction(
+    history: tuple[np.ndarray, ...],
+    js: np.ndarray,
+    chains: np.ndarray,
+    x: np.ndarray,
+    tacho_bad: np.ndarray,
+    same: np.ndarray,
+    image: np.ndarray,
+    frames_per_rev: int,
+    enabled: bool,
+) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray]:
     """Remove ramp leakage (:mod:`dsp.leakage`); keep raw amplitudes as the next history.
+
+    ``x`` (f, n_int, n_ch) are the raw amplitudes of frames ``js`` (``chains`` their
+    parity chains), ``history`` the ``(j, chain, x)`` of the frames before them (empty at
+    first), ``same``, ``image`` the coupling of :func:`dsp.leakage.coupling`. Returns the
+    new history, the corrected amplitudes and which (frame, channel) were corrected.
 
     The ramp of frame ``j`` is the slope at ``u = 0`` of the parabola through ``X_j`` and
     the two newest valid frames ``j'``, ``j''`` at the same phase of the 720 deg cycle
@@ -231,22 +306,21 @@ def _correct(
     the next and would pollute a ramp taken across it. With ``j'`` alone it is the
     chord ``(X_j - X_j') * 2 fpr / (j - j')``; with neither the frame is uncorrected.
     """
-    plan = st.plan
-    fpr = plan.config.frames_per_rev
+    fpr = frames_per_rev
     period = 2 * fpr
     look = SLOPE_PERIODS * period
-    if st.history:
-        hj, hc, hx = st.history
+    if history:
+        hj, hc, hx = history
     else:
         hj, hc, hx = np.empty(0, np.int64), np.empty(0, np.int64), x[:0]
     all_j = np.concatenate((hj, js))
     all_c = np.concatenate((hc, chains))
     all_x = np.concatenate((hx, x))
     keep = slice(max(all_j.size - look, 0), None)
-    st = evolve(st, history=(all_j[keep], all_c[keep], all_x[keep]))
+    history = (all_j[keep], all_c[keep], all_x[keep])
     f, n_ch = js.size, x.shape[2]
-    if not plan.config.leakage_correction:
-        return st, x, np.zeros((f, n_ch), bool)
+    if not enabled:
+        return history, x, np.zeros((f, n_ch), bool)
 
     first = int(all_j[0])
     gapless = int(all_j[-1]) - first == all_j.size - 1  # the rule: no frame skipped
@@ -290,9 +364,9 @@ def _correct(
         b = s1 + np.where(bent[:, None, :], c, 0.0) * d1
     b = np.where(good[:, None, :], b, 0.0)  # ramp per 720 deg window
     phase = js % period
-    corr = plan.same[phase] @ b
-    corr += plan.image[phase] @ np.conj(b)
-    return st, x - corr, good
+    corr = same[phase] @ b
+    corr += image[phase] @ np.conj(b)
+    return history, x - corr, good
 
 
 def _finish(
@@ -304,6 +378,7 @@ def _finish(
     parity: np.ndarray,
     ambiguous: np.ndarray,
     chains: np.ndarray,
+    spectrum: np.ndarray | None = None,
 ) -> list[OrderFrame]:
     plan = st.plan
     cfg = plan.config
@@ -325,6 +400,13 @@ def _finish(
         leak = np.abs(rpm_change)[:, None] / math.pi * (known + rest) / strongest
     sign = (-1.0) ** (cfg.k2[None, :] * parity[:, None])  # half orders flip with the cycle
     out = out * sign[:, :, None]
+    if spectrum is None:
+        spectra: list[np.ndarray | None] = [None] * js.size
+    else:
+        k = np.arange(cfg.spectrum_size)
+        spec = spectrum[:, : k.size, 0] * (-1.0) ** (k[None, :] * parity[:, None])
+        spec[:, 0] = spec[:, 0].real  # the mean: real, its correction is real to rounding
+        spectra = list(spec)
     base = {"angle_ambiguous"} if tc.kind == "pulses" and tc.teeth > 1 else set()
     orders = tuple(float(h) for h in cfg.orders)
     in_range = (rpm >= cfg.rpm_min) & (rpm <= cfg.rpm_max)
@@ -340,10 +422,10 @@ def _finish(
     )  # fmt: skip
     columns = zip(
         js.tolist(), parity.tolist(), times[:, 1].tolist(), rpm.tolist(), rpm_change.tolist(),
-        list(out), list(raw["ok"]), list(leak), raw["flags"].tolist(), keys,
+        list(out), list(raw["ok"]), list(leak), raw["flags"].tolist(), keys, spectra,
         strict=True,
     )  # fmt: skip
-    for j, p, t, r, dr, amp, ok, lk, raw_flags, key in columns:
+    for j, p, t, r, dr, amp, ok, lk, raw_flags, key, sp in columns:
         # most frames share one set of flags: build each distinct set once
         flags = None if raw_flags else cache.get(key)
         if flags is None:
@@ -374,6 +456,8 @@ def _finish(
                 rpm_change=dr,
                 leakage=lk,
                 flags=flags,
+                spectrum=sp,
+                spectrum_channel=cfg.spectrum_channel,
             )
         )
     return frames
@@ -396,7 +480,10 @@ def _forget(st: TrackerState, j_next: int) -> TrackerState:
     n = st.plan.config.frames_per_rev
     spacing = TWO_PI / n
     tw = math.radians(st.plan.config.taper_deg)
-    groups = tuple(evolve(gs, acc=drop_before(gs.acc, j_next - n)) for gs in st.groups)
+    groups = tuple(
+        evolve(gs, acc=drop_before(gs.acc, j_next - n), spec=drop_before(gs.spec, j_next - n))
+        for gs in st.groups
+    )
     lo_phi = (j_next - n) * spacing - 0.5 * tw
     invalid = tuple(inv for inv in st.invalid if inv.phi_b >= lo_phi)
     t_keep = ang.time_at_one(st.table, lo_phi - spacing)

@@ -10,7 +10,7 @@ a channel the source does not have) with a one-line :class:`DspConfigError`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -60,6 +60,15 @@ class OrderTrackerConfig:
         Every half order from 0.5 up to this one is tracked internally for the
         correction (None: the highest tracked order + 2). More orders, less
         residual leakage, more time per sample.
+    spectrum_channel : str or None
+        A channel (any unit, any sample group; it may be the tacho's
+        ``pressure_channel`` or a tracked channel) whose full half-order
+        spectrum every frame carries (:attr:`dsp.frames.OrderFrame.spectrum`).
+        None: no spectrum, and no cost.
+    spectrum_max_order : float
+        The spectrum holds orders 0, 0.5, .. up to this one (a positive multiple
+        of 0.5). With the leakage correction, every half order up to this one
+        + 2 is tracked internally on that channel (below 0.9 of its Nyquist order).
     """
 
     tacho: TachoConfig = field(default_factory=TachoConfig)
@@ -74,6 +83,8 @@ class OrderTrackerConfig:
     max_wait_s: float = 2.0
     leakage_correction: bool = True
     correction_max_order: float | None = None
+    spectrum_channel: str | None = None
+    spectrum_max_order: float = 6.0
 
     def __post_init__(self) -> None:
         if not self.orders:
@@ -104,6 +115,22 @@ class OrderTrackerConfig:
             raise DspConfigError(
                 f"correction_max_order: expected > 0, got {self.correction_max_order}"
             )
+        h = self.spectrum_max_order
+        if not (
+            isinstance(h, (int, float))
+            and h > 0
+            and math.isfinite(h)
+            and abs(2 * h - round(2 * h)) < 1e-9
+        ):
+            raise DspConfigError(
+                f"spectrum_max_order: expected a positive multiple of 0.5, got {h!r}"
+            )
+        if self.spectrum_channel is not None and not (
+            isinstance(self.spectrum_channel, str) and self.spectrum_channel
+        ):
+            raise DspConfigError(
+                f"spectrum_channel: expected a channel name or None, got {self.spectrum_channel!r}"
+            )
 
     @property
     def k2(self) -> np.ndarray:
@@ -120,6 +147,21 @@ class OrderTrackerConfig:
             k2 |= set(range(1, math.floor(2 * top + 1e-9) + 1))
         return np.array(sorted(k2), dtype=np.int64)
 
+    @property
+    def spectrum_size(self) -> int:
+        """Length of a frame's spectrum: orders 0, 0.5, .. ``spectrum_max_order``."""
+        return round(2 * self.spectrum_max_order) + 1
+
+    def spectrum_k2(self, nyquist_order: float) -> np.ndarray:
+        """Twice the orders tracked on the spectrum channel: 0 .. ``2 spectrum_max_order``,
+        and with the leakage correction every half order up to ``spectrum_max_order + 2``
+        (below 0.9 of ``nyquist_order``, never below the spectrum's own orders)."""
+        top = self.spectrum_size - 1
+        if self.leakage_correction:
+            extra = math.floor(2 * min(self.spectrum_max_order + 2.0, 0.9 * nyquist_order) + 1e-9)
+            top = max(top, extra)
+        return np.arange(top + 1, dtype=np.int64)
+
 
 @dataclass(frozen=True)
 class GroupPlan:
@@ -127,7 +169,8 @@ class GroupPlan:
 
     ``track_rows`` are tracked channels, landing in frame columns ``track_cols``.
     ``keep_rows`` are the rows buffered until the angle is known (tracked,
-    then pressure); ``pressure_at`` is the pressure's index within them.
+    then pressure, then the spectrum channel unless it is one of those);
+    ``pressure_at`` and ``spectrum_at`` are indices within them.
     """
 
     name: str
@@ -140,15 +183,31 @@ class GroupPlan:
     cam_row: int | None = None
     pressure_row: int | None = None
     rpm_row: int | None = None
+    spectrum_row: int | None = None
 
     @property
     def keep_rows(self) -> tuple[int, ...]:
-        extra = (self.pressure_row,) if self.pressure_row is not None else ()
-        return self.track_rows + extra
+        keep = self.track_rows
+        if self.pressure_row is not None:
+            keep += (self.pressure_row,)
+        if self.spectrum_row is not None and self.spectrum_row not in keep:
+            keep += (self.spectrum_row,)
+        return keep
 
     @property
     def pressure_at(self) -> int | None:
         return len(self.track_rows) if self.pressure_row is not None else None
+
+    @property
+    def spectrum_only(self) -> bool:
+        """The group is in the plan only for the spectrum channel."""
+        return self.spectrum_row is not None and not self.track_rows and self.pressure_row is None
+
+    @property
+    def spectrum_at(self) -> int | None:
+        if self.spectrum_row is None:
+            return None
+        return self.keep_rows.index(self.spectrum_row)
 
 
 @dataclass(frozen=True)
@@ -164,6 +223,13 @@ class Plan:
     out: np.ndarray  # (n_orders,) index of each output order in k2
     same: np.ndarray  # (2 fpr, n_int, n_int) leakage coupling, see dsp.leakage.coupling
     image: np.ndarray
+    # the spectrum channel (config.spectrum_channel): its group's index, twice the orders
+    # tracked on it (0, 1, 2, ..) and their coupling, whose row of order 0 is halved (see
+    # dsp.assemble._spectrum)
+    spectrum_group: int | None = None
+    spectrum_k2: np.ndarray | None = None
+    spectrum_same: np.ndarray | None = None
+    spectrum_image: np.ndarray | None = None
 
     def group_index(self, name: str) -> int | None:
         for i, g in enumerate(self.groups):
@@ -229,6 +295,10 @@ def make_plan(layout: StreamLayout, config: OrderTrackerConfig) -> Plan:
     if tc.kind == "rpm":
         gname, row = _find(layout, tc.rpm_channel, "rpm")
         slot(gname)["rpm_row"] = row
+    spectrum_gname = None
+    if config.spectrum_channel is not None:
+        spectrum_gname, row = _find(layout, config.spectrum_channel, "spectrum")
+        slot(spectrum_gname)["spectrum_row"] = row
     groups = []
     for g in layout.groups:
         if g.name not in rows:
@@ -245,6 +315,7 @@ def make_plan(layout: StreamLayout, config: OrderTrackerConfig) -> Plan:
             cam_row=r.get("cam_row"),  # type: ignore[arg-type]
             pressure_row=r.get("pressure_row"),  # type: ignore[arg-type]
             rpm_row=r.get("rpm_row"),  # type: ignore[arg-type]
+            spectrum_row=r.get("spectrum_row"),  # type: ignore[arg-type]
         )
         _check_rates(plan, config)
         groups.append(plan)
@@ -253,7 +324,31 @@ def make_plan(layout: StreamLayout, config: OrderTrackerConfig) -> Plan:
     k2 = config.internal_k2(nyquist_order)
     out = np.array([int(np.flatnonzero(k2 == k)[0]) for k in config.k2], dtype=np.int64)
     same, image = coupling(k2, config.frames_per_rev, config.taper_deg)
-    return Plan(config, channels, tuple(groups), tacho_edges, cam_edges, k2, out, same, image)
+    bound = Plan(config, channels, tuple(groups), tacho_edges, cam_edges, k2, out, same, image)
+    if spectrum_gname is None:
+        return bound
+    gi = next(i for i, g in enumerate(groups) if g.name == spectrum_gname)
+    rate = groups[gi].rate_hz
+    nyquist_order = 0.5 * rate / (config.rpm_max / 60.0)
+    if config.spectrum_max_order >= nyquist_order:
+        raise DspConfigError(
+            f"spectrum order {config.spectrum_max_order:g} at {config.rpm_max:g} rpm is "
+            f"{config.spectrum_max_order * config.rpm_max / 60.0:.1f} Hz, at or above the Nyquist "
+            f"frequency {0.5 * rate:g} Hz of group {spectrum_gname!r} (channel "
+            f"{config.spectrum_channel!r}): lower rpm_max or spectrum_max_order, or sample faster"
+        )
+    sk2 = config.spectrum_k2(nyquist_order)
+    s_same, s_image = coupling(sk2, config.frames_per_rev, config.taper_deg)
+    # order 0 is the window mean, half the raw sum 2 sum w x q / sum w q: its correction too
+    s_same[:, 0, :] *= 0.5
+    s_image[:, 0, :] *= 0.5
+    return replace(
+        bound,
+        spectrum_group=gi,
+        spectrum_k2=sk2,
+        spectrum_same=s_same,
+        spectrum_image=s_image,
+    )
 
 
 def _check_rates(g: GroupPlan, config: OrderTrackerConfig) -> None:

@@ -101,6 +101,19 @@ class OrderFrame:
         correction cannot see. Zero at constant speed; NaN where the amplitudes are.
     flags : frozenset of str
         Subset of :data:`FLAGS`.
+    spectrum : (2 spectrum_max_order + 1,) complex or None
+        Every half order of ``spectrum_channel`` (its own unit) over the same
+        window, None unless the tracker was configured with one
+        (``OrderTrackerConfig.spectrum_channel``). Index ``k`` is order ``k / 2``:
+        ``spectrum[0]`` is the window mean (real; the same normalisation, so a
+        constant ``c`` gives ``c``), ``k >= 1`` follow ``amplitudes``:
+        ``x(phi) = spectrum[0] + sum_k Re{spectrum[k] exp(i k phi / 2)}``, corrected
+        for sweep leakage like them (order 0 included). NaN in full where the
+        window holds NaN samples of the channel, a sample gap, or no valid angle.
+        The channel's faults do not touch the other fields (no flag, no
+        ``channel_ok``; no clip check): a NaN spectrum is the sign.
+    spectrum_channel : str or None
+        The channel of ``spectrum`` (None when there is none).
     """
 
     time_s: float
@@ -113,10 +126,24 @@ class OrderFrame:
     rpm_change: float
     leakage: np.ndarray
     flags: frozenset[str]
+    spectrum: np.ndarray | None = None
+    spectrum_channel: str | None = None
 
     def amplitude(self, order: float, channel: str) -> complex:
         """The complex amplitude of one order on one channel."""
         return complex(self.amplitudes[self.orders.index(order), self.channels.index(channel)])
+
+    def spectrum_at(self, order: float) -> complex:
+        """The complex amplitude of one half order of the spectrum channel (0: its mean)."""
+        if self.spectrum is None:
+            raise ValueError("this frame carries no spectrum (spectrum_channel was None)")
+        k = 2 * order
+        if not (k == round(k) and 0 <= k < self.spectrum.size):
+            raise ValueError(
+                f"order {order}: expected a multiple of 0.5 from 0 to "
+                f"{(self.spectrum.size - 1) / 2:g}"
+            )
+        return complex(self.spectrum[round(k)])
 
 
 _GRID = 8192

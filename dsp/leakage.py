@@ -33,6 +33,12 @@ second cycle, which has one earlier cycle and takes the chord; leaving H3 out
 of the internal set (orders up to 2.5) would leave 1.2 %, up to 3 gives
 3.1e-4, up to 4 (the default for orders 1, 1.5, 2) 1.8e-4.
 
+Order 0 (the spectrum channel's mean, ``dsp.assemble._spectrum``) takes part as
+any half order: as a source its ramp is that of the mean, ``Re{X_0}`` with
+``X_0`` the mean itself (the formula's two terms, each half of it, add up to the
+``2 b_0 kappa(-2h)`` a real ramp leaks); as a target the raw sum is twice the
+mean, so its correction is halved (the plan halves row 0 of the matrices).
+
 Why the parabola: a chord of the previous cycle, ``X_j - X_j'``, is the ramp
 half a cycle back; where an amplitude bends (near a rigid-body mode in a quick
 sweep: at 60 rpm/s the i3's H1.5 bends by 6-9 % of itself per cycle, second

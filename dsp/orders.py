@@ -57,6 +57,20 @@ measured by ``benchmarks/bench_order_tracking.py`` and ``tests/test_order_accura
   is fixed cost per block and per frame, kept down by doing each step once for
   all samples or frames of a block (a pressure vote, a group's angles, a window).
 
+* Spectrum. ``spectrum_channel`` (any unit, any group, e.g. the cylinder
+  pressure) adds every half order 0, 0.5, .. ``spectrum_max_order`` of that
+  channel to each frame (:attr:`dsp.frames.OrderFrame.spectrum`), over the same
+  window and with the same sweep correction (every half order up to
+  ``spectrum_max_order`` + 2 tracked on it, order 0 included); the other fields
+  are bit for bit those of a tracker without it. At constant speed orders 0 .. 6
+  come out within 1.1e-6 of the largest harmonic at 5120 Hz (the single-precision
+  carrier angle, growing with the order); in a 1500 -> 4500 rpm sweep in 20 s with
+  amplitudes growing as up to rpm^2, within 6e-5 (uncorrected: 1.4e-2)
+  (``tests/test_dsp_spectrum.py``). Its cost is per order, not per channel:
+  17 internal orders against the accelerometers' 8: on the live load above with
+  the pressure's spectrum, 140x real time instead of 190x (+35 % CPU; carriers,
+  sums and the correction of the extra orders; ``benchmarks/bench_order_tracking.py``).
+
 State goes in and comes out: :func:`track` is the reference step
 ``state, frames = track(state, item)``, it never modifies ``state`` (arrays
 and dicts are replaced, not mutated), and :class:`OrderTracker` is the thin

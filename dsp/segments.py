@@ -28,7 +28,7 @@ from dsp.state import (
     chains_at,
     set_group,
 )
-from dsp.sums import add_samples
+from dsp.sums import SumSet, add_sample_sets
 
 CHUNK = 16384
 
@@ -228,22 +228,36 @@ def accumulate(
             for a, b in ((p0, min(p1, skip_a)), (max(p0, skip_b), p1)):
                 if b > a:
                     gs = add_pressure(gs, phi[a:b], p[g.pressure_at, a - p0 : b - p0])
-    acc = gs.acc
+    acc, spec = gs.acc, gs.spec
     n_track = len(g.track_rows)
-    if n_track:
+    at = g.spectrum_at
+    if n_track or at is not None:
         # consecutive pieces only (a gap or a new run in between is an Invalid stretch)
         cuts: list[int] = [0, *brk.tolist(), int(idx.size)]
         for c0, c1 in itertools.pairwise(cuts):
-            if c1 > c0:
-                x = [
-                    p[:n_track, max(c0, p0) - p0 : min(c1, p1) - p0]
-                    for p, p0, p1 in zip(pieces, bounds[:-1], bounds[1:], strict=True)
-                    if p0 < c1 and p1 > c0
-                ]
-                acc = add_samples(
-                    acc, phi[c0:c1], omega[c0:c1], x, int(idx[c0]), g.rate_hz,
-                    st.plan.k2, cfg.frames_per_rev, cfg.taper_deg, cfg.clip_level,
-                )  # fmt: skip
+            if c1 <= c0:
+                continue
+            x = [
+                p[:, max(c0, p0) - p0 : min(c1, p1) - p0]
+                for p, p0, p1 in zip(pieces, bounds[:-1], bounds[1:], strict=True)
+                if p0 < c1 and p1 > c0
+            ]
+            sets = []
+            if n_track:
+                sets.append(SumSet(acc, [p[:n_track] for p in x], st.plan.k2, cfg.clip_level))
+            if at is not None:
+                # no clip check (clip_level is in the tracked channels' unit), no mean square
+                sk2 = st.plan.spectrum_k2
+                assert sk2 is not None
+                sets.append(SumSet(spec, [p[at : at + 1] for p in x], sk2, tracked=False))
+            sums = add_sample_sets(
+                sets, phi[c0:c1], omega[c0:c1], int(idx[c0]), g.rate_hz, cfg.frames_per_rev,
+                cfg.taper_deg,
+            )  # fmt: skip
+            if n_track:
+                acc = sums[0]
+            if at is not None:
+                spec = sums[-1]
     gs = evolve(
         gs,
         first_phi=float(phi[0]) if math.isnan(gs.first_phi) else gs.first_phi,
@@ -252,6 +266,7 @@ def accumulate(
         last_t=float(t[-1]),
         last_run=int(run[-1]),
         acc=acc,
+        spec=spec,
     )
     return st, gs
 

@@ -47,7 +47,8 @@ class GroupState:
 
     ``pend`` holds samples waiting for the angle, as (first grid index, kept
     rows (n_keep, n)) pieces of consecutive samples; ``last_*`` describe the last sample that got one; ``acc`` maps a
-    segment ``m`` to its sums (:mod:`dsp.sums`); ``pressure`` candidate TDC ``k`` to
+    segment ``m`` to its sums (:mod:`dsp.sums`); ``spec`` the same for the spectrum
+    channel's orders (the group holding it only); ``pressure`` candidate TDC ``k`` to
     (sum, count) of the pressure near ``phi_w = 2 pi k``.
     """
 
@@ -59,6 +60,7 @@ class GroupState:
     first_phi: float = math.nan
     starved: bool = False
     acc: dict[int, Row] = field(default_factory=dict)
+    spec: dict[int, Row] = field(default_factory=dict)
     pressure: dict[int, tuple[float, int]] = field(default_factory=dict)
 
 
@@ -81,6 +83,8 @@ class TrackerState:
     next_frame: int | None = None
     # last frames before correction: (j (h,), chain (h,), amplitudes (h, n_int, n_ch)), for ramps
     history: tuple[np.ndarray, ...] = ()
+    # the same for the spectrum channel: (j (h,), chain (h,), spectrum (h, n_spec, 1))
+    spec_history: tuple[np.ndarray, ...] = ()
     events: tuple[SourceEvent, ...] = ()
 
 

@@ -170,7 +170,13 @@ def decode_can(data: bytes) -> list[Any]:
 
 def encode_frame(frame: Any) -> bytes:
     """``/orders``: a ``dsp.frames.OrderFrame`` (from a byte template, see :mod:`replay.wire`)."""
-    return wire.frame_wire(tuple(frame.orders), tuple(frame.channels)).encode(frame)
+    spectrum = getattr(frame, "spectrum", None)
+    if spectrum is None:
+        return wire.frame_wire(tuple(frame.orders), tuple(frame.channels)).encode(frame)
+    layout = wire.frame_wire(
+        tuple(frame.orders), tuple(frame.channels), frame.spectrum_channel, len(spectrum)
+    )
+    return layout.encode(frame)
 
 
 def encode_frame_reference(frame: Any) -> bytes:
@@ -191,6 +197,12 @@ def encode_frame_reference(frame: Any) -> bytes:
         leakage=np.asarray(frame.leakage, dtype=float).tolist(),
         flags=sorted(frame.flags),
     )
+    spectrum = getattr(frame, "spectrum", None)
+    if spectrum is not None:
+        spec = np.asarray(spectrum, dtype=complex)
+        msg.spectrum_channel = frame.spectrum_channel or ""
+        msg.spectrum_re.extend(spec.real.tolist())
+        msg.spectrum_im.extend(spec.imag.tolist())
     magnitude, phase = np.abs(amp), np.degrees(np.angle(amp))
     for k, order in enumerate(frame.orders):
         entry = msg.by_order.add(order=order)
@@ -219,6 +231,18 @@ def decode_frame(data: bytes) -> Any:
     amplitudes = np.empty((n_o, n_ch), complex)  # not re + 1j * im: that turns -0.0 into 0.0
     amplitudes.real = re.reshape(n_o, n_ch)
     amplitudes.imag = im.reshape(n_o, n_ch)
+    # a frame without spectrum (or a recording made before it existed) has neither array
+    spectrum, spectrum_channel = None, None
+    if len(msg.spectrum_re) or len(msg.spectrum_im):
+        if len(msg.spectrum_re) != len(msg.spectrum_im):
+            raise BadMessage(
+                f"order frame at {msg.time_s:.3f} s: {len(msg.spectrum_re)} real and "
+                f"{len(msg.spectrum_im)} imaginary spectrum values"
+            )
+        spectrum = np.empty(len(msg.spectrum_re), complex)
+        spectrum.real = np.array(msg.spectrum_re, dtype=float)
+        spectrum.imag = np.array(msg.spectrum_im, dtype=float)
+        spectrum_channel = msg.spectrum_channel
     return OrderFrame(
         time_s=msg.time_s,
         rpm=msg.rpm,
@@ -230,6 +254,8 @@ def decode_frame(data: bytes) -> Any:
         rpm_change=msg.rpm_change,
         leakage=np.array(msg.leakage, dtype=float),
         flags=frozenset(msg.flags),
+        spectrum=spectrum,
+        spectrum_channel=spectrum_channel,
     )
 
 

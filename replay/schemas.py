@@ -118,6 +118,9 @@ MESSAGES: dict[str, list[tuple[str, int, str, bool, str]]] = {
         ("leakage", 10, "double", True, "per channel, relative"),
         ("flags", 11, "string", True, "frame flags (dsp.frames.FLAGS)"),
         ("by_order", 12, "OrderAmplitudes", True, "per order and channel, for plots"),
+        ("spectrum_channel", 13, "string", False, "channel of the spectrum (empty: none)"),
+        ("spectrum_re", 14, "double", True, "Re of orders 0, 0.5, 1, .. of spectrum_channel"),
+        ("spectrum_im", 15, "double", True, "Im of the same (empty: the frame has no spectrum)"),
     ],
     "OrderGate": [
         ("order", 1, "double", False, "engine order"),

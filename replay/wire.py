@@ -149,13 +149,23 @@ class FrameWire:
     Float64 slots, in order: ``time_s``, ``rpm``, ``crank_angle_rad``,
     ``amplitude_re`` (n_orders x n_channels, order-major), ``amplitude_im``,
     ``rpm_change``, ``leakage`` (n_channels), then ``amplitude`` and
-    ``phase_deg`` of every ``by_order`` entry. Bool slots: ``channel_ok``,
-    then the ``ok`` of every entry. ``flags`` (field 11, variable) go
-    between ``leakage`` and ``by_order``.
+    ``phase_deg`` of every ``by_order`` entry, then ``spectrum_re`` and
+    ``spectrum_im`` (n_spectrum each; ``spectrum_channel`` before them is a
+    constant). Bool slots: ``channel_ok``, then the ``ok`` of every entry.
+    ``flags`` (field 11, variable) go between ``leakage`` and ``by_order``.
+    ``n_spectrum = 0`` (a frame without spectrum) leaves the three spectrum
+    fields out: the bytes of a recording made before they existed.
     """
 
-    def __init__(self, orders: tuple[float, ...], channels: tuple[str, ...]) -> None:
+    def __init__(
+        self,
+        orders: tuple[float, ...],
+        channels: tuple[str, ...],
+        spectrum_channel: str | None = None,
+        n_spectrum: int = 0,
+    ) -> None:
         self.orders, self.channels = tuple(orders), tuple(channels)
+        self.spectrum_channel, self.n_spectrum = spectrum_channel, n_spectrum
         n_o, n_ch = len(self.orders), len(self.channels)
         self.shape = (n_o, n_ch)
         head = _Layout()
@@ -181,6 +191,10 @@ class FrameWire:
                 amp.bool(4)  # ok
                 entry.message(2, amp)
             head.message(12, entry)  # by_order
+        if n_spectrum:
+            head.constant(string_field(13, spectrum_channel or ""))
+            head.packed_doubles(14, n_spectrum)  # spectrum_re
+            head.packed_doubles(15, n_spectrum)  # spectrum_im
         self.split = split
         self.template = np.frombuffer(bytes(head.buf), np.uint8).copy()
         self.f64_index = (np.asarray(head.f64)[:, None] + np.arange(8)).ravel()
@@ -193,6 +207,7 @@ class FrameWire:
         self._im = slice(3 + n, 3 + 2 * n)
         self._rest = 3 + 2 * n  # rpm_change, then leakage
         self._pairs = self._rest + 1 + n_ch
+        self._spectrum = self._pairs + 2 * n
 
     def encode(self, frame: Any) -> bytes:
         """The serialised message of a ``dsp.frames.OrderFrame`` with these orders and channels."""
@@ -205,15 +220,26 @@ class FrameWire:
                 f"order frame at {frame.time_s} s: expected amplitudes of shape {self.shape} and "
                 f"{n_ch} channel_ok and leakage values, got {amp.shape}, {ok.shape}, {leakage.shape}"
             )
+        spectrum = getattr(frame, "spectrum", None)
+        got = None if spectrum is None else np.shape(spectrum)
+        want = (self.n_spectrum,) if self.n_spectrum else None
+        if got != want:
+            raise ValueError(
+                f"order frame at {frame.time_s} s: expected a spectrum of shape {want}, got {got}"
+            )
         values = np.empty(self.n_f64)
         values[:3] = (frame.time_s, frame.rpm, frame.crank_angle_rad)
         values[self._re] = amp.real.ravel()
         values[self._im] = amp.imag.ravel()
         values[self._rest] = frame.rpm_change
         values[self._rest + 1 : self._pairs] = leakage
-        pairs = values[self._pairs :].reshape(n_o, n_ch, 2)
+        pairs = values[self._pairs : self._spectrum].reshape(n_o, n_ch, 2)
         pairs[..., 0] = np.abs(amp)
         pairs[..., 1] = np.degrees(np.angle(amp))
+        if spectrum is not None:
+            spec = np.asarray(spectrum, dtype=complex)
+            values[self._spectrum : self._spectrum + self.n_spectrum] = spec.real
+            values[self._spectrum + self.n_spectrum :] = spec.imag
         buf = self.template.copy()
         buf[self.f64_index] = values.astype("<f8", copy=False).view(np.uint8)
         buf[self.bool_index] = ok
@@ -224,6 +250,11 @@ class FrameWire:
 
 
 @lru_cache(maxsize=16)
-def frame_wire(orders: tuple[float, ...], channels: tuple[str, ...]) -> FrameWire:
-    """The (cached) :class:`FrameWire` of these orders and channels."""
-    return FrameWire(orders, channels)
+def frame_wire(
+    orders: tuple[float, ...],
+    channels: tuple[str, ...],
+    spectrum_channel: str | None = None,
+    n_spectrum: int = 0,
+) -> FrameWire:
+    """The (cached) :class:`FrameWire` of these orders and channels (and spectrum, if any)."""
+    return FrameWire(orders, channels, spectrum_channel, n_spectrum)
