@@ -323,6 +323,9 @@ class SimulatedBench(Source):
         Extra metadata (bench text, ...).
     table_rtol, table_degree : float, int
         Amplitude table accuracy (see :class:`AmplitudeTable`).
+    record_pressure : bool
+        Stream the cylinder-1 pressure (``tacho.pressure_channel``, bar) even when it
+        is not the phase reference (the estimator takes the gas torque from it).
     """
 
     def __init__(
@@ -342,6 +345,7 @@ class SimulatedBench(Source):
         metadata: dict[str, Any] | None = None,
         table_rtol: float = 1e-10,
         table_degree: int = 4,
+        record_pressure: bool = False,
     ) -> None:
         super().__init__()
         if not block_s > 0:
@@ -368,11 +372,16 @@ class SimulatedBench(Source):
         )
         channels = tuple(model.channel_names)
         groups = [SampleGroup("accel", self.fs, tuple(ChannelSpec(c, "m/s^2") for c in channels))]
-        self._pressure = tacho.phase_reference == "pressure"
+        self._pressure = tacho.phase_reference == "pressure" or record_pressure
         if self._pressure:
             if model.pressure(np.zeros(1)) is None:
+                why = (
+                    "tacho.phase_reference = 'pressure'"
+                    if tacho.phase_reference == "pressure"
+                    else "a cylinder-pressure channel"
+                )
                 raise SourceError(
-                    "tacho.phase_reference = 'pressure' needs a cylinder pressure, but the gas "
+                    f"{why} needs a cylinder pressure, but the gas "
                     "model gives none (use gas model 'parametric' or 'trace')"
                 )
             groups.append(

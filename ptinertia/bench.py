@@ -180,6 +180,21 @@ def build_model(bench: config.Bench) -> BenchModel:
     return BenchModel(_body(bench), _mounts(bench), engine, _sensors(bench))
 
 
+def _true_gas(
+    bench: config.Bench, sim: config.Simulation
+) -> config.GasParametric | config.GasTrace | config.GasOrders:
+    """The gas the simulated engine burns: ``[gas]``, its heat release off by the given share."""
+    if not sim.heat_release_error_pct:
+        return bench.gas
+    if not isinstance(bench.gas, config.GasParametric):
+        raise ConfigError(
+            "[simulation] heat_release_error_pct: needs [gas] model = 'parametric', "
+            f"got {bench.gas.model!r}"
+        )
+    scale = 1.0 + sim.heat_release_error_pct / 100.0
+    return bench.gas.model_copy(update={"heat_release_j": bench.gas.heat_release_j * scale})
+
+
 def build_simulated_model(
     bench: config.Bench, sim: config.Simulation | None = None
 ) -> tuple[BenchModel, dict[str, Any]]:
@@ -225,7 +240,7 @@ def build_simulated_model(
         sim.residual_unbalance_kgm, sim.residual_unbalance_deg * DEG, sim.residual_unbalance_axial_m
     )
     extra = (residual,) if sim.residual_unbalance_kgm > 0 else ()
-    engine = build_engine(bench.engine, gas_model(bench.gas), extra)
+    engine = build_engine(bench.engine, gas_model(_true_gas(bench, sim)), extra)
     elastic = (
         None
         if sim.elastic_mode is None
@@ -251,6 +266,7 @@ def build_simulated_model(
         "sensors": sensor_truth,
         "elastic_mode": None if sim.elastic_mode is None else sim.elastic_mode.model_dump(),
         "crank_spin_inertia_kgm2": engine.crank_spin_inertia,
+        "heat_release_error_pct": sim.heat_release_error_pct,
         "seed": sim.seed,
     }
     return model, truth

@@ -302,6 +302,8 @@ class Simulation(Section):
     residual_unbalance_axial_m: float = 0.0
     elastic_mode: ElasticMode | None = None
     max_order: Annotated[float, Field(ge=1, le=12)] = 6.0
+    # the engine burns this much more (or less) than [gas] says: a gas model that is off
+    heat_release_error_pct: Annotated[float, Field(gt=-100)] = 0.0
 
 
 class Dsp(Section):
@@ -332,6 +334,12 @@ class EstimatorSettings(Section):
     crank_offset: bool = True
     # estimate one stiffness scale per mount (uncertain mount data); needs mass_known
     mount_scale: bool = False
+    # gas torque from [gas] ("model"), from the cylinder-pressure channel [tacho]
+    # pressure_channel ("pressure"), or from the channel when the source has it ("auto")
+    gas_torque: Literal["auto", "model", "pressure"] = "auto"
+    # estimate each channel's gain and each sensor's alignment with the rest
+    self_calibration: bool = False
+    pressure_max_order: Annotated[float, Field(gt=0, le=20)] = 6.0
     forgetting: Annotated[float, Field(gt=0, le=1)] = 1.0
     gain_tolerance_pct: NonNegative = 1.0
     alignment_tolerance_deg: NonNegative = 1.0

@@ -7,13 +7,80 @@ inertia. It never sees the simulated truth.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from estimator.setup import Corrections, EstimatorSetup, Gates, MountStiffness, Tolerances
-from powertrain.engine import OrderExcitation
+from acquisition.stream import StreamLayout
+from estimator.setup import (
+    Corrections,
+    EstimatorSetup,
+    GasMomentFn,
+    Gates,
+    MountStiffness,
+    Tolerances,
+)
+from powertrain.engine import Engine, OrderExcitation
 from powertrain.model import BenchModel
+from powertrain.pressure_torque import PressureTorqueMap, pressure_torque_map
 from ptinertia import config
 from ptinertia.bench import build_model
+
+#: Pa per unit of a cylinder-pressure channel.
+PRESSURE_UNITS = {"Pa": 1.0, "kPa": 1e3, "MPa": 1e6, "bar": 1e5, "mbar": 100.0, "psi": 6894.757}
+
+
+@dataclass(frozen=True)
+class PressureGas:
+    """The gas torque comes from this cylinder-1 pressure channel (``pa_per_unit`` Pa per
+    channel unit), tracked at every half order up to ``max_order``."""
+
+    channel: str
+    pa_per_unit: float
+    max_order: float
+
+
+def pressure_gas(bench: config.Bench, layout: StreamLayout) -> PressureGas | None:
+    """Where the gas torque comes from: ``[estimator] gas_torque`` against what the source has.
+
+    ``auto`` takes the ``[tacho] pressure_channel`` when the source records it in a
+    pressure unit; ``pressure`` insists on it; ``model`` (or ``auto`` without the
+    channel) uses ``[gas]``.
+    """
+    mode = bench.estimator.gas_torque
+    name = bench.tacho.pressure_channel
+    if mode == "model":
+        return None
+    unit = next((c.unit for g in layout.groups for c in g.channels if c.name == name), None)
+    if mode == "auto" and unit not in PRESSURE_UNITS:
+        return None
+    where = "[estimator] gas_torque = 'pressure'"
+    if unit is None:
+        raise config.ConfigError(
+            f"{where}: the source has no channel {name!r} ([tacho] pressure_channel); "
+            "it has: " + ", ".join(layout.channel_names)
+        )
+    if unit not in PRESSURE_UNITS:
+        raise config.ConfigError(
+            f"{where}: channel {name!r} is in {unit!r}, expected one of "
+            + ", ".join(PRESSURE_UNITS)
+        )
+    return PressureGas(name, PRESSURE_UNITS[unit], bench.estimator.pressure_max_order)
+
+
+def gas_moment_from_pressure(engine: Engine, gas: PressureGas) -> GasMomentFn:
+    """The estimator's gas moment (``-T_gas s``, N m) from a frame's pressure spectrum."""
+    maps: dict[tuple[float, ...], PressureTorqueMap] = {}
+    axis = np.asarray(engine.crank_axis, float)
+
+    def gas_moment(orders: np.ndarray, spectrum: np.ndarray) -> np.ndarray:
+        key = tuple(np.asarray(orders, float).tolist())
+        if key not in maps:
+            maps[key] = pressure_torque_map(engine, key, gas.max_order)
+        torque = maps[key].torque(gas.pa_per_unit * np.asarray(spectrum))
+        return -np.outer(torque, axis)
+
+    return gas_moment
 
 
 def mount_stiffness(model: BenchModel) -> tuple[MountStiffness, ...]:
@@ -34,11 +101,13 @@ def estimator_setup(
     tolerances: Tolerances | None = None,
     gates: Gates | None = None,
     model: BenchModel | None = None,
+    pressure: PressureGas | None = None,
 ) -> EstimatorSetup:
     """The :class:`EstimatorSetup` of a bench file.
 
     Corrections default to on when their data exist: the suspension term needs
-    mounts, the gyroscopic term a crank-train spin inertia.
+    mounts, the gyroscopic term a crank-train spin inertia. With ``pressure`` the
+    gas torque comes from that channel, frame by frame, instead of ``[gas]``.
     """
     model = build_model(bench) if model is None else model
     engine = model.engine
@@ -52,6 +121,7 @@ def estimator_setup(
         unbalance=corr.unbalance,
         crank_offset=corr.crank_offset,
         mount_scale=corr.mount_scale and corr.suspension and has_mounts,
+        self_calibration=corr.self_calibration,
     )
     if corr.mount_scale and not bench.powertrain.mass_known:
         raise config.ConfigError(
@@ -68,7 +138,13 @@ def estimator_setup(
     def excitation(rpm: float, orders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         key = tuple(np.asarray(orders, float).tolist())
         if key not in by_orders:
-            by_orders[key] = engine.order_excitation(key, about=reference)
+            full = engine.order_excitation(key, about=reference)
+            if pressure is not None:  # the gas comes with each frame
+                gas_free = np.zeros_like(full.gas_moment)
+                full = OrderExcitation(
+                    gas_free, gas_free, full.unit_inertia_force, full.unit_inertia_moment
+                )
+            by_orders[key] = full
         return by_orders[key].at(rpm)
 
     mode_max = float(np.max(model.modes().frequency_hz)) if has_mounts else None
@@ -92,4 +168,5 @@ def estimator_setup(
         corrections=corr,
         tolerances=tolerances or Tolerances(),
         gates=gates or Gates(),
+        gas_moment=None if pressure is None else gas_moment_from_pressure(engine, pressure),
     )

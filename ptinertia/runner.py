@@ -19,7 +19,7 @@ from estimator.result import Z95, Estimate
 from estimator.setup import Corrections, Gates, Tolerances
 from estimator.streaming import InertiaEstimator
 from ptinertia.config import Bench
-from ptinertia.estimation import estimator_setup
+from ptinertia.estimation import PressureGas, estimator_setup, pressure_gas
 from ptinertia.pipeline import Pipeline, RunSummary
 from ptinertia.progress import ProgressLine
 from ptinertia.sinks import RunContext, Sink
@@ -38,8 +38,11 @@ class RunOptions:
     attachments: dict[str, bytes] = field(default_factory=dict)
 
 
-def make_estimator(bench: Bench, corrections_off: tuple[str, ...] = ()) -> InertiaEstimator:
-    """The streaming estimator with the bench file's ``[estimator]`` settings."""
+def make_estimator(
+    bench: Bench, corrections_off: tuple[str, ...] = (), pressure: PressureGas | None = None
+) -> InertiaEstimator:
+    """The streaming estimator with the bench file's ``[estimator]`` settings (``pressure``:
+    the gas torque comes from that channel, see :func:`ptinertia.estimation.pressure_gas`)."""
     s = bench.estimator
     corrections = Corrections(
         suspension=s.suspension and "suspension" not in corrections_off,
@@ -47,6 +50,7 @@ def make_estimator(bench: Bench, corrections_off: tuple[str, ...] = ()) -> Inert
         unbalance=s.unbalance and "unbalance" not in corrections_off,
         crank_offset=s.crank_offset and "crank_offset" not in corrections_off,
         mount_scale=s.mount_scale and "mount_scale" not in corrections_off,
+        self_calibration=s.self_calibration and "self_calibration" not in corrections_off,
     )
     tolerances = Tolerances(
         gain_rel=s.gain_tolerance_pct / 100.0,
@@ -59,7 +63,9 @@ def make_estimator(bench: Bench, corrections_off: tuple[str, ...] = ()) -> Inert
         min_mode_ratio=s.min_mode_ratio,
         rpm_range=(s.rpm_min, s.rpm_max),
     )
-    setup = estimator_setup(bench, corrections=corrections, tolerances=tolerances, gates=gates)
+    setup = estimator_setup(
+        bench, corrections=corrections, tolerances=tolerances, gates=gates, pressure=pressure
+    )
     return InertiaEstimator(setup, forgetting=s.forgetting)
 
 
@@ -80,6 +86,11 @@ def settings_of(bench: Bench, tracker: BenchTracker, estimator: InertiaEstimator
             "gates": asdict(estimator.setup.gates),
             "forgetting": estimator.forgetting,
             "mass_known": estimator.setup.mass_known,
+            "gas_torque": (
+                f"pressure channel {cfg.spectrum_channel}"
+                if cfg.spectrum_channel is not None
+                else "model"
+            ),
             "parameters": list(estimator.layout.names),
         },
     }
@@ -89,8 +100,10 @@ def run_source(
     bench: Bench, bench_text: str, source: Source, source_spec: str, options: RunOptions
 ) -> tuple[RunSummary, dict[str, Any] | None]:
     """Run the chain on ``source``; returns the summary and the result document."""
-    tracker = BenchTracker(source.layout, tracker_config(bench, options.orders))
-    estimator = make_estimator(bench, options.corrections_off)
+    pressure = pressure_gas(bench, source.layout)
+    channel = None if pressure is None else pressure.channel
+    tracker = BenchTracker(source.layout, tracker_config(bench, options.orders, channel))
+    estimator = make_estimator(bench, options.corrections_off, pressure)
     truth = source.layout.metadata.get("truth")
     context = RunContext(
         bench_text=bench_text,

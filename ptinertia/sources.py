@@ -144,6 +144,7 @@ def open_simulated(bench: Bench, **overrides: Any) -> Source:
         seed=sim.seed,
         truth=truth,
         metadata=metadata,
+        record_pressure=bench.estimator.gas_torque == "pressure",
         **options,
     )
     return source

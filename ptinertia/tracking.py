@@ -11,8 +11,12 @@ from dsp.tacho import TachoConfig
 from ptinertia.config import Bench
 
 
-def tracker_config(bench: Bench, orders: tuple[float, ...] | None = None) -> OrderTrackerConfig:
-    """The dsp configuration the bench file asks for (``orders`` overrides ``[dsp] orders``)."""
+def tracker_config(
+    bench: Bench, orders: tuple[float, ...] | None = None, spectrum_channel: str | None = None
+) -> OrderTrackerConfig:
+    """The dsp configuration the bench file asks for (``orders`` overrides ``[dsp] orders``;
+    ``spectrum_channel``: a channel tracked at every half order up to
+    ``[estimator] pressure_max_order``, the cylinder pressure the gas torque comes from)."""
     t = bench.tacho
     tacho = TachoConfig(
         kind=t.kind,
@@ -41,6 +45,8 @@ def tracker_config(bench: Bench, orders: tuple[float, ...] | None = None) -> Ord
         frames_per_rev=int(fpr),
         rpm_min=bench.dsp.rpm_min,
         rpm_max=bench.dsp.rpm_max,
+        spectrum_channel=spectrum_channel,
+        spectrum_max_order=bench.estimator.pressure_max_order,
     )
 
 
