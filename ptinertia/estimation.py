@@ -68,10 +68,19 @@ def pressure_gas(bench: config.Bench, layout: StreamLayout) -> PressureGas | Non
     return PressureGas(name, PRESSURE_UNITS[unit], bench.estimator.pressure_max_order)
 
 
-def gas_moment_from_pressure(engine: Engine, gas: PressureGas) -> GasMomentFn:
-    """The estimator's gas moment (``-T_gas s``, N m) from a frame's pressure spectrum."""
+def gas_moment_from_pressure(
+    engine: Engine, gas: PressureGas, orders: tuple[float, ...] = ()
+) -> GasMomentFn:
+    """The estimator's gas moment (``-T_gas s``, N m) from a frame's pressure spectrum.
+
+    The map for ``orders`` (those the dsp will track) is built now, not at the first
+    frame: a live run must not stall its first estimate on it (~20 ms).
+    """
     maps: dict[tuple[float, ...], PressureTorqueMap] = {}
     axis = np.asarray(engine.crank_axis, float)
+    if orders:
+        key = tuple(float(h) for h in orders)
+        maps[key] = pressure_torque_map(engine, key, gas.max_order)
 
     def gas_moment(orders: np.ndarray, spectrum: np.ndarray) -> np.ndarray:
         key = tuple(np.asarray(orders, float).tolist())
@@ -168,5 +177,7 @@ def estimator_setup(
         corrections=corr,
         tolerances=tolerances or Tolerances(),
         gates=gates or Gates(),
-        gas_moment=None if pressure is None else gas_moment_from_pressure(engine, pressure),
+        gas_moment=None
+        if pressure is None
+        else gas_moment_from_pressure(engine, pressure, tuple(bench.dsp.orders)),
     )
