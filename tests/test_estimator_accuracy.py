@@ -26,13 +26,19 @@ REALISTIC = REALISTIC_SIMULATION
 
 
 def run(
-    path: Path, overrides: dict[str, Any] | None = None, rpm_max: float | None = None
+    path: Path,
+    overrides: dict[str, Any] | None = None,
+    rpm_max: float | None = None,
+    estimator: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
+    """The result document of a simulated run (``overrides``: ``[simulation]``,
+    ``estimator``: ``[estimator]`` settings)."""
     bench = load_bench(path)
+    settings = dict(estimator or {})
     if rpm_max is not None:
-        bench = bench.model_copy(
-            update={"estimator": bench.estimator.model_copy(update={"rpm_max": rpm_max})}
-        )
+        settings["rpm_max"] = rpm_max
+    if settings:
+        bench = bench.model_copy(update={"estimator": bench.estimator.model_copy(update=settings)})
     source = open_source("sim", bench, **(overrides or {}))
     _, doc = run_source(bench, path.read_text(), source, "sim", RunOptions(quiet=True))
     assert doc is not None

@@ -13,17 +13,16 @@ from typing import Any
 
 import numpy as np
 import pytest
+from test_estimator_accuracy import cog_error_m, rel_errors, run
 
 from acquisition.stream import ChannelSpec, SampleGroup, StreamLayout
 from ptinertia.cli import main
 from ptinertia.config import ConfigError, load_bench, loads_bench
 from ptinertia.estimation import pressure_gas
 from ptinertia.paths import EXAMPLES_DIR
-from ptinertia.runner import RunOptions, run_source
 from ptinertia.sources import open_source
 
 I3 = EXAMPLES_DIR / "i3-bench.toml"
-TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 OFF_GAS = {"duration_s": 20.0, "heat_release_error_pct": 20.0}
 
 
@@ -35,27 +34,17 @@ def _bench(gas_torque: str, **tacho: Any):
     )
 
 
-def _run(gas_torque: str) -> dict[str, Any]:
-    bench = _bench(gas_torque)
-    source = open_source("sim", bench, **OFF_GAS)
-    _, doc = run_source(bench, I3.read_text(), source, "sim", RunOptions(quiet=True))
-    assert doc is not None
-    return doc
-
-
-def _errors(doc: dict[str, Any]) -> dict[str, float]:
-    truth = doc["truth"]["inertia_kgm2"]["value"]
-    return {k: (doc["inertia_kgm2"]["value"][k] - truth[k]) / abs(truth[k]) for k in TERMS}
+def _errors(gas_torque: str) -> tuple[dict[str, float], dict[str, Any]]:
+    doc = run(I3, OFF_GAS, estimator={"gas_torque": gas_torque})
+    return rel_errors(doc), doc
 
 
 def test_a_wrong_gas_model_biases_the_roll_inertia_and_the_pressure_channel_does_not():
-    modelled = _errors(_run("model"))
+    modelled, _ = _errors("model")
     assert modelled["Iyy"] < -0.05  # the gas torque is the roll excitation: 20 % more gas
-    doc = _run("pressure")
-    measured = _errors(doc)
+    measured, doc = _errors("pressure")
     assert max(abs(e) for e in measured.values()) < 0.002, measured
-    cog = np.array(doc["cog_m"]["value"]) - np.array(doc["truth"]["cog_m"]["value"])
-    assert np.all(np.abs(cog) < 0.0005)
+    assert np.all(cog_error_m(doc) < 0.0005)
     assert doc["frames"]["used"] > 450
 
 

@@ -12,14 +12,13 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from test_estimator_accuracy import cog_error_m, rel_errors, run
 
 from ptinertia.config import load_bench
 from ptinertia.paths import EXAMPLES_DIR
-from ptinertia.runner import RunOptions, make_estimator, run_source
-from ptinertia.sources import open_source
+from ptinertia.runner import make_estimator
 
 I3 = EXAMPLES_DIR / "i3-bench.toml"
-TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 # sensor errors only (noise-free, exact positions): what the calibration can undo
 SENSOR_ERRORS = {"duration_s": 20.0, "misalignment_deg": 1.0, "seed": 2}
 
@@ -30,27 +29,17 @@ def _bench(self_calibration: bool):
     return bench.model_copy(update={"estimator": est})
 
 
-def _run(self_calibration: bool) -> dict[str, Any]:
-    bench = _bench(self_calibration)
-    source = open_source("sim", bench, **SENSOR_ERRORS)
-    _, doc = run_source(bench, I3.read_text(), source, "sim", RunOptions(quiet=True))
-    assert doc is not None
-    return doc
-
-
-def _errors(doc: dict[str, Any]) -> dict[str, float]:
-    truth = doc["truth"]["inertia_kgm2"]["value"]
-    return {k: (doc["inertia_kgm2"]["value"][k] - truth[k]) / abs(truth[k]) for k in TERMS}
+def _errors(self_calibration: bool) -> tuple[dict[str, float], dict[str, Any]]:
+    doc = run(I3, SENSOR_ERRORS, estimator={"self_calibration": self_calibration})
+    return rel_errors(doc), doc
 
 
 def test_calibration_undoes_misalignment():
-    plain = _errors(_run(False))
+    plain, _ = _errors(False)
     assert max(abs(plain[k]) for k in ("Ixy", "Ixz", "Iyz")) > 0.02, plain
-    doc = _run(True)
-    calibrated = _errors(doc)
+    calibrated, doc = _errors(True)
     assert max(abs(e) for e in calibrated.values()) < 0.005, calibrated
-    cog = np.array(doc["cog_m"]["value"]) - np.array(doc["truth"]["cog_m"]["value"])
-    assert np.all(np.abs(cog) < 0.0005)
+    assert np.all(cog_error_m(doc) < 0.0005)
 
 
 def test_calibration_parameters_and_priors():
