@@ -22,6 +22,11 @@ from dsp.tacho import TachoConfig
 ACCEL_UNIT = "m/s^2"
 
 
+def _positive_half_order(h: float) -> bool:
+    """Whether ``h`` is a positive, finite multiple of 0.5 (an engine order)."""
+    return h > 0 and math.isfinite(h) and abs(2 * h - round(2 * h)) < 1e-9
+
+
 @dataclass(frozen=True)
 class OrderTrackerConfig:
     """What to track and how.
@@ -90,7 +95,7 @@ class OrderTrackerConfig:
         if not self.orders:
             raise DspConfigError("orders: expected at least one order, got none")
         for h in self.orders:
-            if not (h > 0 and math.isfinite(h) and abs(2 * h - round(2 * h)) < 1e-9):
+            if not _positive_half_order(h):
                 raise DspConfigError(f"orders: expected positive multiples of 0.5, got {h}")
         if len(set(self.orders)) != len(self.orders):
             raise DspConfigError(f"orders: each order once, got {list(self.orders)}")
@@ -116,12 +121,7 @@ class OrderTrackerConfig:
                 f"correction_max_order: expected > 0, got {self.correction_max_order}"
             )
         h = self.spectrum_max_order
-        if not (
-            isinstance(h, (int, float))
-            and h > 0
-            and math.isfinite(h)
-            and abs(2 * h - round(2 * h)) < 1e-9
-        ):
+        if not (isinstance(h, (int, float)) and _positive_half_order(h)):
             raise DspConfigError(
                 f"spectrum_max_order: expected a positive multiple of 0.5, got {h!r}"
             )
