@@ -326,6 +326,8 @@ class SimulatedBench(Source):
     record_pressure : bool
         Stream the cylinder-1 pressure (``tacho.pressure_channel``, bar) even when it
         is not the phase reference (the estimator takes the gas torque from it).
+    dead_channels : accelerometer channels that read NaN all run (an open input, as a
+        DAQ marks it): the fault the order tracker flags and the estimator survives.
     """
 
     def __init__(
@@ -346,6 +348,7 @@ class SimulatedBench(Source):
         table_rtol: float = 1e-10,
         table_degree: int = 4,
         record_pressure: bool = False,
+        dead_channels: tuple[str, ...] = (),
     ) -> None:
         super().__init__()
         if not block_s > 0:
@@ -371,6 +374,12 @@ class SimulatedBench(Source):
             model, self.orders, profile, degree=table_degree, rtol=table_rtol
         )
         channels = tuple(model.channel_names)
+        unknown = sorted(set(dead_channels) - set(channels))
+        if unknown:
+            raise SourceError(
+                f"[simulation] dead_channels: {unknown} are not accelerometer channels (have {list(channels)})"
+            )
+        self._dead = np.array([c in dead_channels for c in channels])
         groups = [SampleGroup("accel", self.fs, tuple(ChannelSpec(c, "m/s^2") for c in channels))]
         self._pressure = tacho.phase_reference == "pressure" or record_pressure
         if self._pressure:
@@ -425,6 +434,7 @@ class SimulatedBench(Source):
             "noise_std": dict(zip(channels, self.noise_std.tolist(), strict=True)),
             "seed": int(seed),
             "table_max_error": self.table.max_error,
+            "dead_channels": list(dead_channels),
         }
         meta.update(metadata or {})
         self._layout = StreamLayout(tuple(groups), edge_channels, meta)
@@ -472,6 +482,7 @@ class SimulatedBench(Source):
             if self._noisy:
                 for c, rng in enumerate(self._rngs):
                     x[c] += self.noise_std[c] * rng.standard_normal(t.size)
+            x[self._dead] = np.nan
             return x
         if group.name == "pressure":
             phi = np.mod(self.profile.phi(t), 4 * math.pi)

@@ -9,7 +9,8 @@ Prints:
 4. i4: mass error; i3 with an elastic mode in the sweep range; a quick sweep near the modes;
 5. the i3 burning 20 % more than [gas] says: gas torque from the model or the pressure channel;
 6. the realistic seeds again with [estimator] self_calibration = true;
-7. RLS update time per frame and estimator time per frame.
+7. sensor C dead all run (two sensors left): noise-free, and the realistic seeds;
+8. RLS update time per frame and estimator time per frame.
 
 Usage: python benchmarks/bench_estimator.py [--seeds 20] [--jobs 2] [--quick]
 """
@@ -31,6 +32,7 @@ I3 = ROOT / "examples" / "i3-bench.toml"
 I4 = ROOT / "examples" / "i4-bench.toml"
 TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 REALISTIC = REALISTIC_SIMULATION
+DEAD_C = {"dead_channels": ["C_x", "C_y", "C_z"]}
 
 
 def run_case(
@@ -181,6 +183,7 @@ def main() -> None:
             (I3, {"rpm_start": 600.0, "rpm_end": 900.0, "duration_s": 10.0}, (), None),
         )
     )
+    cases.append(("sensor C dead (two sensors)", (I3, {**dur, **DEAD_C}, (), None)))
     elastic = cases[8][1][1]["elastic_mode"]
     elastic_seeds = [
         (I3, {**dur, **REALISTIC, "seed": s, "elastic_mode": elastic}, (), None)
@@ -188,6 +191,7 @@ def main() -> None:
     ]
     realistic = [(I3, {**dur, **REALISTIC, "seed": s}, (), None) for s in range(seeds)]
     calibrated = [(*case, {"self_calibration": True}) for case in realistic]
+    two_sensors = [(I3, {**dur, **REALISTIC, **DEAD_C, "seed": s}, (), None) for s in range(seeds)]
     # the engine burns 20 % more than [gas] says: the gas model against the pressure channel
     off_gas = {**dur, "heat_release_error_pct": 20.0}
     gas_cases = [
@@ -198,6 +202,7 @@ def main() -> None:
     with ProcessPoolExecutor(max_workers=a.jobs) as pool:
         jobs = [c for _, c in cases] + elastic_seeds + gas_cases + realistic + calibrated
         docs = list(pool.map(_job, jobs))
+        dead_docs = list(pool.map(_job, two_sensors))
     fixed = docs[: len(cases)]
     elastic_docs = docs[len(cases) : len(cases) + len(elastic_seeds)]
     gas_docs = docs[len(cases) + len(elastic_seeds) : len(cases) + len(elastic_seeds) + 4]
@@ -237,6 +242,11 @@ def main() -> None:
         doc["frames"]["orders_rejected"],
     )
 
+    print("== sensor C dead all run: two sensors, the rotation about their line fitted per frame")
+    doc = fixed[10]
+    cov = covered(doc)
+    print(line(cases[10][0], errors(doc)), f" intervals cover {sum(cov[k] for k in TERMS)}/6")
+
     print(
         "== i3 burning 20 % more than [gas] says: gas torque from the model or the pressure channel"
     )
@@ -253,7 +263,11 @@ def main() -> None:
         cov = covered(doc)
         print(line(label, errors(doc)), f" intervals cover {sum(cov[k] for k in TERMS)}/6")
 
-    for label, group in (("default settings", real), ("self_calibration = true", self_cal)):
+    for label, group in (
+        ("default settings", real),
+        ("self_calibration = true", self_cal),
+        ("sensor C dead (two sensors left)", dead_docs),
+    ):
         errs = [errors(d) for d in group]
         cov = [covered(d) for d in group]
         print(f"== realistic i3 over {seeds} seeds, {label}")

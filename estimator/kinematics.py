@@ -102,6 +102,9 @@ class RigidFit:
     gain: np.ndarray  # (6, n_ch): motion = gain @ amplitudes
     mean_w: float
     channels: np.ndarray | None = None  # (n_ch,) which channels of a larger set, if any
+    # (6,) unit [gamma_O, Omega'] direction the channels do not see (two triaxial
+    # sensors: the rotation about the line through them); None when they see all six
+    null: np.ndarray | None = None
 
     def on_channels(self, channels: np.ndarray) -> RigidFit:
         """This fit, labelled with the indices of its channels in the caller's channel set."""
@@ -113,8 +116,14 @@ class RigidFit:
         positions: np.ndarray,
         directions: np.ndarray,
         weights: np.ndarray | None = None,
+        allow_null: bool = False,
     ) -> RigidFit:
-        """Decompose the geometry; :class:`KinematicsError` when it is degenerate."""
+        """Decompose the geometry; :class:`KinematicsError` when it is degenerate.
+
+        With ``allow_null``, a geometry that misses exactly one rigid-body motion
+        (two triaxial sensors) gives the minimum-norm fit, with no component along
+        the missed motion, and that motion in ``null``.
+        """
         positions = np.asarray(positions, dtype=float)
         n_ch = positions.shape[0]
         w = np.ones(n_ch) if weights is None else np.asarray(weights, dtype=float)
@@ -124,8 +133,15 @@ class RigidFit:
         # Solve through the SVD: the geometry may be poorly conditioned, and the
         # same decomposition gives the unit covariance for free.
         u, s, vt = np.linalg.svd(jw, full_matrices=False)
-        if s[-1] < 1e-9 * s[0]:
-            raise KinematicsError("sensor geometry is degenerate: rigid-body motion not determined")
+        null = None
+        if len(s) < 6 or s[-1] < 1e-9 * s[0]:
+            seen = int(np.sum(s > 1e-9 * s[0]))
+            if not (allow_null and seen == 5):
+                raise KinematicsError(
+                    "sensor geometry is degenerate: rigid-body motion not determined"
+                )
+            null = vt[5].copy() if len(s) == 6 else np.linalg.svd(jw)[2][5].copy()
+            u, s, vt = u[:, :5], s[:5], vt[:5]
         pinv = (vt.T / s) @ u.T
         return cls(
             origin=origin,
@@ -135,7 +151,13 @@ class RigidFit:
             cov_unit=(vt.T / s**2) @ vt,
             gain=pinv * sw,
             mean_w=float(np.mean(w)),
+            null=null,
         )
+
+    @property
+    def rank(self) -> int:
+        """How many rigid-body motions the channels determine (6, or 5 with ``null``)."""
+        return 6 if self.null is None else 5
 
     def fit(self, amplitudes: np.ndarray) -> RigidMotion:
         """The motion per order from (n_orders, n_ch) complex amplitudes, m/s^2."""
@@ -152,7 +174,7 @@ class RigidFit:
         y = a * self.sw
         x = y @ self.pinv.T  # (n_f n_o, 6)
         resid = y - x @ self.jw.T
-        dof = max(self.sw.size - 6, 1)
+        dof = max(self.sw.size - self.rank, 1)
         resid_ss = np.sum(resid.real**2 + resid.imag**2, axis=1)
         residual_rms = np.sqrt(resid_ss / dof / self.mean_w)
         signal_rms = np.sqrt(np.mean(a.real**2 + a.imag**2, axis=1))

@@ -90,6 +90,8 @@ class Estimate:
     # the elastic mode the residual gate confirmed (order, frequency_hz where it was
     # confirmed), when the f^2 tail was fitted out; None otherwise
     elastic_mode: dict[str, float] | None = None
+    # frames fitted with one rigid-body motion unseen (two sensors): how they were used
+    unseen_motion: dict[str, Any] | None = None
 
     def std(self, name: str) -> float:
         i = self.names.index(name)
@@ -208,6 +210,8 @@ class Estimate:
             "unobservable": unobservable,
             "variance_factor": self.variance_factor,
         }
+        if self.unseen_motion is not None:
+            doc["unseen_motion"] = self.unseen_motion
         if truth is not None:
             doc["truth"] = truth
         return doc
@@ -249,4 +253,5 @@ def build_estimate(est: InertiaEstimator) -> Estimate:
         half_order=est.half_order_resolution(),
         variance_factor=factor,
         elastic_mode=None if est.elastic is None else dict(est.elastic),
+        unseen_motion=est.partial.report(),
     )

@@ -32,6 +32,7 @@ import numpy as np
 
 from estimator.equations import Linearisation, ParameterLayout, frame_rows
 from estimator.kinematics import KinematicsError, RigidFit, RigidMotion
+from estimator.partial_pairs import PartialPairs
 from estimator.rls import RlsState, rls_init, rls_solve, rls_update
 from estimator.setup import EstimatorSetup
 from estimator.vec import cross
@@ -69,6 +70,13 @@ ELASTIC_WINDOW = 5
 ELASTIC_CONFIRM = 3
 ELASTIC_F_REF_HZ = 100.0
 ELASTIC_TERMS = 9  # the six inertia terms and G, the first nine entries of theta
+
+# Frames that see only two sensors are used once that has lasted this many gated frames
+# in a row (a sensor dead or unplugged: see estimator/partial.py). Sporadic losses (a
+# lost CAN frame takes a sensor out of one window) are rejected as "sensor_geometry":
+# their neighbours carry the same information, and on the simulated CAN bus with 1 %
+# lost frames and the realistic sensor errors, using them biased Izz by 6 %.
+UNSEEN_AFTER_FRAMES = 8
 
 # Frame flags (dsp.frames.FLAGS) that make the crank angle, and so every phase, untrustworthy.
 # "nan", "clipped" and "missing_channel" only drop the affected channels (channel_ok).
@@ -278,7 +286,7 @@ class InertiaEstimator:
         # the last two revolutions and their Omega' (k, 3) per tracked order set
         # for the mass-line curvature gate
         self.motion_history: dict[
-            tuple[float, ...], tuple[int, int, tuple[np.ndarray, np.ndarray]]
+            tuple[tuple[float, ...], bytes | None], tuple[int, int, tuple[np.ndarray, np.ndarray]]
         ] = {}
         self.lin = Linearisation(
             cog=np.asarray(setup.cog_nominal, float),
@@ -288,6 +296,9 @@ class InertiaEstimator:
         self.scale = self._parameter_scale()
         self._columns: dict[tuple[str, ...], np.ndarray] = {}  # frame channels -> setup columns
         self._fitters: dict[bytes, RigidFit | None] = {}  # channel mask -> geometry
+        # frames whose channels leave one rigid-body motion unseen (two sensors left)
+        self.partial = PartialPairs(self)
+        self._unseen_run = 0  # consecutive gated frames fitted with a rotation unseen
 
     def _parameter_scale(self) -> np.ndarray:
         scale = []
@@ -343,7 +354,7 @@ class InertiaEstimator:
             weights = None if setup.channel_weights is None else setup.channel_weights[used]
             try:
                 self._fitters[key] = RigidFit.of(
-                    setup.positions[used], setup.directions[used], weights
+                    setup.positions[used], setup.directions[used], weights, allow_null=True
                 ).on_channels(np.flatnonzero(used))
             except KinematicsError:
                 self._fitters[key] = None
@@ -376,6 +387,12 @@ class InertiaEstimator:
                     reason = "too_few_channels"
                 elif (fitter := self._fitter(used)) is None:
                     reason = "sensor_geometry"
+                elif fitter.null is None:
+                    self._unseen_run = 0
+                else:
+                    self._unseen_run += 1
+                    if self._unseen_run < UNSEEN_AFTER_FRAMES:
+                        reason = "sensor_geometry"
             if reason is not None:
                 outcomes[i] = self._reject(frame, reason)
                 continue
@@ -393,7 +410,7 @@ class InertiaEstimator:
             motions = fit.fit_many(readings)
             powers = np.mean(readings.real**2 + readings.imag**2, axis=2)  # (n, k)
             orders = np.asarray(frames[first_index].orders, dtype=float)
-            bends = self._curvature([frames[i] for i, _, _ in run], orders, motions)
+            bends = self._curvature([frames[i] for i, _, _ in run], orders, motions, fit)
             for j, (i, fitter, r) in enumerate(run):
                 outcomes[i] = self._use(
                     frames[i], fitter, motions[j], orders, r, powers[j], bends[j]
@@ -461,7 +478,9 @@ class InertiaEstimator:
             frame, fitter, motion, np.array(ks), orders, readings, power, force, moment, floor, gas
         )
         self.stats.used += 1
-        self.stats.ambiguous_frames += int(self._cycle_unknown(frame))
+        # (the sign hypotheses of the fully measured frames: frames with an unseen
+        # motion decide their own, see estimator.partial_pairs)
+        self.stats.ambiguous_frames += int(self._cycle_unknown(frame) and fitter.null is None)
         self.stats.rpm_lo = min(self.stats.rpm_lo, frame.rpm)
         self.stats.rpm_hi = max(self.stats.rpm_hi, frame.rpm)
         # Relinearise after the first used frame (the nominal cog may be centimetres
@@ -479,7 +498,11 @@ class InertiaEstimator:
         return FrameOutcome(frame.time_s, frame.rpm, (), {}, reason, {})
 
     def _curvature(
-        self, frames: list[FrameLike], orders: np.ndarray, motions: list[RigidMotion]
+        self,
+        frames: list[FrameLike],
+        orders: np.ndarray,
+        motions: list[RigidMotion],
+        fit: RigidFit,
     ) -> np.ndarray:
         """(n_frames, k): relative second difference of Omega' per order over three frames
         720 deg apart, less what the measurement noise explains (0 where not known).
@@ -496,7 +519,9 @@ class InertiaEstimator:
         at = [j for j, r in enumerate(revs) if r is not None]
         if not at:
             return out
-        key = tuple(orders.tolist())
+        # Motions fitted with a rotation unseen lack it: compare them only with motions
+        # that lack the same one.
+        key = (tuple(orders.tolist()), None if fit.null is None else fit.null.tobytes())
         none = np.full((len(orders), 3), np.nan + 0j)
         r0, r1, (w0, w1) = self.motion_history.get(key, (-(10**9), -(10**9), (none, none)))
         seq_rev = np.array([r0, r1] + [revs[j] for j in at])
@@ -613,31 +638,50 @@ class InertiaEstimator:
         that matters: not when the gas moment is measured in the same angle (it flips too)."""
         return "cycle_ambiguous" in frame.flags and self.setup.gas_moment is None
 
-    def _sensitivity(self, batch: list[_Pending]) -> np.ndarray:
-        """(P, 12, n_sys): d motion / d systematic parameters of every pair of ``batch``."""
+    def _sensitivity(
+        self, batch: list[_Pending], motion: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> np.ndarray:
+        """(P, 12, n_sys): d motion / d systematic parameters of every pair of ``batch``
+        (at the pairs' motions, or at ``motion``: (P, 3) gamma_O and Omega' in pair order)."""
+        if motion is None:
+            motion = (
+                np.concatenate([p.gamma_o for p in batch]),
+                np.concatenate([p.omega_dot for p in batch]),
+            )
+        bounds = np.cumsum([0] + [len(p.orders) for p in batch])
         out = []
         start = 0
         for end in range(1, len(batch) + 1):
             if end == len(batch) or batch[end].fit is not batch[start].fit:
                 run = batch[start:end]
+                a, b = bounds[start], bounds[end]
                 out.append(
                     motion_sensitivity(
                         self.setup,
                         run[0].fit,
                         np.concatenate([p.amplitudes for p in run]),
-                        np.concatenate([p.gamma_o for p in run]),
-                        np.concatenate([p.omega_dot for p in run]),
+                        motion[0][a:b],
+                        motion[1][a:b],
                     )
                 )
                 start = end
         return np.concatenate(out)
 
     def _rows(
-        self, batch: list[_Pending], sign: np.ndarray, sel: np.ndarray, dm_real: np.ndarray
+        self,
+        batch: list[_Pending],
+        sign: np.ndarray,
+        sel: np.ndarray,
+        dm_real: np.ndarray,
+        lin: Linearisation | None = None,
+        motion: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, ...]:
         """Whitened rows (k, 12, n), (k, 12) and sensitivities (k, 12, n_sys) of the
-        selected (frame, order) pairs of ``batch``, motions multiplied by ``sign``."""
+        selected (frame, order) pairs of ``batch``, motions multiplied by ``sign``
+        (the pairs' own motions, or ``motion``: (P, 3) gamma_O and Omega' in pair
+        order; linearised at ``self.lin`` or at ``lin``)."""
         cat = lambda name: np.concatenate([getattr(p, name) for p in batch])[sel]  # noqa: E731
+        gamma_o, omega_dot = (cat("gamma_o"), cat("omega_dot")) if motion is None else motion
         counts = [len(p.orders) for p in batch]
 
         def rep(name):
@@ -647,9 +691,9 @@ class InertiaEstimator:
         r = frame_rows(
             self.setup,
             self.layout,
-            self.lin,
-            sg[:, None] * cat("gamma_o"),
-            sg[:, None] * cat("omega_dot"),
+            self.lin if lin is None else lin,
+            sg[:, None] * gamma_o,
+            sg[:, None] * omega_dot,
             rep("origin"),
             rep("cov_unit"),
             cat("orders"),
@@ -675,8 +719,15 @@ class InertiaEstimator:
         decided between the hypotheses.
         """
         batch, self._pending = self._pending, []
-        if not batch:
-            return
+        unseen = [p for p in batch if p.fit.null is not None]
+        batch = [p for p in batch if p.fit.null is None]
+        if batch:
+            self._flush_measured(batch)
+        if unseen:
+            self.partial.take(unseen)
+
+    def _flush_measured(self, batch: list[_Pending]) -> None:
+        """:meth:`_flush` for the frames whose motion is fully measured."""
         half = np.concatenate([p.half for p in batch])
         flip = np.where(half, -1.0, 1.0)
         everything = np.ones(len(half), dtype=bool)
@@ -758,12 +809,20 @@ class InertiaEstimator:
         return self.acc[sign].marginal(n, scale)
 
     def best_state(self) -> Accumulator:
-        """The sign hypothesis with the smaller weighted residual (+1 unless ambiguous)."""
+        """The state of the estimate: the sign hypothesis with the smaller weighted
+        residual (+1 unless ambiguous), with the frames of an unseen motion added."""
         self._flush()
+        return self.partial.added_to(self.measured_state(self.partial.joint_sign()))
+
+    def measured_state(self, sign: int | None = None) -> Accumulator:
+        """:meth:`best_state` of the fully measured frames alone (no flush); ``sign``:
+        that half-order hypothesis rather than the better one."""
         if self.stats.ambiguous_frames == 0:
             return self._effective(1)
         if self.decided_sign is not None:
             return self._effective(self.decided_sign)
+        if sign is not None:
+            return self._effective(sign)
         eff = {s: self._effective(s) for s in self.acc}
         rss = {s: rls_solve(a.state, scale=self.scale).rss for s, a in eff.items()}
         return eff[min(rss, key=lambda s: rss[s])]
@@ -792,9 +851,14 @@ class InertiaEstimator:
             "frames": self.stats.ambiguous_frames,
         }
 
-    def estimate(self) -> Any:
+    def estimate(self, final: bool = True) -> Any:
+        """The current estimate. ``final=False`` (a live update) skips the full re-solve
+        of frames with an unseen motion that the final estimate makes."""
         from estimator.result import build_estimate
 
+        if final:
+            self._flush()
+            self.partial.solve()
         return build_estimate(self)
 
 

@@ -304,6 +304,8 @@ class Simulation(Section):
     max_order: Annotated[float, Field(ge=1, le=12)] = 6.0
     # the engine burns this much more (or less) than [gas] says: a gas model that is off
     heat_release_error_pct: Annotated[float, Field(gt=-100)] = 0.0
+    # accelerometer channels that read NaN all run (a broken cable, an open input)
+    dead_channels: list[str] = Field(default_factory=list)
 
 
 class Dsp(Section):
@@ -387,11 +389,14 @@ class Bench(Section):
         dup = {c for c in channels if channels.count(c) > 1}
         if dup:
             raise ValueError(f"sensors: channel names used twice: {sorted(dup)}")
+        # Two sensors (or all on one line) leave the rotation about their line unseen:
+        # the estimator fits it per frame (estimator/partial.py) at the cost of wider
+        # intervals. One position cannot see any rotation.
         positions = np.array([s.position_m for s in self.sensors])
-        if len(positions) < 3 or np.linalg.matrix_rank(positions[1:] - positions[0], tol=1e-3) < 2:
+        if len(positions) < 2 or np.linalg.matrix_rank(positions[1:] - positions[0], tol=1e-3) < 1:
             raise ValueError(
-                f"sensors: need at least three non-collinear sensor positions, got {len(positions)} "
-                "(rigid-body rotation is unobservable otherwise)"
+                f"sensors: need at least two sensors at distinct positions, got {len(positions)} "
+                "(rigid-body rotation is unobservable otherwise; three non-collinear are best)"
             )
         return self
 

@@ -169,7 +169,9 @@ class Pipeline:
         ):
             self._last_estimate_t = last_used.time_s
             self._published = True
-            update = EstimateUpdate(last_used.time_s, last_used.rpm, self.estimator.estimate())
+            update = EstimateUpdate(
+                last_used.time_s, last_used.rpm, self.estimator.estimate(final=False)
+            )
             for sink in self.sinks:
                 sink.on_estimate(update)
 

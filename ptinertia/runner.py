@@ -216,6 +216,15 @@ def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO = sys.stdou
             "past its f^2 growth",
             file=out,
         )
+    unseen = doc.get("unseen_motion")
+    if unseen:
+        axis = ", ".join(f"{v:.2f}" for v in unseen["unseen_rotation_axis"])
+        print(
+            f"{unseen['pairs']} order readings came from frames that do not see the rotation "
+            f"about [{axis}] (two usable sensors): that rotation was fitted per reading and the "
+            "rest solved jointly; expect wider intervals",
+            file=out,
+        )
     if doc.get("unobservable"):
         print(
             "unobservable (no excitation reaches them): " + ", ".join(doc["unobservable"]), file=out

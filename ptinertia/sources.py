@@ -145,6 +145,7 @@ def open_simulated(bench: Bench, **overrides: Any) -> Source:
         truth=truth,
         metadata=metadata,
         record_pressure=bench.estimator.gas_torque == "pressure",
+        dead_channels=tuple(sim.dead_channels),
         **options,
     )
     return source

@@ -197,8 +197,8 @@ def run(args: argparse.Namespace) -> int:
 # Why nothing could be estimated, for the reasons a user can act on.
 _NO_ESTIMATE = {
     "sensor_geometry": "the usable accelerometer channels do not determine the rigid-body "
-    "motion (with two triaxial sensors left, rotation about the line through them is not "
-    "measured): check the sensors flagged bad; three non-collinear triaxial sensors are needed",
+    "motion (fewer than two sensors left, or two left only for moments: two are used once "
+    "the loss has lasted 8 frames): check the sensors flagged bad",
     "too_few_channels": "fewer than six usable accelerometer channels (see the channel flags)",
     "rpm_out_of_range": "the sweep never entered the [estimator] rpm range",
     "near_rigid_modes": "every frame was too close to the rigid-body modes: the sweep never "

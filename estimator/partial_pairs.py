@@ -1,0 +1,246 @@
+"""The streaming estimator's store of frames fitted with one rigid-body motion unseen.
+
+See :mod:`estimator.partial` for the method. Streaming: the pairs are kept
+(up to ``MAX_PAIRS``); each new batch is linearised at the current estimate and
+added; whenever the stored pairs have doubled, and for the final estimate, all
+of them are solved again jointly with the fully measured frames. The work
+over a sweep is then a few times that of one final solve, and the live
+estimate is never more than a doubling behind the final one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from estimator.equations import Linearisation
+from estimator.partial import (
+    MAX_PAIRS,
+    Contribution,
+    PartialRows,
+    PartialSolution,
+    solve_partial,
+)
+from estimator.rls import rls_solve
+
+if TYPE_CHECKING:
+    from estimator.streaming import Accumulator, InertiaEstimator, _Pending
+
+FIRST_SOLVE_PAIRS = 48
+# as for the fully measured frames' hypotheses (estimator.streaming)
+DECIDE_RATIO = 100.0
+
+
+class PartialPairs:
+    """The (frame, order) pairs of an unseen motion and their share of the estimate."""
+
+    def __init__(self, est: InertiaEstimator) -> None:
+        self.est = est
+        n, n_sys = est.layout.size, len(est.sys_names)
+        self.stored: list[_Pending] = []
+        self.n_stored = 0  # pairs (frame, order) in ``stored``
+        self.solved = Contribution.empty(n, n_sys)  # of the pairs of the last solve
+        self.since = Contribution.empty(n, n_sys)  # stored pairs added since, linearised once
+        self.unstored = Contribution.empty(n, n_sys)  # pairs beyond MAX_PAIRS, linearised once
+        self.n_since = 0
+        self.n_unstored = 0
+        self.next_solve = FIRST_SOLVE_PAIRS
+        self.solution: PartialSolution | None = None
+        self.unseen: np.ndarray | None = None  # (6,) the last unseen [gamma_O, Omega'] direction
+        self.origin: np.ndarray | None = None
+        # the sign of the half orders seen without a 720 deg reference, when the fully
+        # measured frames have not decided it: the better of both at each solve
+        self.own_sign = 1
+        self.sign_ratio: float | None = None
+        self.has_half = False
+        self.sign_decided = False  # once the ratio leaves no doubt, the other sign is dropped
+
+    @property
+    def pairs(self) -> int:
+        return self.n_stored + self.n_unstored
+
+    def take(self, batch: list[_Pending]) -> None:
+        """Add the used orders of frames fitted with a motion unseen."""
+        # The unseen direction is projected out with each pair's w; give it a finite
+        # variance in the row weighting (any value gives the same projected rows) so
+        # that the whitening stays well conditioned.
+        batch = [replace(p, cov_unit=p.cov_unit + _unseen_variance(p)) for p in batch]
+        self.unseen, self.origin = batch[-1].fit.null, batch[-1].origin
+        self.has_half = self.has_half or any(bool(np.any(p.half)) for p in batch)
+        count = sum(len(p.orders) for p in batch)
+        if self.n_stored + count > MAX_PAIRS:
+            theta = self.theta_now()
+            self.unstored = self.unstored.plus(Contribution.of(self.rows(batch, theta), theta)[0])
+            self.n_unstored += count
+            return
+        self.stored.extend(batch)
+        self.n_stored += count
+        if self.n_stored >= self.next_solve:
+            self.next_solve = 2 * self.n_stored
+            self.solve()
+        else:
+            theta = self.theta_now()
+            self.since = self.since.plus(Contribution.of(self.rows(batch, theta), theta)[0])
+            self.n_since += count
+
+    def solve(self) -> None:
+        """Solve every stored pair again, jointly with the fully measured frames."""
+        if not self.stored or (not self.n_since and self.solution is not None):
+            return
+        undecided = self.has_half and self.est.decided_sign is None and not self.sign_decided
+        signs = [1, -1] if undecided else [self.sign]
+        # each sign with the same hypothesis of the fully measured frames: one decision
+        bases = {s: self.unstored.added_to(self.est.measured_state(s).state) for s in signs}
+        base = bases[signs[0]]
+        if self.solution is not None:
+            theta0 = self.solution.theta
+            w0 = np.vstack([self.solution.w, np.zeros((self.n_stored - len(self.solution.w), 2))])
+        else:
+            # from the fully measured frames where they decide, else the nominal values:
+            # not from the pairs' own one-pass linearisation (made with an untested sign)
+            sol = rls_solve(base, scale=self.est.scale)
+            theta0 = np.where(sol.observable, sol.theta, self.nominal_theta())
+            w0 = np.zeros((self.n_stored, 2))
+        solutions, rss = {}, {}
+        for sign in signs:
+            self.own_sign = sign
+            solutions[sign] = solve_partial(
+                bases[sign], lambda t, w: self.rows(self.stored, t, w), theta0, w0, self.est.scale
+            )
+            rss[sign] = rls_solve(
+                solutions[sign].contribution.added_to(bases[sign]), scale=self.est.scale
+            ).rss
+        self.own_sign = min(rss, key=lambda s: rss[s])
+        if len(signs) == 2:
+            best = rss[self.own_sign]
+            self.sign_ratio = rss[-self.own_sign] / best if best > 0 else float("inf")
+            self.sign_decided = self.sign_ratio >= DECIDE_RATIO
+        self.solution = solutions[self.own_sign]
+        self.solved = self.solution.contribution
+        self.since = Contribution.empty(*self.since.sens.shape)
+        self.n_since = 0
+
+    def added_to(self, acc: Accumulator) -> Accumulator:
+        """``acc`` (the fully measured frames' state) with the pairs' information."""
+        if not self.pairs:
+            return acc
+        total = self.solved.plus(self.since).plus(self.unstored)
+        return type(acc)(state=total.added_to(acc.state), sens=acc.sens + total.sens)
+
+    def joint_sign(self) -> int | None:
+        """The half-order hypothesis of the fully measured frames that goes with the
+        pairs' own decision (None: no own decision, they take the better one)."""
+        if not self.pairs or not self.has_half or self.est.decided_sign is not None:
+            return None
+        return self.own_sign
+
+    @property
+    def sign(self) -> int:
+        """The half-order sign the pairs are used with."""
+        decided = self.est.decided_sign
+        return self.own_sign if decided is None else decided
+
+    def theta_now(self) -> np.ndarray:
+        """The current estimate where determined, the nominal values elsewhere."""
+        nominal = self.nominal_theta()
+        if self.solution is None and not self.pairs and not self.est.stats.used:
+            return nominal
+        sol = rls_solve(self.added_to(self.est.measured_state()).state, scale=self.est.scale)
+        return np.where(sol.observable, sol.theta, nominal)
+
+    def nominal_theta(self) -> np.ndarray:
+        """theta at the bench's nominal values (unbalance, offset and calibration 0)."""
+        est, setup = self.est, self.est.setup
+        theta = np.zeros(est.layout.size)
+        i = np.asarray(setup.inertia_nominal, float)
+        theta[:6] = [i[0, 0], i[1, 1], i[2, 2], -i[0, 1], -i[0, 2], -i[1, 2]]
+        theta[6:9] = setup.cog_nominal
+        names = est.layout.names
+        if "inv_mass" in names:
+            theta[names.index("inv_mass")] = 1.0 / setup.mass_nominal
+        for k, name in enumerate(names):
+            if name.startswith("kscale:"):
+                theta[k] = 1.0
+        return theta
+
+    def linearisation(self, theta: np.ndarray) -> Linearisation:
+        from estimator.result import tensor_from_terms
+
+        names = self.est.layout.names
+        mass = self.est.lin.mass
+        if "inv_mass" in names and theta[names.index("inv_mass")] > 0:
+            mass = 1.0 / theta[names.index("inv_mass")]
+        scales = [theta[k] for k, n in enumerate(names) if n.startswith("kscale:")]
+        return Linearisation(
+            cog=theta[6:9].copy(),
+            inertia=tensor_from_terms(theta[:6]),
+            mass=mass,
+            mount_scale=np.array(scales) if scales else None,
+        )
+
+    def rows(
+        self, batch: list[_Pending], theta: np.ndarray, w: np.ndarray | None = None
+    ) -> PartialRows:
+        """The pairs' rows at ``theta``; ``dr`` at the motions completed by ``w`` (P, 2)."""
+        est = self.est
+        lin = self.linearisation(theta)
+        counts = [len(p.orders) for p in batch]
+        e = np.repeat(np.array([p.fit.null for p in batch]), counts, axis=0).astype(complex)
+        g0 = np.concatenate([p.gamma_o for p in batch])
+        o0 = np.concatenate([p.omega_dot for p in batch])
+        half = np.concatenate([p.half for p in batch])
+        sign = np.where(half & (self.sign == -1), -1.0, 1.0)
+        every = np.ones(len(sign), dtype=bool)
+        wc = np.zeros(len(sign), complex) if w is None else w[:, 0] + 1j * w[:, 1]
+        done = (g0 + wc[:, None] * e[:, :3], o0 + wc[:, None] * e[:, 3:])
+        dm = est._sensitivity(batch, motion=done)
+        h0, y0, dr = est._rows(batch, sign, every, dm, lin=lin, motion=(g0, o0))
+        h1, y1, _ = est._rows(
+            batch, sign, every, dm, lin=lin, motion=(g0 + e[:, :3], o0 + e[:, 3:])
+        )
+        h2, y2, _ = est._rows(
+            batch, sign, every, dm, lin=lin, motion=(g0 + 1j * e[:, :3], o0 + 1j * e[:, 3:])
+        )
+        return PartialRows(h0, y0, h1 - h0, y1 - y0, h2 - h0, y2 - y0, dr)
+
+    def report(self) -> dict[str, Any] | None:
+        """What the result says about the unseen motion (None when every frame saw all six)."""
+        if not self.pairs or self.unseen is None or self.origin is None:
+            return None
+        axis = self.unseen[3:] / max(float(np.linalg.norm(self.unseen[3:])), 1e-300)
+        # the unseen motion is a rotation about a line: its point nearest the fit origin,
+        # from gamma_O = Omega' x (O - P)
+        point = self.origin + np.cross(axis, self.unseen[:3]) / max(
+            float(np.linalg.norm(self.unseen[3:])), 1e-300
+        )
+        sol = self.solution
+        return {
+            "pairs": self.pairs,
+            "unseen_rotation_axis": [float(v) for v in axis],
+            "unseen_rotation_point_m": [float(v) for v in point],
+            "method": "variable projection: per (frame, order) the unseen rotation fitted, "
+            "the rest solved by Gauss-Newton with the fully measured frames",
+            "iterations": None if sol is None else sol.iterations,
+            "converged": None if sol is None else sol.converged,
+            "half_order_sign": (
+                None
+                if not self.has_half
+                else {"sign": self.sign, "residual_ratio": _capped(self.sign_ratio)}
+                if self.est.decided_sign is None
+                else {"sign": self.sign, "from": "fully measured frames"}
+            ),
+        }
+
+
+def _capped(ratio: float | None) -> float | None:
+    """A residual ratio for the result JSON (no infinities): capped at 1e12, which an
+    exact fit of the right sign reaches."""
+    return None if ratio is None else min(float(ratio), 1e12)
+
+
+def _unseen_variance(pair: _Pending) -> np.ndarray:
+    """(6, 6) a finite variance along the pair's unseen motion (see :meth:`PartialPairs.take`)."""
+    assert pair.fit.null is not None
+    return np.trace(pair.cov_unit) / 5 * np.outer(pair.fit.null, pair.fit.null)
