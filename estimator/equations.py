@@ -34,6 +34,7 @@ import numpy as np
 
 from estimator.setup import EstimatorSetup
 from estimator.vec import cross, skew
+from powertrain.rigidbody import inertia_matrix
 
 INERTIA_TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 
@@ -82,6 +83,25 @@ class Linearisation:
     inertia: np.ndarray
     mass: float
     mount_scale: np.ndarray | None = None  # (n_mounts,) current stiffness scales; None: 1
+
+
+def linearisation_at(
+    layout: ParameterLayout, theta: np.ndarray, observable: np.ndarray, mass: float
+) -> Linearisation:
+    """The linearisation point of an estimate ``theta``: its inertia and cog, its mass
+    (``mass`` where 1/m is not determined or not positive) and its mount stiffness
+    scales (1 where not determined)."""
+    if layout.mass and observable[layout.index("inv_mass")]:
+        inv = theta[layout.index("inv_mass")]
+        if inv > 0:
+            mass = 1.0 / inv
+    scales = None
+    if layout.mount_scales:
+        at = [layout.index(f"kscale:{m}") for m in layout.mount_scales]
+        scales = np.where(observable[at], theta[at], 1.0)
+    return Linearisation(
+        cog=theta[6:9].copy(), inertia=inertia_matrix(*theta[:6]), mass=mass, mount_scale=scales
+    )
 
 
 @dataclass(frozen=True)

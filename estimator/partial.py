@@ -40,9 +40,9 @@ import numpy as np
 
 from estimator.rls import RlsState, rls_solve
 
-# Beyond this many (frame, order) pairs the oldest are thinned (every second one
-# dropped, and counted): a 60 s sweep at 1500-4500 rpm with three orders gives
-# about 2300; an hour-long one would otherwise grow without bound.
+# Beyond this many stored (frame, order) pairs, new ones are linearised once at the
+# current estimate and not stored (never solved again): a 60 s sweep at 1500-4500 rpm
+# with three orders gives about 4500; an hour-long one would otherwise grow without bound.
 MAX_PAIRS = 20000
 MAX_ITERATIONS = 40
 STEP_TOL = 1e-9  # converged when no parameter moves by more than this share of its scale
@@ -74,9 +74,9 @@ def project_out(rows: PartialRows, theta: np.ndarray) -> tuple[np.ndarray, np.nd
     g = np.einsum("pki,pkj->pij", c, c)
     # a pair whose w columns vanish (no excitation along e) keeps w = 0
     g += (1e-14 * np.trace(g, axis1=1, axis2=2) + 1e-300)[:, None, None] * np.eye(2)
-    w = -np.linalg.solve(g, np.einsum("pki,pk->pi", c, r0)[..., None])[..., 0]
-    a = rows.H0 + w[:, 0, None, None] * rows.B1 + w[:, 1, None, None] * rows.B2
     cg = c @ np.linalg.inv(g)  # (P, 12, 2)
+    w = -np.einsum("pki,pk->pi", cg, r0)  # -(C^T C)^-1 C^T r0
+    a = rows.H0 + w[:, 0, None, None] * rows.B1 + w[:, 1, None, None] * rows.B2
     ja = a - cg @ np.einsum("pki,pkn->pin", c, a)  # (1 - C G^-1 C^T) A
     return ja, r0 + np.einsum("pki,pi->pk", c, w), w
 
@@ -104,14 +104,14 @@ class Contribution:
         return cls(state, np.einsum("pkn,pks->ns", j, rows.dr)), w
 
     def plus(self, other: Contribution) -> Contribution:
-        a, b = self.state, other.state
-        return Contribution(
-            RlsState(a.info + b.info, a.vec + b.vec, a.yty + b.yty, a.rows + b.rows),
-            self.sens + other.sens,
-        )
+        return Contribution(other.added_to(self.state), self.sens + other.sens)
 
     def added_to(self, state: RlsState) -> RlsState:
-        return Contribution(state, self.sens).plus(self).state
+        """``state`` with these rows added."""
+        a = self.state
+        return RlsState(
+            state.info + a.info, state.vec + a.vec, state.yty + a.yty, state.rows + a.rows
+        )
 
 
 @dataclass(frozen=True)

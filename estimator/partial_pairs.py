@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from estimator.equations import Linearisation
+from estimator.equations import INERTIA_TERMS, linearisation_at
 from estimator.partial import (
     MAX_PAIRS,
     Contribution,
@@ -24,13 +24,12 @@ from estimator.partial import (
     solve_partial,
 )
 from estimator.rls import rls_solve
+from powertrain.rigidbody import inertia_terms
 
 if TYPE_CHECKING:
     from estimator.streaming import Accumulator, InertiaEstimator, _Pending
 
 FIRST_SOLVE_PAIRS = 48
-# as for the fully measured frames' hypotheses (estimator.streaming)
-DECIDE_RATIO = 100.0
 
 
 class PartialPairs:
@@ -114,6 +113,8 @@ class PartialPairs:
             ).rss
         self.own_sign = min(rss, key=lambda s: rss[s])
         if len(signs) == 2:
+            from estimator.streaming import DECIDE_RATIO  # as for the measured frames' signs
+
             best = rss[self.own_sign]
             self.sign_ratio = rss[-self.own_sign] / best if best > 0 else float("inf")
             self.sign_decided = self.sign_ratio >= DECIDE_RATIO
@@ -127,7 +128,7 @@ class PartialPairs:
         if not self.pairs:
             return acc
         total = self.solved.plus(self.since).plus(self.unstored)
-        return type(acc)(state=total.added_to(acc.state), sens=acc.sens + total.sens)
+        return replace(acc, state=total.added_to(acc.state), sens=acc.sens + total.sens)
 
     def joint_sign(self) -> int | None:
         """The half-order hypothesis of the fully measured frames that goes with the
@@ -144,18 +145,15 @@ class PartialPairs:
 
     def theta_now(self) -> np.ndarray:
         """The current estimate where determined, the nominal values elsewhere."""
-        nominal = self.nominal_theta()
-        if self.solution is None and not self.pairs and not self.est.stats.used:
-            return nominal
         sol = rls_solve(self.added_to(self.est.measured_state()).state, scale=self.est.scale)
-        return np.where(sol.observable, sol.theta, nominal)
+        return np.where(sol.observable, sol.theta, self.nominal_theta())
 
     def nominal_theta(self) -> np.ndarray:
         """theta at the bench's nominal values (unbalance, offset and calibration 0)."""
         est, setup = self.est, self.est.setup
         theta = np.zeros(est.layout.size)
-        i = np.asarray(setup.inertia_nominal, float)
-        theta[:6] = [i[0, 0], i[1, 1], i[2, 2], -i[0, 1], -i[0, 2], -i[1, 2]]
+        terms = inertia_terms(setup.inertia_nominal)
+        theta[:6] = [terms[k] for k in INERTIA_TERMS]
         theta[6:9] = setup.cog_nominal
         names = est.layout.names
         if "inv_mass" in names:
@@ -165,27 +163,13 @@ class PartialPairs:
                 theta[k] = 1.0
         return theta
 
-    def linearisation(self, theta: np.ndarray) -> Linearisation:
-        from estimator.result import tensor_from_terms
-
-        names = self.est.layout.names
-        mass = self.est.lin.mass
-        if "inv_mass" in names and theta[names.index("inv_mass")] > 0:
-            mass = 1.0 / theta[names.index("inv_mass")]
-        scales = [theta[k] for k, n in enumerate(names) if n.startswith("kscale:")]
-        return Linearisation(
-            cog=theta[6:9].copy(),
-            inertia=tensor_from_terms(theta[:6]),
-            mass=mass,
-            mount_scale=np.array(scales) if scales else None,
-        )
-
     def rows(
         self, batch: list[_Pending], theta: np.ndarray, w: np.ndarray | None = None
     ) -> PartialRows:
         """The pairs' rows at ``theta``; ``dr`` at the motions completed by ``w`` (P, 2)."""
         est = self.est
-        lin = self.linearisation(theta)
+        # theta is determined everywhere (theta_now and the solves fill in the nominal values)
+        lin = linearisation_at(est.layout, theta, np.ones(theta.size, bool), est.lin.mass)
         counts = [len(p.orders) for p in batch]
         e = np.repeat(np.array([p.fit.null for p in batch]), counts, axis=0).astype(complex)
         g0 = np.concatenate([p.gamma_o for p in batch])
@@ -209,12 +193,11 @@ class PartialPairs:
         """What the result says about the unseen motion (None when every frame saw all six)."""
         if not self.pairs or self.unseen is None or self.origin is None:
             return None
-        axis = self.unseen[3:] / max(float(np.linalg.norm(self.unseen[3:])), 1e-300)
+        size = max(float(np.linalg.norm(self.unseen[3:])), 1e-300)
+        axis = self.unseen[3:] / size
         # the unseen motion is a rotation about a line: its point nearest the fit origin,
         # from gamma_O = Omega' x (O - P)
-        point = self.origin + np.cross(axis, self.unseen[:3]) / max(
-            float(np.linalg.norm(self.unseen[3:])), 1e-300
-        )
+        point = self.origin + np.cross(axis, self.unseen[:3]) / size
         sol = self.solution
         return {
             "pairs": self.pairs,

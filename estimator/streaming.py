@@ -30,7 +30,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from estimator.equations import Linearisation, ParameterLayout, frame_rows
+from estimator.equations import Linearisation, ParameterLayout, frame_rows, linearisation_at
 from estimator.kinematics import KinematicsError, RigidFit, RigidMotion
 from estimator.partial_pairs import PartialPairs
 from estimator.rls import RlsState, rls_init, rls_solve, rls_update
@@ -781,23 +781,10 @@ class InertiaEstimator:
         sol = rls_solve(self.best_state().state, scale=self.scale)
         if not np.all(sol.observable[:9]):
             return
-        from estimator.result import tensor_from_terms
-
-        inertia = tensor_from_terms(sol.theta[:6])
-        if np.linalg.eigvalsh(inertia)[0] <= 0:
+        lin = linearisation_at(self.layout, sol.theta, sol.observable, self.lin.mass)
+        if np.linalg.eigvalsh(lin.inertia)[0] <= 0:
             return
-        mass = self.lin.mass
-        if self.layout.mass and sol.observable[self.layout.index("inv_mass")]:
-            inv = sol.theta[self.layout.index("inv_mass")]
-            if inv > 0:
-                mass = 1.0 / inv
-        scales = None
-        if self.layout.mount_scales:
-            at = [self.layout.index(f"kscale:{m}") for m in self.layout.mount_scales]
-            scales = np.where(sol.observable[at], sol.theta[at], 1.0)
-        self.lin = Linearisation(
-            cog=sol.theta[6:9].copy(), inertia=inertia, mass=mass, mount_scale=scales
-        )
+        self.lin = lin
 
     def _effective(self, sign: int) -> Accumulator:
         """A sign hypothesis's state of theta: with a confirmed elastic mode, the tail
