@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from acquisition.stream import StreamLayout
 from estimator.setup import (
@@ -78,15 +79,18 @@ def gas_moment_from_pressure(
     """
     maps: dict[tuple[float, ...], PressureTorqueMap] = {}
     axis = np.asarray(engine.crank_axis, float)
-    if orders:
-        key = tuple(float(h) for h in orders)
-        maps[key] = pressure_torque_map(engine, key, gas.max_order)
 
-    def gas_moment(orders: np.ndarray, spectrum: np.ndarray) -> np.ndarray:
+    def map_for(orders: npt.ArrayLike) -> PressureTorqueMap:
         key = tuple(np.asarray(orders, float).tolist())
         if key not in maps:
             maps[key] = pressure_torque_map(engine, key, gas.max_order)
-        torque = maps[key].torque(gas.pa_per_unit * np.asarray(spectrum))
+        return maps[key]
+
+    if orders:
+        map_for(orders)
+
+    def gas_moment(orders: np.ndarray, spectrum: np.ndarray) -> np.ndarray:
+        torque = map_for(orders).torque(gas.pa_per_unit * np.asarray(spectrum))
         return -np.outer(torque, axis)
 
     return gas_moment
