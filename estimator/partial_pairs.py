@@ -23,6 +23,7 @@ from estimator.partial import (
     PartialSolution,
     solve_partial,
 )
+from estimator.result import capped_ratio
 from estimator.rls import rls_solve
 from powertrain.rigidbody import inertia_terms
 
@@ -210,17 +211,11 @@ class PartialPairs:
             "half_order_sign": (
                 None
                 if not self.has_half
-                else {"sign": self.sign, "residual_ratio": _capped(self.sign_ratio)}
+                else {"sign": self.sign, "residual_ratio": capped_ratio(self.sign_ratio)}
                 if self.est.decided_sign is None
                 else {"sign": self.sign, "from": "fully measured frames"}
             ),
         }
-
-
-def _capped(ratio: float | None) -> float | None:
-    """A residual ratio for the result JSON (no infinities): capped at 1e12, which an
-    exact fit of the right sign reaches."""
-    return None if ratio is None else min(float(ratio), 1e12)
 
 
 def _unseen_variance(pair: _Pending) -> np.ndarray:

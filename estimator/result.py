@@ -26,6 +26,7 @@ if TYPE_CHECKING:
     from estimator.streaming import InertiaEstimator
 
 Z95 = 1.959963984540054
+RATIO_CAP = 1e12  # what the result JSON writes for an infinite residual ratio
 
 
 def tensor_from_terms(terms: np.ndarray) -> np.ndarray:
@@ -197,7 +198,14 @@ class Estimate:
                 if n.startswith("kscale:")
             }
             or None,
-            "half_order": self.half_order,
+            "half_order": (
+                None
+                if self.half_order is None
+                else {
+                    **self.half_order,
+                    "residual_ratio": capped_ratio(self.half_order["residual_ratio"]),
+                }
+            ),
             "elastic_mode": (
                 None
                 if self.elastic_mode is None
@@ -215,6 +223,15 @@ class Estimate:
         if truth is not None:
             doc["truth"] = truth
         return doc
+
+
+def capped_ratio(ratio: float | None) -> float | None:
+    """A residual ratio for the result JSON, which allows no infinities: capped at 1e12.
+
+    The ratio of the losing half-order hypothesis's residual to the winner's is
+    infinite when the winner fits exactly (noise-free data); 1e12 says the same.
+    """
+    return None if ratio is None else min(float(ratio), RATIO_CAP)
 
 
 def _finite(x: float) -> float | None:

@@ -28,7 +28,7 @@ from acquisition.stream import (
     StreamLayout,
 )
 from dsp.frames import OrderFrame
-from estimator.result import Estimate
+from estimator.result import RATIO_CAP, Estimate
 from estimator.streaming import FrameOutcome
 from ptinertia.sinks import EstimateUpdate
 from replay.reader import open_log
@@ -522,3 +522,13 @@ def test_the_documented_schema_is_the_one_written() -> None:
     doc = (Path(__file__).resolve().parents[1] / "docs" / "recording-format.md").read_text()
     block = doc.split("```proto\n", 1)[1].split("```", 1)[0]
     assert block.strip() == proto_text().strip()
+
+
+def test_an_infinite_half_order_ratio_is_written_as_the_cap() -> None:
+    # exact data make the losing hypothesis's residual ratio infinite; the result
+    # file is strict JSON (no Infinity), so it is written as the cap
+    est = make_estimate(0, np.random.default_rng(1))
+    assert est.half_order is not None and est.half_order["residual_ratio"] == math.inf
+    doc = json.loads(json.dumps(est.to_json(), allow_nan=False))
+    assert doc["half_order"]["residual_ratio"] == RATIO_CAP
+    assert est.half_order["residual_ratio"] == math.inf  # the estimate itself is not altered
