@@ -160,6 +160,9 @@ def estimator_setup(
             by_orders[key] = full
         return by_orders[key].at(rpm)
 
+    # The engine's order spectra take tens of ms to build: build them for the bench's
+    # orders now, not on the first frame (a live run's first estimate would be late).
+    excitation(bench.dsp.rpm_min, np.asarray(bench.dsp.orders, float))
     mode_max = float(np.max(model.modes().frequency_hz)) if has_mounts else None
     return EstimatorSetup(
         channels=model.channel_names,
