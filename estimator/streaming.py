@@ -21,21 +21,27 @@ misfit is large); the ratio of the two residuals is reported.
 
 from __future__ import annotations
 
-import functools
 import itertools
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
 from estimator.equations import Linearisation, ParameterLayout, frame_rows, linearisation_at
+from estimator.gating import (
+    FrameLike,
+    OrderGates,
+    frame_gate,
+    neighbour_leakage,
+    overlaps_previous,
+)
 from estimator.kinematics import KinematicsError, RigidFit, RigidMotion
 from estimator.partial_pairs import PartialPairs
 from estimator.rls import RlsState, rls_init, rls_solve, rls_update
 from estimator.setup import EstimatorSetup
-from estimator.vec import cross
+from estimator.systematic import motion_sensitivity, systematic_names, systematic_stds
 
 # The linearised terms (G x F_unb, row weighting) move slowly once a few frames are in:
 # refresh them every few used frames rather than solving after every frame, more
@@ -59,15 +65,13 @@ DECIDE_RATIO = 100.0
 # Elastic-mode tail. Below an elastic mode its response grows like (f / f_e)^2, and the
 # part of its shape that looks rigid at the sensors biases the fit long before the
 # rigidity residual sees the mode. Once the residual gate has confirmed a mode
-# (ELASTIC_CONFIRM of the last ELASTIC_WINDOW gated frames of one order non_rigid),
+# (estimator.gating: ELASTIC_CONFIRM of the last ELASTIC_WINDOW gated frames of one order non_rigid),
 # the inertia and cog are fitted as theta + (f / ELASTIC_F_REF_HZ)^2 a and theta, the
 # rigid value extrapolated to f = 0, is reported (as the mass line's residual
 # stiffness term does for a modal test). The f^2 columns are accumulated from the
 # first frame on, so the frames added before the detection are corrected too;
 # without a detection they are not used. Measured on the simulated i3 with a 140 Hz
 # mode, 6 seeds of the realistic errors: largest cog error 1.0-4.7 mm -> 1.7-2.8 mm.
-ELASTIC_WINDOW = 5
-ELASTIC_CONFIRM = 3
 ELASTIC_F_REF_HZ = 100.0
 ELASTIC_TERMS = 9  # the six inertia terms and G, the first nine entries of theta
 
@@ -80,20 +84,6 @@ UNSEEN_AFTER_FRAMES = 8
 
 # Frame flags (dsp.frames.FLAGS) that make the crank angle, and so every phase, untrustworthy.
 # "nan", "clipped" and "missing_channel" only drop the affected channels (channel_ok).
-TACHO_FLAGS = frozenset({"no_tacho", "tacho_resync", "angle_ambiguous", "angle_rebased"})
-
-
-class FrameLike(Protocol):
-    """The fields of ``dsp.frames.OrderFrame`` the estimator reads."""
-
-    time_s: float
-    rpm: float
-    orders: tuple[float, ...]
-    channels: tuple[str, ...]
-    amplitudes: np.ndarray
-    channel_ok: np.ndarray
-    rpm_change: float
-    flags: frozenset[str]
 
 
 @dataclass
@@ -184,60 +174,6 @@ class EstimatorStats:
     )
 
 
-def systematic_names(setup: EstimatorSetup) -> list[str]:
-    names = [f"gain:{c}" for c in setup.channels]
-    for s in range(setup.n_sensors):
-        names += [f"align:{s}:{ax}" for ax in "xyz"]
-        names += [f"pos:{s}:{ax}" for ax in "xyz"]
-    return names
-
-
-def systematic_stds(setup: EstimatorSetup) -> np.ndarray:
-    tol = setup.tolerances
-    n_ch = len(setup.channels)
-    per_sensor = [tol.alignment_rad] * 3 + [tol.position_m] * 3
-    return np.array([tol.gain_rel] * n_ch + per_sensor * setup.n_sensors)
-
-
-def motion_sensitivity(
-    setup: EstimatorSetup,
-    fit: RigidFit,
-    amplitudes: np.ndarray,
-    gamma_o: np.ndarray,
-    omega_dot: np.ndarray,
-) -> np.ndarray:
-    """d[gamma_O, Omega'] / d(systematic parameters), (P, 12, n_sys) real (Re rows, Im rows).
-
-    For P (frame, order) pairs fitted with the same geometry ``fit`` (its
-    ``channels``: setup indices); ``amplitudes`` (P, n_used) complex, the motion (P, 3).
-
-    A reading is ``n . gamma_P``. A relative gain error g scales it by (1 + g);
-    turning the sensor by a small angle about bench axis e changes ``n`` by
-    ``e x n``, so the reading by ``e . (n x gamma_P)``; moving it along e
-    changes ``gamma_P`` by ``Omega' x e``, so the reading by ``e . (n x Omega')``.
-    The fit is linear (``motion = gain @ readings``), so each reading's change
-    reaches the motion through its column of the gain.
-    """
-    n_ch = len(setup.channels)
-    assert fit.channels is not None
-    used = fit.channels
-    out = np.zeros((len(gamma_o), 6, n_ch + 6 * setup.n_sensors), complex)
-    n = setup.directions[used]  # (u, 3)
-    r = setup.positions[used] - fit.origin  # (u, 3)
-    gamma_p = gamma_o[:, None, :] + cross(omega_dot[:, None, :], r[None])  # (P, u, 3)
-    turn = cross(n[None], gamma_p)  # (P, u, 3)
-    move = cross(n[None], omega_dot[:, None, :])
-    # One channel at a time (elementwise products, a fixed summation order): the
-    # result of a pair does not depend on how many pairs are assembled together.
-    for j, c in enumerate(used):
-        g = fit.gain[:, j]  # (6,)
-        base = n_ch + 6 * int(setup.sensor_of_channel[c])
-        out[:, :, c] = g[None, :] * amplitudes[:, j, None]
-        out[:, :, base : base + 3] += g[None, :, None] * turn[:, j, None, :]
-        out[:, :, base + 3 : base + 6] += g[None, :, None] * move[:, j, None, :]
-    return np.concatenate([out.real, out.imag], axis=1)
-
-
 class InertiaEstimator:
     """Frame-by-frame estimate of inertia, cog, (mass), unbalance and crank offset.
 
@@ -266,28 +202,20 @@ class InertiaEstimator:
         self.sys_std = systematic_stds(setup)
         n, n_sys = self.layout.size, len(self.sys_names)
         # one accumulator per half-order sign hypothesis (+1 as measured, -1 flipped)
-        # (over theta and the elastic-tail terms: see ELASTIC_WINDOW)
+        # (over theta and the elastic-tail terms: see ELASTIC_TERMS)
         n_all = n + ELASTIC_TERMS
         self.acc = {1: Accumulator.empty(n_all, n_sys), -1: Accumulator.empty(n_all, n_sys)}
         # The declared tolerances are the calibrated parameters' priors (mean 0): the
         # rows are whitened to unit variance, so their information is 1 / sigma^2.
         for acc in self.acc.values():
             acc.state.info[self._cal_cols, self._cal_cols] += 1.0 / self.sys_std[self._cal] ** 2
-        self.elastic: dict[str, float] | None = None  # set once the residual gate confirms one
-        self._non_rigid_recent: dict[float, list[bool]] = {}
+        self.gates = OrderGates(setup)
         self.stats = EstimatorStats()
         self._pending: list[_Pending] = []  # used frames whose rows are not assembled yet
         self._hypotheses_equal = True  # acc[-1] not kept up to date until it can differ
         self.decided_sign: int | None = None  # half-order sign, once the residuals decided it
         self.decision: dict[str, Any] | None = None
         self.noise_var: dict[float, float] = {}  # smoothed channel noise variance per order
-        self.residual_baseline: dict[float, list[float]] = {}  # first rigid-fit residuals per order
-        self.residual_limit: dict[float, float] = {}
-        # the last two revolutions and their Omega' (k, 3) per tracked order set
-        # for the mass-line curvature gate
-        self.motion_history: dict[
-            tuple[tuple[float, ...], bytes | None], tuple[int, int, tuple[np.ndarray, np.ndarray]]
-        ] = {}
         self.lin = Linearisation(
             cog=np.asarray(setup.cog_nominal, float),
             inertia=np.asarray(setup.inertia_nominal, float),
@@ -299,6 +227,11 @@ class InertiaEstimator:
         # frames whose channels leave one rigid-body motion unseen (two sensors left)
         self.partial = PartialPairs(self)
         self._unseen_run = 0  # consecutive gated frames fitted with a rotation unseen
+
+    @property
+    def elastic(self) -> dict[str, float] | None:
+        """The elastic mode the residual gate confirmed (order, frequency_hz), or None."""
+        return self.gates.elastic
 
     def _parameter_scale(self) -> np.ndarray:
         scale = []
@@ -319,20 +252,6 @@ class InertiaEstimator:
         return np.array(scale)
 
     # -- gating -------------------------------------------------------------------------
-    def _frame_gate(self, frame: FrameLike) -> str | None:
-        gates = self.setup.gates
-        if not np.isfinite(frame.rpm) or frame.rpm <= 0:
-            return "no_rpm"
-        if frame.flags & TACHO_FLAGS:
-            return "tacho"
-        if "leakage_uncorrected" in frame.flags:
-            return "dsp_settling"
-        if frame.rpm < gates.rpm_range[0] or frame.rpm > gates.rpm_range[1]:
-            return "rpm_out_of_range"
-        if abs(frame.rpm_change) > gates.max_rpm_change:
-            return "rpm_unsteady"
-        return None
-
     def _channel_mask(self, frame: FrameLike) -> tuple[np.ndarray, np.ndarray]:
         """Usable setup channels (bool) and, per setup channel, its column in the frame."""
         cols = self._columns.get(frame.channels)
@@ -375,11 +294,11 @@ class InertiaEstimator:
         outcomes: list[FrameOutcome | None] = [None] * len(frames)
         todo: list[tuple[int, RigidFit, np.ndarray]] = []  # (index, geometry, readings)
         for i, frame in enumerate(frames):
-            if self.setup.gates.independent_frames and _overlaps_previous(frame):
+            if self.setup.gates.independent_frames and overlaps_previous(frame):
                 self.stats.skipped += 1
                 outcomes[i] = FrameOutcome(frame.time_s, frame.rpm, (), {}, "overlapping", {})
                 continue
-            reason = self._frame_gate(frame)
+            reason = frame_gate(frame, self.setup.gates)
             fitter = None
             if reason is None:
                 used, cols = self._channel_mask(frame)
@@ -410,7 +329,7 @@ class InertiaEstimator:
             motions = fit.fit_many(readings)
             powers = np.mean(readings.real**2 + readings.imag**2, axis=2)  # (n, k)
             orders = np.asarray(frames[first_index].orders, dtype=float)
-            bends = self._curvature([frames[i] for i, _, _ in run], orders, motions, fit)
+            bends = self.gates.curvature([frames[i] for i, _, _ in run], orders, motions, fit)
             for j, (i, fitter, r) in enumerate(run):
                 outcomes[i] = self._use(
                     frames[i], fitter, motions[j], orders, r, powers[j], bends[j]
@@ -444,7 +363,7 @@ class InertiaEstimator:
         )
         excited = level > 1e-6 * max(float(level.max()), 1e-300)
         off_line = curvature > setup.gates.max_curvature
-        leak_var = _neighbour_leakage(orders, curvature, power)
+        leak_var = neighbour_leakage(orders, curvature, power)
         leaking = leak_var > setup.gates.max_curvature**2 * power
         rejected: dict[float, str] = {}
         residuals: dict[float, float] = {}
@@ -455,12 +374,12 @@ class InertiaEstimator:
                 "no_excitation"
                 if not excited[k]
                 else "near_rigid_modes"
-                if self._near_modes(h, frame.rpm)
+                if self.gates.near_modes(h, frame.rpm)
                 else "off_mass_line"
                 if off_line[k]
                 else "neighbour_leakage"
                 if leaking[k]
-                else self._order_gate(h, frame.rpm, motion, k)
+                else self.gates.residual(h, frame.rpm, motion, k)
             )
             if why:
                 rejected[h] = why
@@ -496,86 +415,6 @@ class InertiaEstimator:
     def _reject(self, frame: FrameLike, reason: str) -> FrameOutcome:
         self.stats.rejected[reason] += 1
         return FrameOutcome(frame.time_s, frame.rpm, (), {}, reason, {})
-
-    def _curvature(
-        self,
-        frames: list[FrameLike],
-        orders: np.ndarray,
-        motions: list[RigidMotion],
-        fit: RigidFit,
-    ) -> np.ndarray:
-        """(n_frames, k): relative second difference of Omega' per order over three frames
-        720 deg apart, less what the measurement noise explains (0 where not known).
-
-        Along the mass line the rigid motion of an order changes slowly and almost
-        linearly with rpm; near a rigid-body mode it bends sharply, and there the
-        dsp's cycle-long window (which follows a linear change exactly) errs by
-        about as much as the bend. Measured on the simulated i3: below 0.4 % on
-        mass-line sweeps up to 150 rpm/s, 0.1-130 % in a 60 rpm/s sweep through the
-        modes, where the frame errors reach 0.2-28 %.
-        """
-        out = np.zeros((len(frames), len(orders)))
-        revs = [_revolution(f) for f in frames]
-        at = [j for j, r in enumerate(revs) if r is not None]
-        if not at:
-            return out
-        # Motions fitted with a rotation unseen lack it: compare them only with motions
-        # that lack the same one.
-        key = (tuple(orders.tolist()), None if fit.null is None else fit.null.tobytes())
-        none = np.full((len(orders), 3), np.nan + 0j)
-        r0, r1, (w0, w1) = self.motion_history.get(key, (-(10**9), -(10**9), (none, none)))
-        seq_rev = np.array([r0, r1] + [revs[j] for j in at])
-        seq_w = np.stack([w0, w1] + [motions[j].omega_dot for j in at])  # (2 + n, k, 3)
-        w = seq_w[2:]
-        chained = (seq_rev[1:-1] == seq_rev[2:] - 2) & (seq_rev[:-2] == seq_rev[2:] - 4)
-        size = np.maximum(np.sqrt(np.sum(w.real**2 + w.imag**2, axis=2)), 1e-300)  # (n, k)
-        d = w - 2 * seq_w[1:-1] + seq_w[:-2]
-        bend = np.sqrt(np.sum(d.real**2 + d.imag**2, axis=2)) / size
-        # what noise alone puts into a second difference of three fits (sqrt 6
-        # sigma), sigma from this frame's rigid-fit residual: only the excess bends
-        trace = np.array([np.trace(motions[j].cov_unit[3:, 3:]) for j in at])
-        noise = np.stack([motions[j].noise_var for j in at])  # (n, k)
-        sigma = np.sqrt(2 * noise * trace[:, None]) / size
-        excess = np.maximum(0.0, bend - 3 * np.sqrt(6.0) * sigma)
-        excess = np.where(chained[:, None] & np.isfinite(excess), excess, 0.0)
-        out[at] = excess
-        self.motion_history[key] = (int(seq_rev[-2]), int(seq_rev[-1]), (seq_w[-2], seq_w[-1]))
-        return out
-
-    def _near_modes(self, h: float, rpm: float) -> bool:
-        """Order h at ``rpm`` too close to the rigid-body modes for the mass line."""
-        top = self.setup.mode_max_hz
-        return top is not None and h * rpm / 60.0 < self.setup.gates.min_mode_ratio * top
-
-    def _order_gate(self, h: float, rpm: float, motion: RigidMotion, k: int) -> str | None:
-        gates = self.setup.gates
-        res = float(motion.relative_residual[k])
-        if res > gates.max_relative_residual:
-            if h in self.residual_limit:
-                self._note_non_rigid(h, h * rpm / 60.0, True)
-            return "non_rigid"
-        # Elastic-mode detection: sensor errors leave a residual that is a fixed
-        # share of the signal along the mass line, an approaching elastic mode one
-        # that grows like (f / f_e)^2. The first frames of each order set the
-        # baseline; a frame whose residual has grown past it is off the mass line.
-        base = self.residual_baseline.setdefault(h, [])
-        if len(base) < gates.baseline_frames:
-            base.append(res)
-            if len(base) == gates.baseline_frames:
-                self.residual_limit[h] = (
-                    gates.residual_growth * float(np.median(base)) + gates.residual_margin
-                )
-            return None
-        flagged = res > self.residual_limit[h]
-        self._note_non_rigid(h, h * rpm / 60.0, flagged)
-        return "non_rigid" if flagged else None
-
-    def _note_non_rigid(self, h: float, f_hz: float, flagged: bool) -> None:
-        """Confirm an elastic mode once one order keeps failing the residual gate."""
-        recent = [*self._non_rigid_recent.get(h, [])[-(ELASTIC_WINDOW - 1) :], flagged]
-        self._non_rigid_recent[h] = recent
-        if self.elastic is None and sum(recent) >= ELASTIC_CONFIRM:
-            self.elastic = {"order": h, "frequency_hz": f_hz}
 
     def _noise_var(
         self, motion: RigidMotion, ks: np.ndarray, orders: np.ndarray, floor: float
@@ -847,46 +686,3 @@ class InertiaEstimator:
             self._flush()
             self.partial.solve()
         return build_estimate(self)
-
-
-# Share of another order's uncorrected change that leaks into an order n half orders
-# away: the sweep correction removes the linear change of every order across the
-# window, what bends is left, and a change across a window leaks like a ramp's
-# spectrum, 1 / (2 pi n) (an upper bound for our tapered windows); beyond two half
-# orders we neglect it.
-def leak_share(n_half_orders: np.ndarray) -> np.ndarray:
-    n = np.rint(np.asarray(n_half_orders, float))
-    with np.errstate(divide="ignore"):
-        return np.where((n >= 1) & (n <= 2), 1.0 / (2.0 * np.pi * n), 0.0)
-
-
-@functools.lru_cache(maxsize=8)
-def _leak_matrix(orders: tuple[float, ...]) -> np.ndarray:
-    h = np.asarray(orders)
-    return leak_share(2 * np.abs(h[:, None] - h[None, :])) ** 2
-
-
-def _neighbour_leakage(orders: np.ndarray, bend: np.ndarray, power: np.ndarray) -> np.ndarray:
-    """(k,) channel variance, (m/s^2)^2, that the bending of the nearby orders leaks
-    into each order (from their relative bend and mean-square readings).
-
-    Measured on the simulated i3 in 30-60 rpm/s sweeps just above its modes, where
-    H1.5 and H1 bend by 2-15 %: the H2 error is 0.3-0.9 times this estimate.
-    """
-    return _leak_matrix(tuple(orders.tolist())) @ (bend**2 * power)
-
-
-def _revolution(frame: FrameLike) -> int | None:
-    """The frame's crank revolution number (None without a crank angle)."""
-    angle = getattr(frame, "crank_angle_rad", None)
-    if angle is None or not np.isfinite(angle):
-        return None
-    return round(float(angle) / (2 * np.pi))
-
-
-def _overlaps_previous(frame: FrameLike) -> bool:
-    """True for the frames between the 720 deg-spaced ones (odd revolution numbers)."""
-    angle = getattr(frame, "crank_angle_rad", None)
-    if angle is None or not np.isfinite(angle):
-        return False
-    return round(float(angle) / (2 * np.pi)) % 2 == 1

@@ -1,0 +1,70 @@
+"""The declared systematic sensor errors: their names, their standard deviations,
+and how each moves the rigid-body motion fitted from a frame.
+
+Per channel a relative gain error; per sensor a small rotation (alignment, rad)
+and a displacement (position, m) about/along the bench axes. The streaming
+estimator accumulates the sensitivity of its normal equations to them, which
+turns the declared tolerances into the type-B part of the covariance.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from estimator.kinematics import RigidFit
+from estimator.setup import EstimatorSetup
+from estimator.vec import cross
+
+
+def systematic_names(setup: EstimatorSetup) -> list[str]:
+    names = [f"gain:{c}" for c in setup.channels]
+    for s in range(setup.n_sensors):
+        names += [f"align:{s}:{ax}" for ax in "xyz"]
+        names += [f"pos:{s}:{ax}" for ax in "xyz"]
+    return names
+
+
+def systematic_stds(setup: EstimatorSetup) -> np.ndarray:
+    tol = setup.tolerances
+    n_ch = len(setup.channels)
+    per_sensor = [tol.alignment_rad] * 3 + [tol.position_m] * 3
+    return np.array([tol.gain_rel] * n_ch + per_sensor * setup.n_sensors)
+
+
+def motion_sensitivity(
+    setup: EstimatorSetup,
+    fit: RigidFit,
+    amplitudes: np.ndarray,
+    gamma_o: np.ndarray,
+    omega_dot: np.ndarray,
+) -> np.ndarray:
+    """d[gamma_O, Omega'] / d(systematic parameters), (P, 12, n_sys) real (Re rows, Im rows).
+
+    For P (frame, order) pairs fitted with the same geometry ``fit`` (its
+    ``channels``: setup indices); ``amplitudes`` (P, n_used) complex, the motion (P, 3).
+
+    A reading is ``n . gamma_P``. A relative gain error g scales it by (1 + g);
+    turning the sensor by a small angle about bench axis e changes ``n`` by
+    ``e x n``, so the reading by ``e . (n x gamma_P)``; moving it along e
+    changes ``gamma_P`` by ``Omega' x e``, so the reading by ``e . (n x Omega')``.
+    The fit is linear (``motion = gain @ readings``), so each reading's change
+    reaches the motion through its column of the gain.
+    """
+    n_ch = len(setup.channels)
+    assert fit.channels is not None
+    used = fit.channels
+    out = np.zeros((len(gamma_o), 6, n_ch + 6 * setup.n_sensors), complex)
+    n = setup.directions[used]  # (u, 3)
+    r = setup.positions[used] - fit.origin  # (u, 3)
+    gamma_p = gamma_o[:, None, :] + cross(omega_dot[:, None, :], r[None])  # (P, u, 3)
+    turn = cross(n[None], gamma_p)  # (P, u, 3)
+    move = cross(n[None], omega_dot[:, None, :])
+    # One channel at a time (elementwise products, a fixed summation order): the
+    # result of a pair does not depend on how many pairs are assembled together.
+    for j, c in enumerate(used):
+        g = fit.gain[:, j]  # (6,)
+        base = n_ch + 6 * int(setup.sensor_of_channel[c])
+        out[:, :, c] = g[None, :] * amplitudes[:, j, None]
+        out[:, :, base : base + 3] += g[None, :, None] * turn[:, j, None, :]
+        out[:, :, base + 3 : base + 6] += g[None, :, None] * move[:, j, None, :]
+    return np.concatenate([out.real, out.imag], axis=1)
