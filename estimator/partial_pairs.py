@@ -112,13 +112,14 @@ class PartialPairs:
             rss[sign] = rls_solve(
                 solutions[sign].contribution.added_to(bases[sign]), scale=self.est.scale
             ).rss
-        self.own_sign = min(rss, key=lambda s: rss[s])
         if len(signs) == 2:
-            from estimator.streaming import DECIDE_RATIO  # as for the measured frames' signs
+            # decided as the measured frames' signs are
+            from estimator.streaming import DECIDE_RATIO, better_sign
 
-            best = rss[self.own_sign]
-            self.sign_ratio = rss[-self.own_sign] / best if best > 0 else float("inf")
+            self.own_sign, self.sign_ratio = better_sign(rss)
             self.sign_decided = self.sign_ratio >= DECIDE_RATIO
+        else:
+            self.own_sign = signs[0]
         self.solution = solutions[self.own_sign]
         self.solved = self.solution.contribution
         self.since = Contribution.empty(*self.since.sens.shape)

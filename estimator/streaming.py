@@ -174,6 +174,14 @@ class EstimatorStats:
     )
 
 
+def better_sign(rss: dict[int, float]) -> tuple[int, float]:
+    """The half-order sign hypothesis with the smaller weighted residual ``rss``, and the
+    other's residual over its (infinite when the better one fits exactly)."""
+    best = min(rss, key=lambda s: rss[s])
+    ratio = rss[-best] / rss[best] if rss[best] > 0 else float("inf")
+    return best, ratio
+
+
 class InertiaEstimator:
     """Frame-by-frame estimate of inertia, cog, (mass), unbalance and crank offset.
 
@@ -608,9 +616,7 @@ class InertiaEstimator:
         """Stop carrying the losing sign hypothesis once the residuals leave no doubt."""
         if self.decided_sign is not None or self.stats.ambiguous_frames < DECIDE_AFTER_FRAMES:
             return
-        rss = {s: rls_solve(self._effective(s).state, scale=self.scale).rss for s in self.acc}
-        best = min(rss, key=lambda s: rss[s])
-        ratio = rss[-best] / rss[best] if rss[best] > 0 else float("inf")
+        best, ratio = better_sign(self._sign_rss())
         if ratio >= DECIDE_RATIO:
             self.decided_sign = best
             self.decision = {"ratio": ratio, "after_frames": self.stats.ambiguous_frames}
@@ -650,8 +656,13 @@ class InertiaEstimator:
         if sign is not None:
             return self._effective(sign)
         eff = {s: self._effective(s) for s in self.acc}
-        rss = {s: rls_solve(a.state, scale=self.scale).rss for s, a in eff.items()}
-        return eff[min(rss, key=lambda s: rss[s])]
+        return eff[better_sign(self._sign_rss(eff))[0]]
+
+    def _sign_rss(self, eff: dict[int, Accumulator] | None = None) -> dict[int, float]:
+        """Weighted residual sum of squares of each half-order sign hypothesis
+        (``eff``: their states, when already at hand)."""
+        eff = {s: self._effective(s) for s in self.acc} if eff is None else eff
+        return {s: rls_solve(a.state, scale=self.scale).rss for s, a in eff.items()}
 
     def half_order_resolution(self) -> dict[str, Any] | None:
         """How the 720 deg ambiguity was resolved (None when a phase reference existed)."""
@@ -666,9 +677,7 @@ class InertiaEstimator:
                 "decided_after_frames": self.decision["after_frames"],
                 "frames": self.stats.ambiguous_frames,
             }
-        rss = {s: rls_solve(self._effective(s).state, scale=self.scale).rss for s in self.acc}
-        best = min(rss, key=lambda s: rss[s])
-        ratio = rss[-best] / rss[best] if rss[best] > 0 else float("inf")
+        best, ratio = better_sign(self._sign_rss())
         return {
             "method": "residual",
             "half_order_sign": best,
