@@ -148,7 +148,7 @@ def estimator_setup(
     # A stream tracks the same orders frame after frame: keep their speed-independent parts.
     by_orders: dict[tuple[float, ...], OrderExcitation] = {}
 
-    def excitation(rpm: float, orders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def excitation_of(orders: npt.ArrayLike) -> OrderExcitation:
         key = tuple(np.asarray(orders, float).tolist())
         if key not in by_orders:
             full = engine.order_excitation(key, about=reference)
@@ -158,11 +158,15 @@ def estimator_setup(
                     gas_free, gas_free, full.unit_inertia_force, full.unit_inertia_moment
                 )
             by_orders[key] = full
-        return by_orders[key].at(rpm)
+        return by_orders[key]
 
-    # The engine's order spectra take tens of ms to build: build them for the bench's
-    # orders now, not on the first frame (a live run's first estimate would be late).
-    excitation(bench.dsp.rpm_min, np.asarray(bench.dsp.orders, float))
+    # Built for the bench's orders now, not at the first frame (tens of ms: a live
+    # run's first estimate would be late), as the pressure map below.
+    excitation_of(bench.dsp.orders)
+
+    def excitation(rpm: float, orders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return excitation_of(orders).at(rpm)
+
     mode_max = float(np.max(model.modes().frequency_hz)) if has_mounts else None
     return EstimatorSetup(
         channels=model.channel_names,
