@@ -225,11 +225,7 @@ class FrameDecoder:
         if n < s.next_frame or b <= g.high - g.window:
             s.stats.late += 1
             return
-        s.received[n] = payload
-        s.stats.frames += 1
-        if n < s.max_n:
-            s.stats.out_of_order += 1
-        s.max_n = max(s.max_n, n)
+        _keep(s, n, payload)
         g.high = max(g.high, b)
         if s.modulus >= 1 << 32:  # an absolute DAQ counter dates the receive clock
             daq_t = b / g.rate
@@ -244,11 +240,7 @@ class FrameDecoder:
         if n < s.next_frame or n <= s.max_n - s.window:
             s.stats.late += 1
             return
-        s.received[n] = times
-        s.stats.frames += 1
-        if n < s.max_n:
-            s.stats.out_of_order += 1
-        s.max_n = max(s.max_n, n)
+        _keep(s, n, times)
 
     # -- output --------------------------------------------------------------------------------
 
@@ -379,3 +371,12 @@ def decode_frames(
     items = dec.feed(list(frames))
     items += dec.finish()
     return items, dec.stats
+
+
+def _keep(s: MessageStream, n: int, payload: Any) -> None:
+    """Store frame ``n`` of a message stream (accepted: neither duplicate nor late)."""
+    s.received[n] = payload
+    s.stats.frames += 1
+    if n < s.max_n:
+        s.stats.out_of_order += 1
+    s.max_n = max(s.max_n, n)
