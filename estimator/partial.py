@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.rls import RlsState, rls_solve
+from estimator.rls import RlsSolution, RlsState
 
 # Beyond this many stored (frame, order) pairs, new ones are linearised once at the
 # current estimate and not stored (never solved again): a 60 s sweep at 1500-4500 rpm
@@ -131,6 +131,7 @@ def solve_partial(
     theta0: np.ndarray,
     w0: np.ndarray,
     scale: np.ndarray,
+    solve: Callable[[RlsState], RlsSolution],
 ) -> PartialSolution:
     """Gauss-Newton on the projected residuals of the pairs plus the quadratic ``base``.
 
@@ -145,7 +146,7 @@ def solve_partial(
     while iterations < MAX_ITERATIONS:
         iterations += 1
         contribution, w = Contribution.of(rows_at(theta, w), theta)
-        sol = rls_solve(contribution.added_to(base), scale=scale)
+        sol = solve(contribution.added_to(base))
         new = np.where(sol.observable, sol.theta, theta)
         step = float(np.max(np.abs(new - theta) / scale))
         theta = new

@@ -24,7 +24,6 @@ from estimator.partial import (
     solve_partial,
 )
 from estimator.result import capped_ratio
-from estimator.rls import rls_solve
 from powertrain.rigidbody import inertia_terms
 
 if TYPE_CHECKING:
@@ -100,18 +99,21 @@ class PartialPairs:
         else:
             # from the fully measured frames where they decide, else the nominal values:
             # not from the pairs' own one-pass linearisation (made with an untested sign)
-            sol = rls_solve(base, scale=self.est.scale)
+            sol = self.est.solve(base)
             theta0 = np.where(sol.observable, sol.theta, self.nominal_theta())
             w0 = np.zeros((self.n_stored, 2))
         solutions, rss = {}, {}
         for sign in signs:
             self.own_sign = sign
             solutions[sign] = solve_partial(
-                bases[sign], lambda t, w: self.rows(self.stored, t, w), theta0, w0, self.est.scale
+                bases[sign],
+                lambda t, w: self.rows(self.stored, t, w),
+                theta0,
+                w0,
+                self.est.scale,
+                self.est.solve,
             )
-            rss[sign] = rls_solve(
-                solutions[sign].contribution.added_to(bases[sign]), scale=self.est.scale
-            ).rss
+            rss[sign] = self.est.solve(solutions[sign].contribution.added_to(bases[sign])).rss
         if len(signs) == 2:
             # decided as the measured frames' signs are
             from estimator.streaming import DECIDE_RATIO, better_sign
@@ -147,7 +149,7 @@ class PartialPairs:
 
     def theta_now(self) -> np.ndarray:
         """The current estimate where determined, the nominal values elsewhere."""
-        sol = rls_solve(self.added_to(self.est.measured_state()).state, scale=self.est.scale)
+        sol = self.est.solve(self.added_to(self.est.measured_state()).state)
         return np.where(sol.observable, sol.theta, self.nominal_theta())
 
     def nominal_theta(self) -> np.ndarray:

@@ -20,7 +20,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from estimator.equations import INERTIA_TERMS
-from estimator.rls import rls_solve
 
 if TYPE_CHECKING:
     from estimator.streaming import InertiaEstimator
@@ -240,7 +239,7 @@ def _finite(x: float) -> float | None:
 
 def build_estimate(est: InertiaEstimator) -> Estimate:
     acc = est.best_state()
-    sol = rls_solve(acc.state, scale=est.scale)
+    sol = est.solve(acc.state)
     n = est.layout.size
     obs = sol.observable
     cov_rand = sol.cov.copy()

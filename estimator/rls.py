@@ -98,7 +98,10 @@ class RlsSolution:
 
 
 def rls_solve(
-    state: RlsState, rcond: float = 1e-10, scale: np.ndarray | None = None
+    state: RlsState,
+    rcond: float = 1e-10,
+    scale: np.ndarray | None = None,
+    anchored: tuple[int, ...] | list[int] = (),
 ) -> RlsSolution:
     """``theta = Lambda^-1 eta`` on the observable subspace.
 
@@ -108,27 +111,67 @@ def rls_solve(
         Typical magnitude of each parameter. The rank decision is made on the
         information matrix of the scaled parameters ``theta / scale`` so that
         parameters of very different units (kg m^2 vs kg m) are compared fairly.
+    anchored : indices, optional
+        Parameters whose information includes a prior (sensor calibrations with
+        their declared tolerance): never discarded. The rank decision for the
+        others is made on the rows' information about them alone. Why: with a
+        clean sensor the rows' information is 1e12 times a prior's, and a
+        relative threshold on the joint matrix would throw the prior-held
+        directions away together with the parameters they couple to.
     """
     n = state.vec.size
     s = np.ones(n) if scale is None else np.asarray(scale, dtype=float)
     info = state.info * np.outer(s, s)
     vec = state.vec * s
-    evals, evecs = np.linalg.eigh(info)
-    top = evals[-1] if n and evals[-1] > 0 else 0.0
-    keep = evals > rcond * top if top > 0 else np.zeros(n, dtype=bool)
-    inv = (evecs[:, keep] / evals[keep]) @ evecs[:, keep].T
+    if len(anchored):
+        inv, observable, kept = _anchored_inverse(info, np.asarray(anchored, int), rcond)
+    else:
+        evals, evecs = np.linalg.eigh(info)
+        top = evals[-1] if n and evals[-1] > 0 else 0.0
+        keep = evals > rcond * top if top > 0 else np.zeros(n, dtype=bool)
+        inv = (evecs[:, keep] / evals[keep]) @ evecs[:, keep].T
+        # A parameter is observable when it has no weight on a discarded direction.
+        null_weight = np.sum(evecs[:, ~keep] ** 2, axis=1) if np.any(~keep) else np.zeros(n)
+        observable = null_weight < 1e-6
+        kept = int(np.sum(keep))
     theta_s = inv @ vec
-    # A parameter is observable when it has no weight on a discarded direction.
-    null_weight = np.sum(evecs[:, ~keep] ** 2, axis=1) if np.any(~keep) else np.zeros(n)
-    observable = null_weight < 1e-6
     theta = theta_s * s
     cov = inv * np.outer(s, s)
     cov[~observable, :] = np.where(np.eye(n, dtype=bool)[~observable, :], np.inf, 0.0)
     cov[:, ~observable] = np.where(np.eye(n, dtype=bool)[:, ~observable], np.inf, 0.0)
     theta = np.where(observable, theta, 0.0)
     rss = max(state.yty - float(vec @ theta_s), 0.0)
-    dof = max(state.rows - int(np.sum(keep)), 1.0)
+    dof = max(state.rows - kept, 1.0)
     return RlsSolution(theta=theta, cov=cov, observable=observable, rss=rss, dof=dof)
+
+
+def _anchored_inverse(
+    info: np.ndarray, anchored: np.ndarray, rcond: float
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Pseudo-inverse of the scaled ``info`` with the ``anchored`` parameters always
+    kept: (inverse, observable mask, number of directions kept).
+
+    With a prior on the anchored parameters, ``info`` is singular exactly where the
+    rows leave a combination of the *others* untouched: its null space is the null
+    space of the free block (an anchored component would meet the prior). So the
+    rank decision is made on the free block alone.
+    """
+    n = len(info)
+    free = np.setdiff1d(np.arange(n), anchored)
+    evals, evecs = np.linalg.eigh(info[np.ix_(free, free)])
+    top = evals[-1] if len(free) and evals[-1] > 0 else 0.0
+    keep = evals > rcond * top if top > 0 else np.zeros(len(free), dtype=bool)
+    observable = np.ones(n, dtype=bool)
+    observable[free] = np.sum(evecs[:, ~keep] ** 2, axis=1) < 1e-6
+    # Drop the free block's null directions V by deflation, (info + c V V^T)^-1 -
+    # V V^T / c, rather than by rotating into the eigenbasis: a rotation would mix
+    # the round-off of the prior-held directions into the well-measured ones.
+    null = np.zeros((n, int(np.sum(~keep))))
+    null[free] = evecs[:, ~keep]
+    c = top if top > 0 else 1.0
+    deflated = info - (null * evals[~keep]) @ null.T + c * null @ null.T
+    inv = np.linalg.inv(deflated) - null @ null.T / c
+    return inv, observable, n - null.shape[1]
 
 
 def batch_wls(H: np.ndarray, y: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:

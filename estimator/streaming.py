@@ -39,7 +39,7 @@ from estimator.gating import (
 )
 from estimator.kinematics import KinematicsError, RigidFit, RigidMotion
 from estimator.partial_pairs import PartialPairs
-from estimator.rls import RlsState, rls_init, rls_solve, rls_update
+from estimator.rls import RlsSolution, RlsState, rls_init, rls_solve, rls_update
 from estimator.setup import EstimatorSetup
 from estimator.systematic import motion_sensitivity, systematic_names, systematic_stds
 
@@ -623,7 +623,7 @@ class InertiaEstimator:
 
     def _relinearise(self) -> None:
         self._decide_half_order_sign()
-        sol = rls_solve(self.best_state().state, scale=self.scale)
+        sol = self.solve(self.best_state().state)
         if not np.all(sol.observable[:9]):
             return
         lin = linearisation_at(self.layout, sol.theta, sol.observable, self.lin.mass)
@@ -639,6 +639,11 @@ class InertiaEstimator:
             return self.acc[sign].leading(n)
         scale = np.concatenate([self.scale, self.scale[:ELASTIC_TERMS]])
         return self.acc[sign].marginal(n, scale)
+
+    def solve(self, state: RlsState) -> RlsSolution:
+        """The estimate of a state of theta: rank decisions on the parameter scale,
+        the self-calibrated sensor errors held by their priors."""
+        return rls_solve(state, scale=self.scale, anchored=self._cal_cols)
 
     def best_state(self) -> Accumulator:
         """The state of the estimate: the sign hypothesis with the smaller weighted
@@ -662,7 +667,7 @@ class InertiaEstimator:
         """Weighted residual sum of squares of each half-order sign hypothesis
         (``eff``: their states, when already at hand)."""
         eff = {s: self._effective(s) for s in self.acc} if eff is None else eff
-        return {s: rls_solve(a.state, scale=self.scale).rss for s, a in eff.items()}
+        return {s: self.solve(a.state).rss for s, a in eff.items()}
 
     def half_order_resolution(self) -> dict[str, Any] | None:
         """How the 720 deg ambiguity was resolved (None when a phase reference existed)."""

@@ -54,3 +54,16 @@ def test_calibration_parameters_and_priors():
     np.testing.assert_allclose(stds[:9], 0.01)
     np.testing.assert_allclose(stds[9:], np.radians(1.0))
     assert not any(n.startswith("cal:") for n in make_estimator(_bench(False)).layout.names)
+
+
+def test_a_clean_sweep_keeps_every_calibrated_parameter_and_the_cog():
+    # At 60 dB the rows know the motion 1e12 times better than the priors know a
+    # gain or an angle. The rank decision once threw the prior-held directions away
+    # and the cog's y with them: Gy "unobservable", written as 0, 85 mm off.
+    doc = run(
+        I3,
+        {"duration_s": 40.0, "noise_snr_db": 60.0, "position_error_m": 0.002, "seed": 3},
+        estimator={"self_calibration": True},
+    )
+    assert doc["unobservable"] == []
+    assert np.all(cog_error_m(doc) < 0.002)
