@@ -6,7 +6,10 @@ Prints:
 2. ``replay`` of that log: real-time factor, and whether the result is identical;
 3. a paced (real-time) run, MCAP recording on: the largest delay from a block's arrival to the estimate it
    produced being in every sink;
-4. RSS over a long sweep (``--hours``, default 1 h at 5120 Hz, recording on): growth.
+4. each stage on its own, per minute of data (simulator, MCAP reader, dsp, estimator): CPU
+   seconds, and the best real-time factor live and replay could reach if the stages overlapped
+   perfectly on two cores (the budget against the 100x / 300x targets);
+5. RSS over a long sweep (``--hours``, default 1 h at 5120 Hz, recording on): growth.
 
 Usage: python benchmarks/bench_pipeline.py [--hours 1.0] [--skip-long]
 """
@@ -54,7 +57,7 @@ def _bench(fs: float, duration: float, paced: bool = False) -> tuple[Any, Any, s
     return bench, source, text
 
 
-def live_and_replay(tmp: Path) -> None:
+def live_and_replay(tmp: Path) -> Path:
     from ptinertia.runner import RunOptions, run_source
     from replay.recorder import McapRecorder
     from replay.source import McapSource
@@ -78,6 +81,68 @@ def live_and_replay(tmp: Path) -> None:
     same = json.dumps(doc, sort_keys=True) == json.dumps(again, sort_keys=True)
     print(
         f"replay: {rep:.1f} s = {60 / rep:.0f}x real time; result identical to the live run: {same}"
+    )
+    return log
+
+
+def _cpu_s(work: Any) -> tuple[float, Any]:
+    """Process CPU seconds of ``work()`` (the stage runs alone: its threads count too)."""
+    t0 = time.process_time()
+    out = work()
+    return time.process_time() - t0, out
+
+
+def stage_budget(log: Path) -> None:
+    """Each stage alone on the 60 s log: what the targets leave no room for."""
+    from acquisition.stream import SourceEvent
+    from ptinertia.estimation import pressure_gas
+    from ptinertia.pipeline import as_recorded
+    from ptinertia.runner import make_estimator
+    from ptinertia.tracking import BenchTracker, tracker_config
+    from replay.source import McapSource
+
+    bench, source, _ = _bench(25600.0, 60.0)
+    sim, _ = _cpu_s(lambda: sum(1 for _ in source))
+    reader, items = _cpu_s(lambda: [as_recorded(i) for i in McapSource(log)])
+    pressure = pressure_gas(bench, source.layout)  # as run_source sets the chain up
+    channel = None if pressure is None else pressure.channel
+    tracker = BenchTracker(source.layout, tracker_config(bench, None, channel))
+    batches = []
+
+    def track() -> None:
+        for item in items:
+            if not isinstance(item, SourceEvent):
+                batches.append(tracker.feed(item)[0])
+        batches.append(tracker.finish()[0])
+
+    dsp, _ = _cpu_s(track)
+    estimator = make_estimator(bench, (), pressure)
+    published = [-float("inf")]
+
+    def estimate() -> None:
+        for frames in batches:
+            outcomes = estimator.update_many(frames) if frames else []
+            used = [f for f, o in zip(frames, outcomes, strict=True) if o.reason is None]
+            # as the pipeline does as fast as possible: an estimate every 0.5 s of stream
+            if used and used[-1].time_s - published[0] >= 0.5:
+                published[0] = used[-1].time_s
+                estimator.estimate(final=False)
+        estimator.estimate()
+
+    est, _ = _cpu_s(estimate)
+    used = estimator.stats.used
+    print("each stage alone, CPU seconds per minute of data (10 ch at 25.6 kHz):")
+    print(
+        f"  simulator {sim:.2f}  MCAP reader {reader:.2f}  dsp {dsp:.2f}  estimator {est:.2f}"
+        f" ({1e3 * est / max(used, 1):.2f} ms per used frame, {used} frames)"
+    )
+    # dsp and estimator run one after the other on the processing thread (and the GIL);
+    # the source and the recorder have their own threads.
+    live_best = 60 / max(sim, dsp + est)
+    replay_best = 60 / max(reader, dsp + est)
+    print(
+        f"  best case with perfect overlap on two cores: live {live_best:.0f}x (target 100x), "
+        f"replay {replay_best:.0f}x (target 300x)"
     )
 
 
@@ -142,8 +207,9 @@ def main() -> None:
     a = ap.parse_args()
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
-        live_and_replay(tmp)
+        log = live_and_replay(tmp)
         paced_latency(tmp)
+        stage_budget(log)
         if not a.skip_long:
             long_run(tmp, a.hours)
 
