@@ -21,13 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from acquisition.csvfile import (
-    Chunk,
-    EdgeStream,
-    SampleStream,
-    WindowedFileSource,
-    json_default,
-)
+from acquisition.csvwriter import json_default
 from acquisition.stream import (
     ChannelSpec,
     EdgeBlock,
@@ -36,6 +30,7 @@ from acquisition.stream import (
     StreamItem,
     StreamLayout,
 )
+from acquisition.windowed import Chunk, EdgeStream, SampleStream, WindowedFileSource
 
 EDGE_COMMENT = "ptinertia:edges"
 METADATA_NAME = "ptinertia-metadata.json"

@@ -37,7 +37,7 @@ FILE_KINDS: dict[str, str] = {
 
 # file extension -> (module, writer class) for ``ptinertia simulate``
 WRITERS: dict[str, tuple[str, str]] = {
-    ".csv": ("acquisition.csvfile", "CsvWriter"),
+    ".csv": ("acquisition.csvwriter", "CsvWriter"),
     ".mf4": ("acquisition.mdf", "MdfWriter"),
     ".mcap": ("replay.recorder", "McapFileWriter"),
 }

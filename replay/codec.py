@@ -390,7 +390,7 @@ def decode_estimate(data: bytes) -> tuple[float, float, Any, bool]:
 
 def layout_to_json(layout: StreamLayout) -> str:
     """The layout (groups, edge channels, metadata) as JSON; floats round-trip exactly."""
-    from acquisition.csvfile import json_default
+    from acquisition.csvwriter import json_default
 
     doc = {
         "groups": [

@@ -248,7 +248,7 @@ class McapRecorder(Sink):
         channel(TOPIC_CAN, "CanFrames")  # always registered: a reader finds every topic up front
 
     def _run_metadata(self, context: Any, layout: StreamLayout) -> dict[str, str]:
-        from acquisition.csvfile import json_default
+        from acquisition.csvwriter import json_default
 
         truth = getattr(context, "truth", None)
         if truth is None:

@@ -6,20 +6,16 @@ import numpy as np
 import pytest
 import pyuff
 
-from acquisition.stream import SourceError
-from acquisition.uff import (
-    G0,
+from acquisition.frf_matrix import SensorPoint, frf_matrix, frfs_from_matrix
+from acquisition.modal_setup import (
     ModalSetup,
-    SensorPoint,
     SetupExcitation,
     SetupResponse,
     dumps_modal_setup,
-    frf_matrix,
-    frfs_from_matrix,
     load_modal_setup,
-    read_uff,
-    write_uff,
 )
+from acquisition.stream import SourceError
+from acquisition.uff import G0, read_uff, write_uff
 from powertrain.rigidbody import rotation_matrix
 
 FREQ = np.arange(1.0, 64.0 + 1e-9, 0.5)

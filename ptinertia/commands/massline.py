@@ -77,7 +77,9 @@ def compute(
     tolerances: Any = None,
 ) -> dict[str, Any]:
     """The result document of a mass-line evaluation."""
-    from acquisition.uff import SensorPoint, frf_matrix, load_modal_setup, read_uff
+    from acquisition.frf_matrix import SensorPoint, frf_matrix
+    from acquisition.modal_setup import load_modal_setup
+    from acquisition.uff import read_uff
     from estimator.massline import FrfGeometry, estimate_mass_line
     from ptinertia.commands.compare import estimate_document
     from ptinertia.config import load_bench

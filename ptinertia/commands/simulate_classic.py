@@ -121,7 +121,8 @@ def simulate_frf(args: argparse.Namespace) -> str:
         simulate_frfs,
         soft_suspension,
     )
-    from acquisition.uff import frfs_from_matrix, write_uff
+    from acquisition.frf_matrix import frfs_from_matrix
+    from acquisition.uff import write_uff
     from powertrain.mounted import MountedPowertrain
     from ptinertia.bench import build_model
     from ptinertia.config import load_bench
