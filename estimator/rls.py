@@ -126,13 +126,8 @@ def rls_solve(
     if len(anchored):
         inv, observable, kept = _anchored_inverse(info, np.asarray(anchored, int), rcond)
     else:
-        evals, evecs = np.linalg.eigh(info)
-        top = evals[-1] if n and evals[-1] > 0 else 0.0
-        keep = evals > rcond * top if top > 0 else np.zeros(n, dtype=bool)
+        evals, evecs, keep, observable, _ = _rank_decision(info, rcond)
         inv = (evecs[:, keep] / evals[keep]) @ evecs[:, keep].T
-        # A parameter is observable when it has no weight on a discarded direction.
-        null_weight = np.sum(evecs[:, ~keep] ** 2, axis=1) if np.any(~keep) else np.zeros(n)
-        observable = null_weight < 1e-6
         kept = int(np.sum(keep))
     theta_s = inv @ vec
     theta = theta_s * s
@@ -143,6 +138,20 @@ def rls_solve(
     rss = max(state.yty - float(vec @ theta_s), 0.0)
     dof = max(state.rows - kept, 1.0)
     return RlsSolution(theta=theta, cov=cov, observable=observable, rss=rss, dof=dof)
+
+
+def _rank_decision(
+    info: np.ndarray, rcond: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """Eigen-decomposition of a scaled information matrix and the directions the rows
+    determine (eigenvalue above ``rcond`` times the largest): (eigenvalues,
+    eigenvectors, kept mask, observable mask per parameter, largest eigenvalue)."""
+    evals, evecs = np.linalg.eigh(info)
+    top = float(evals[-1]) if len(evals) and evals[-1] > 0 else 0.0
+    keep = evals > rcond * top if top > 0 else np.zeros(len(evals), dtype=bool)
+    # A parameter is observable when it has no weight on a discarded direction.
+    observable = np.sum(evecs[:, ~keep] ** 2, axis=1) < 1e-6
+    return evals, evecs, keep, observable, top
 
 
 def _anchored_inverse(
@@ -158,11 +167,9 @@ def _anchored_inverse(
     """
     n = len(info)
     free = np.setdiff1d(np.arange(n), anchored)
-    evals, evecs = np.linalg.eigh(info[np.ix_(free, free)])
-    top = evals[-1] if len(free) and evals[-1] > 0 else 0.0
-    keep = evals > rcond * top if top > 0 else np.zeros(len(free), dtype=bool)
+    evals, evecs, keep, free_observable, top = _rank_decision(info[np.ix_(free, free)], rcond)
     observable = np.ones(n, dtype=bool)
-    observable[free] = np.sum(evecs[:, ~keep] ** 2, axis=1) < 1e-6
+    observable[free] = free_observable
     # Drop the free block's null directions V by deflation, (info + c V V^T)^-1 -
     # V V^T / c, rather than by rotating into the eigenbasis: a rotation would mix
     # the round-off of the prior-held directions into the well-measured ones.
