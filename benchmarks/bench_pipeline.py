@@ -23,6 +23,7 @@ import resource
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -85,7 +86,7 @@ def live_and_replay(tmp: Path) -> Path:
     return log
 
 
-def _cpu_s(work: Any) -> tuple[float, Any]:
+def _cpu_s(work: Callable[[], Any]) -> tuple[float, Any]:
     """Process CPU seconds of ``work()`` (the stage runs alone: its threads count too)."""
     t0 = time.process_time()
     out = work()
@@ -95,18 +96,14 @@ def _cpu_s(work: Any) -> tuple[float, Any]:
 def stage_budget(log: Path) -> None:
     """Each stage alone on the 60 s log: what the targets leave no room for."""
     from acquisition.stream import SourceEvent
-    from ptinertia.estimation import pressure_gas
     from ptinertia.pipeline import as_recorded
-    from ptinertia.runner import make_estimator
-    from ptinertia.tracking import BenchTracker, tracker_config
+    from ptinertia.runner import processing_chain
     from replay.source import McapSource
 
     bench, source, _ = _bench(25600.0, 60.0)
     sim, _ = _cpu_s(lambda: sum(1 for _ in source))
     reader, items = _cpu_s(lambda: [as_recorded(i) for i in McapSource(log)])
-    pressure = pressure_gas(bench, source.layout)  # as run_source sets the chain up
-    channel = None if pressure is None else pressure.channel
-    tracker = BenchTracker(source.layout, tracker_config(bench, None, channel))
+    tracker, estimator = processing_chain(bench, source.layout)  # as run_source sets it up
     batches = []
 
     def track() -> None:
@@ -116,16 +113,15 @@ def stage_budget(log: Path) -> None:
         batches.append(tracker.finish()[0])
 
     dsp, _ = _cpu_s(track)
-    estimator = make_estimator(bench, (), pressure)
-    published = [-float("inf")]
 
     def estimate() -> None:
+        published = -float("inf")
         for frames in batches:
             outcomes = estimator.update_many(frames) if frames else []
             used = [f for f, o in zip(frames, outcomes, strict=True) if o.reason is None]
             # as the pipeline does as fast as possible: an estimate every 0.5 s of stream
-            if used and used[-1].time_s - published[0] >= 0.5:
-                published[0] = used[-1].time_s
+            if used and used[-1].time_s - published >= 0.5:
+                published = used[-1].time_s
                 estimator.estimate(final=False)
         estimator.estimate()
 

@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
-from acquisition.stream import Source
+from acquisition.stream import Source, StreamLayout
 from estimator.result import Z95, Estimate
 from estimator.setup import Corrections, Gates, Tolerances
 from estimator.streaming import InertiaEstimator
@@ -96,14 +96,27 @@ def settings_of(bench: Bench, tracker: BenchTracker, estimator: InertiaEstimator
     }
 
 
+def processing_chain(
+    bench: Bench,
+    layout: StreamLayout,
+    orders: tuple[float, ...] | None = None,
+    corrections_off: tuple[str, ...] = (),
+) -> tuple[BenchTracker, InertiaEstimator]:
+    """The dsp and the estimator for ``bench`` on a stream of ``layout``: with the gas
+    torque from the cylinder-pressure channel when the stream records one."""
+    pressure = pressure_gas(bench, layout)
+    channel = None if pressure is None else pressure.channel
+    tracker = BenchTracker(layout, tracker_config(bench, orders, channel))
+    return tracker, make_estimator(bench, corrections_off, pressure)
+
+
 def run_source(
     bench: Bench, bench_text: str, source: Source, source_spec: str, options: RunOptions
 ) -> tuple[RunSummary, dict[str, Any] | None]:
     """Run the chain on ``source``; returns the summary and the result document."""
-    pressure = pressure_gas(bench, source.layout)
-    channel = None if pressure is None else pressure.channel
-    tracker = BenchTracker(source.layout, tracker_config(bench, options.orders, channel))
-    estimator = make_estimator(bench, options.corrections_off, pressure)
+    tracker, estimator = processing_chain(
+        bench, source.layout, options.orders, options.corrections_off
+    )
     truth = source.layout.metadata.get("truth")
     context = RunContext(
         bench_text=bench_text,
