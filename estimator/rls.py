@@ -126,7 +126,7 @@ def rls_solve(
     if len(anchored):
         inv, observable, kept = _anchored_inverse(info, np.asarray(anchored, int), rcond)
     else:
-        evals, evecs, keep, observable, _ = _rank_decision(info, rcond)
+        evals, evecs, keep, observable, _ = rank_decision(info, rcond)
         inv = (evecs[:, keep] / evals[keep]) @ evecs[:, keep].T
         kept = int(np.sum(keep))
     theta_s = inv @ vec
@@ -140,7 +140,7 @@ def rls_solve(
     return RlsSolution(theta=theta, cov=cov, observable=observable, rss=rss, dof=dof)
 
 
-def _rank_decision(
+def rank_decision(
     info: np.ndarray, rcond: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
     """Eigen-decomposition of a scaled information matrix and the directions the rows
@@ -167,7 +167,7 @@ def _anchored_inverse(
     """
     n = len(info)
     free = np.setdiff1d(np.arange(n), anchored)
-    evals, evecs, keep, free_observable, top = _rank_decision(info[np.ix_(free, free)], rcond)
+    evals, evecs, keep, free_observable, top = rank_decision(info[np.ix_(free, free)], rcond)
     observable = np.ones(n, dtype=bool)
     observable[free] = free_observable
     # Drop the free block's null directions V by deflation, (info + c V V^T)^-1 -

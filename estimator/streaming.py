@@ -39,7 +39,7 @@ from estimator.gating import (
 )
 from estimator.kinematics import KinematicsError, RigidFit, RigidMotion
 from estimator.partial_pairs import PartialPairs
-from estimator.rls import RlsSolution, RlsState, rls_init, rls_solve, rls_update
+from estimator.rls import RlsSolution, RlsState, rank_decision, rls_init, rls_solve, rls_update
 from estimator.setup import EstimatorSetup
 from estimator.systematic import motion_sensitivity, systematic_names, systematic_stds
 
@@ -113,8 +113,7 @@ class Accumulator:
         st = self.state
         s = scale[n:]
         tail = st.info[n:, n:] * np.outer(s, s)
-        evals, evecs = np.linalg.eigh(tail)
-        keep = evals > 1e-10 * max(float(evals[-1]), 1e-300)
+        evals, evecs, keep, _, _ = rank_decision(tail, 1e-10)
         inv = ((evecs[:, keep] / evals[keep]) @ evecs[:, keep].T) * np.outer(s, s)
         cross = st.info[:n, n:]
         gain = cross @ inv
