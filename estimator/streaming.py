@@ -39,6 +39,7 @@ from estimator.gating import (
 )
 from estimator.kinematics import KinematicsError, RigidFit, RigidMotion
 from estimator.partial_pairs import PartialPairs
+from estimator.redundancy import calibrated_names, redundancy_rows
 from estimator.rls import RlsSolution, RlsState, rank_decision, rls_init, rls_solve, rls_update
 from estimator.setup import EstimatorSetup
 from estimator.systematic import motion_sensitivity, systematic_names, systematic_stds
@@ -199,13 +200,12 @@ class InertiaEstimator:
             mass=not setup.mass_known,
             offset=corr.crank_offset,
             mount_scales=tuple(m.name for m in setup.mounts) if corr.mount_scale else (),
-            calibrate=tuple(n for n in systematic_names(setup) if n.startswith(("gain:", "align:")))
-            if corr.self_calibration
-            else (),
+            calibrate=calibrated_names(setup) if corr.self_calibration else (),
         )
         self.sys_names = systematic_names(setup)
         self._cal = [self.sys_names.index(n) for n in self.layout.calibrate]
         self._cal_cols = [self.layout.index(f"cal:{n}") for n in self.layout.calibrate]
+        self._cal_hat: np.ndarray | None = None  # the calibration at the last relinearisation
         self.sys_std = systematic_stds(setup)
         n, n_sys = self.layout.size, len(self.sys_names)
         # one accumulator per half-order sign hypothesis (+1 as measured, -1 flipped)
@@ -423,15 +423,28 @@ class InertiaEstimator:
         self.stats.rejected[reason] += 1
         return FrameOutcome(frame.time_s, frame.rpm, (), {}, reason, {})
 
+    def _raw_noise_var(
+        self, fit: RigidFit, motion: RigidMotion, readings: np.ndarray
+    ) -> np.ndarray:
+        """Per-order channel noise variance of one frame: what the rigid fit leaves,
+        less what the calibrated sensor errors explain once they are estimated."""
+        if not self._cal or self._cal_hat is None or fit.null is not None:
+            return motion.noise_var
+        H, y = redundancy_rows(
+            self.setup, fit, readings, motion.gamma_o, motion.omega_dot, np.ones(len(readings))
+        )
+        resid = y - H[:, :, self._cal] @ self._cal_hat
+        return np.sum(resid**2, axis=1) / resid.shape[1]
+
     def _noise_var(
-        self, motion: RigidMotion, ks: np.ndarray, orders: np.ndarray, floor: float
+        self, raw_var: np.ndarray, ks: np.ndarray, orders: np.ndarray, floor: float
     ) -> np.ndarray:
         """Per-order channel noise variance, smoothed over frames (3 dof per frame is noisy),
         floored so noise-free data keep finite weights."""
         out = []
         for k in ks:
             h = float(orders[k])
-            raw = float(motion.noise_var[k])
+            raw = float(raw_var[k])
             var = 0.8 * self.noise_var[h] + 0.2 * raw if h in self.noise_var else raw
             self.noise_var[h] = var
             out.append(max(var, floor))
@@ -458,7 +471,7 @@ class InertiaEstimator:
         (what the dsp errs by near modes), ``gas`` the measured gas moment in ``moment``.
         """
         floor = max(1e-16 * float(np.mean(power)), 1e-30)
-        var = self._noise_var(motion, ks, orders, floor)
+        var = self._noise_var(self._raw_noise_var(fit, motion, readings), ks, orders, floor)
         var = np.maximum(var, dsp_var[ks])
         h = orders[ks]
         self._pending.append(
@@ -521,11 +534,13 @@ class InertiaEstimator:
         dm_real: np.ndarray,
         lin: Linearisation | None = None,
         motion: tuple[np.ndarray, np.ndarray] | None = None,
+        calibrate: bool = True,
     ) -> tuple[np.ndarray, ...]:
         """Whitened rows (k, 12, n), (k, 12) and sensitivities (k, 12, n_sys) of the
         selected (frame, order) pairs of ``batch``, motions multiplied by ``sign``
         (the pairs' own motions, or ``motion``: (P, 3) gamma_O and Omega' in pair
-        order; linearised at ``self.lin`` or at ``lin``)."""
+        order; linearised at ``self.lin`` or at ``lin``). ``calibrate=False``: the
+        self-calibrated sensor errors stay systematic errors in these rows."""
         cat = lambda name: np.concatenate([getattr(p, name) for p in batch])[sel]  # noqa: E731
         gamma_o, omega_dot = (cat("gamma_o"), cat("omega_dot")) if motion is None else motion
         counts = [len(p.orders) for p in batch]
@@ -550,7 +565,7 @@ class InertiaEstimator:
             measured_moment=None if batch[0].measured_moment is None else cat("measured_moment"),
         )
         dr = r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[sel])
-        if self._cal:
+        if self._cal and calibrate:
             # self-calibration: what was a systematic error becomes an unknown
             r.H[:, :, self._cal_cols] = dr[:, :, self._cal]
             dr[:, :, self._cal] = 0.0
@@ -598,6 +613,7 @@ class InertiaEstimator:
                 hyp[-1] = (Hf, yf, drf)
         n = self.layout.size + ELASTIC_TERMS
         bounds = np.cumsum([0] + [len(p.orders) for p in batch])
+        kin = self._redundancy(batch) if self._cal else None
         # the elastic-tail columns: the inertia and cog columns times (f / f_ref)^2
         f_hz = np.concatenate([p.orders * p.rpm / 60.0 for p in batch])
         phi = ((f_hz / ELASTIC_F_REF_HZ) ** 2)[:, None, None]
@@ -610,6 +626,29 @@ class InertiaEstimator:
                     acc.state, Ha[a:b].reshape(-1, n), ys[a:b].reshape(-1), None, self.forgetting
                 )
                 acc.sens = self.forgetting * acc.sens + np.einsum("kip,kis->ps", Ha[a:b], drs[a:b])
+                if kin is not None:  # the frame's redundancy rows (already discounted above)
+                    Hk, yk, drk = kin[0][a:b], kin[1][a:b], kin[2][a:b]
+                    acc.state = rls_update(acc.state, Hk.reshape(-1, n), yk.reshape(-1))
+                    acc.sens = acc.sens + np.einsum("kip,kis->ps", Hk, drk)
+
+    def _redundancy(self, batch: list[_Pending]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Self-calibration rows from the rigid fits' redundancy (:mod:`estimator.redundancy`)
+        of every pair of ``batch``: H (P, 2k, n_all) on the calibration columns, y (P, 2k),
+        and the sensitivities to the other systematic errors (P, 2k, n_sys).
+
+        The same under both half-order signs: a flipped motion flips the residual and
+        its sensitivity alike. (Frames that see only two sensors have no redundancy
+        to speak of and give none.)"""
+        rows, ys, drs = [], [], []
+        for p in batch:
+            dr, y = redundancy_rows(self.setup, p.fit, p.amplitudes, p.gamma_o, p.omega_dot, p.var)
+            H = np.zeros((*dr.shape[:2], self.layout.size + ELASTIC_TERMS))
+            H[:, :, self._cal_cols] = dr[:, :, self._cal]
+            dr[:, :, self._cal] = 0.0
+            rows.append(H)
+            ys.append(y)
+            drs.append(dr)
+        return np.concatenate(rows), np.concatenate(ys), np.concatenate(drs)
 
     def _decide_half_order_sign(self) -> None:
         """Stop carrying the losing sign hypothesis once the residuals leave no doubt."""
@@ -629,6 +668,8 @@ class InertiaEstimator:
         if np.linalg.eigvalsh(lin.inertia)[0] <= 0:
             return
         self.lin = lin
+        if self._cal:
+            self._cal_hat = sol.theta[self._cal_cols]
 
     def _effective(self, sign: int) -> Accumulator:
         """A sign hypothesis's state of theta: with a confirmed elastic mode, the tail

@@ -31,6 +31,38 @@ def systematic_stds(setup: EstimatorSetup) -> np.ndarray:
     return np.array([tol.gain_rel] * n_ch + per_sensor * setup.n_sensors)
 
 
+def reading_sensitivity(
+    setup: EstimatorSetup,
+    fit: RigidFit,
+    amplitudes: np.ndarray,
+    gamma_o: np.ndarray,
+    omega_dot: np.ndarray,
+) -> np.ndarray:
+    """d readings / d(systematic parameters), (P, u, n_sys) complex.
+
+    For P (frame, order) pairs of the u channels of ``fit`` (its ``channels``:
+    setup indices); ``amplitudes`` (P, u) complex, the motion (P, 3).
+
+    A reading is ``n . gamma_P``. A relative gain error g scales it by (1 + g);
+    turning the sensor by a small angle about bench axis e changes ``n`` by
+    ``e x n``, so the reading by ``e . (n x gamma_P)``; moving it along e
+    changes ``gamma_P`` by ``Omega' x e``, so the reading by ``e . (n x Omega')``.
+    """
+    n_ch = len(setup.channels)
+    assert fit.channels is not None
+    used = fit.channels
+    out = np.zeros((len(gamma_o), len(used), n_ch + 6 * setup.n_sensors), complex)
+    n = setup.directions[used]  # (u, 3)
+    r = setup.positions[used] - fit.origin  # (u, 3)
+    gamma_p = gamma_o[:, None, :] + cross(omega_dot[:, None, :], r[None])  # (P, u, 3)
+    for j, c in enumerate(used):
+        base = n_ch + 6 * int(setup.sensor_of_channel[c])
+        out[:, j, c] = amplitudes[:, j]
+        out[:, j, base : base + 3] = cross(n[j][None], gamma_p[:, j])
+        out[:, j, base + 3 : base + 6] = cross(n[j][None], omega_dot)
+    return out
+
+
 def motion_sensitivity(
     setup: EstimatorSetup,
     fit: RigidFit,
@@ -40,31 +72,14 @@ def motion_sensitivity(
 ) -> np.ndarray:
     """d[gamma_O, Omega'] / d(systematic parameters), (P, 12, n_sys) real (Re rows, Im rows).
 
-    For P (frame, order) pairs fitted with the same geometry ``fit`` (its
-    ``channels``: setup indices); ``amplitudes`` (P, n_used) complex, the motion (P, 3).
-
-    A reading is ``n . gamma_P``. A relative gain error g scales it by (1 + g);
-    turning the sensor by a small angle about bench axis e changes ``n`` by
-    ``e x n``, so the reading by ``e . (n x gamma_P)``; moving it along e
-    changes ``gamma_P`` by ``Omega' x e``, so the reading by ``e . (n x Omega')``.
-    The fit is linear (``motion = gain @ readings``), so each reading's change
-    reaches the motion through its column of the gain.
+    The arguments are those of :func:`reading_sensitivity`. The fit is linear
+    (``motion = gain @ readings``), so each reading's change reaches the motion
+    through its column of the gain.
     """
-    n_ch = len(setup.channels)
-    assert fit.channels is not None
-    used = fit.channels
-    out = np.zeros((len(gamma_o), 6, n_ch + 6 * setup.n_sensors), complex)
-    n = setup.directions[used]  # (u, 3)
-    r = setup.positions[used] - fit.origin  # (u, 3)
-    gamma_p = gamma_o[:, None, :] + cross(omega_dot[:, None, :], r[None])  # (P, u, 3)
-    turn = cross(n[None], gamma_p)  # (P, u, 3)
-    move = cross(n[None], omega_dot[:, None, :])
+    dy = reading_sensitivity(setup, fit, amplitudes, gamma_o, omega_dot)
     # One channel at a time (elementwise products, a fixed summation order): the
     # result of a pair does not depend on how many pairs are assembled together.
-    for j, c in enumerate(used):
-        g = fit.gain[:, j]  # (6,)
-        base = n_ch + 6 * int(setup.sensor_of_channel[c])
-        out[:, :, c] = g[None, :] * amplitudes[:, j, None]
-        out[:, :, base : base + 3] += g[None, :, None] * turn[:, j, None, :]
-        out[:, :, base + 3 : base + 6] += g[None, :, None] * move[:, j, None, :]
+    out = np.zeros((len(gamma_o), 6, dy.shape[2]), complex)
+    for j in range(dy.shape[1]):
+        out += fit.gain[None, :, j, None] * dy[:, j, None, :]
     return np.concatenate([out.real, out.imag], axis=1)
