@@ -105,6 +105,9 @@ class RigidFit:
     # (6,) unit [gamma_O, Omega'] direction the channels do not see (two triaxial
     # sensors: the rotation about the line through them); None when they see all six
     null: np.ndarray | None = None
+    # (n_ch, n_ch - rank) orthonormal basis of the weighted readings that no rigid
+    # motion produces: where sensor errors and noise show (estimator.redundancy)
+    redundancy: np.ndarray | None = None
 
     def on_channels(self, channels: np.ndarray) -> RigidFit:
         """This fit, labelled with the indices of its channels in the caller's channel set."""
@@ -132,7 +135,8 @@ class RigidFit:
         jw = design_matrix(positions, directions, origin) * sw[:, None]
         # Solve through the SVD: the geometry may be poorly conditioned, and the
         # same decomposition gives the unit covariance for free.
-        u, s, vt = np.linalg.svd(jw, full_matrices=False)
+        u_all, s, vt = np.linalg.svd(jw, full_matrices=True)
+        u = u_all[:, : len(s)]
         null = None
         if len(s) < 6 or s[-1] < 1e-9 * s[0]:
             seen = int(np.sum(s > 1e-9 * s[0]))
@@ -140,7 +144,7 @@ class RigidFit:
                 raise KinematicsError(
                     "sensor geometry is degenerate: rigid-body motion not determined"
                 )
-            null = vt[5].copy() if len(s) == 6 else np.linalg.svd(jw)[2][5].copy()
+            null = vt[5].copy()
             u, s, vt = u[:, :5], s[:5], vt[:5]
         pinv = (vt.T / s) @ u.T
         return cls(
@@ -152,6 +156,7 @@ class RigidFit:
             gain=pinv * sw,
             mean_w=float(np.mean(w)),
             null=null,
+            redundancy=u_all[:, len(s) :],
         )
 
     @property

@@ -45,12 +45,6 @@ def calibrated_names(setup: EstimatorSetup) -> tuple[str, ...]:
     )
 
 
-def residual_basis(fit: RigidFit) -> np.ndarray:
-    """(u, u - 6) orthonormal basis of the weighted readings that no rigid motion produces."""
-    u = np.linalg.svd(fit.jw, full_matrices=True)[0]
-    return u[:, fit.rank :]
-
-
 def redundancy_rows(
     setup: EstimatorSetup,
     fit: RigidFit,
@@ -74,7 +68,8 @@ def redundancy_rows(
     ``c`` is what the estimator's calibration columns hold: the correction, minus
     the sensor error (the measured readings are the true ones plus ``J (-c)``).
     """
-    q = residual_basis(fit).T * fit.sw  # (k, u): weighted residual combinations
+    assert fit.redundancy is not None
+    q = fit.redundancy.T * fit.sw  # (k, u): weighted residual combinations
     fitted = (np.concatenate([gamma_o, omega_dot], axis=1) @ fit.jw.T) / fit.sw
     dy = reading_sensitivity(setup, fit, fitted, gamma_o, omega_dot)  # (P, u, n_sys)
     hc = -np.einsum("ku,pus->pks", q, dy)

@@ -339,7 +339,8 @@ class EstimatorSettings(Section):
     # gas torque from [gas] ("model"), from the cylinder-pressure channel [tacho]
     # pressure_channel ("pressure"), or from the channel when the source has it ("auto")
     gas_torque: Literal["auto", "model", "pressure"] = "auto"
-    # estimate each channel's gain and each sensor's alignment with the rest
+    # estimate each channel's gain and each sensor's alignment with the rest (needs more
+    # than six accelerometer channels: the rigid fit's redundancy, estimator/redundancy.py)
     self_calibration: bool = False
     pressure_max_order: Annotated[float, Field(gt=0, le=20)] = 6.0
     forgetting: Annotated[float, Field(gt=0, le=1)] = 1.0

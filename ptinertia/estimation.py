@@ -127,6 +127,9 @@ def estimator_setup(
     s, c, _ = engine.frame
     reference = np.asarray(bench.powertrain.cog_m, float)
     has_mounts = bool(model.mounts)
+    sensor_of_channel = np.array(
+        [i for i, sensor in enumerate(bench.sensors) for name in sensor.channels if name]
+    )
     corr = corrections or Corrections()
     corr = Corrections(
         suspension=corr.suspension and has_mounts,
@@ -136,14 +139,17 @@ def estimator_setup(
         mount_scale=corr.mount_scale and corr.suspension and has_mounts,
         self_calibration=corr.self_calibration,
     )
+    if corr.self_calibration and len(sensor_of_channel) <= 6:
+        raise config.ConfigError(
+            f"[estimator] self_calibration: needs more than six accelerometer channels, the "
+            f"bench has {len(sensor_of_channel)} (it calibrates from the readings no rigid "
+            "motion explains)"
+        )
     if corr.mount_scale and not bench.powertrain.mass_known:
         raise config.ConfigError(
             "[estimator] mount_scale: needs [powertrain] mass_known = true "
             "(estimated mass and mount scales would multiply)"
         )
-    sensor_of_channel = np.array(
-        [i for i, sensor in enumerate(bench.sensors) for name in sensor.channels if name]
-    )
 
     # A stream tracks the same orders frame after frame: keep their speed-independent parts.
     by_orders: dict[tuple[float, ...], OrderExcitation] = {}

@@ -82,3 +82,18 @@ def test_noise_alone_does_not_move_the_calibration():
     errs = rel_errors(doc)
     assert max(abs(e) for e in errs.values()) < 0.005, errs
     assert np.all(cog_error_m(doc) < 0.001)
+
+
+def test_two_sensors_cannot_self_calibrate():
+    import re
+
+    import pytest
+
+    from ptinertia.config import ConfigError, loads_bench
+    from ptinertia.runner import make_estimator
+
+    text = re.sub(r"\[\[sensors\]\]\nname = \"C_torque_rod\"\n(.+\n)+?\n", "", I3.read_text())
+    assert '"C_torque_rod"' not in text
+    bench = loads_bench(text + "\n[estimator]\nself_calibration = true\n", "two.toml")
+    with pytest.raises(ConfigError, match=r"self_calibration: needs more than six.*has 6"):
+        make_estimator(bench)
