@@ -5,11 +5,13 @@ readings per (frame, order) are zero for any rigid motion. What the fit leaves
 there is noise plus the sensor errors: a gain error, a turned or a moved
 sensor each add ``J c`` to the readings (:func:`estimator.systematic.reading_sensitivity`),
 and the part of ``J c`` no rigid motion can produce shows in the residual.
-Over a sweep the motion turns through many directions, and these rows pin
-every sensor error except the ones a rigid motion absorbs: a common gain
-(the motion's scale), a common turn (its direction), a common move (the
-reference point) and a common stretch of the positions (the angular
-acceleration's scale). The equations of motion and the priors hold those.
+What a rigid motion absorbs these rows never see: a common gain (the motion's
+scale), a common turn (its direction), a common move (the reference point), a
+common stretch of the positions (the angular acceleration's scale). And along
+a mass-line sweep each order keeps nearly one motion shape, so they see only
+a few combinations of the rest. The equations of motion and the priors hold
+what they leave; what they add is that the noise cannot pull the calibration
+where the readings say it is not.
 
 Unlike the equations of motion, these rows do not depend on the inertia
 estimate, so they cannot follow it when it drifts. The sensitivities are
