@@ -146,6 +146,8 @@ class _Pending:
     amplitudes: np.ndarray  # (k, u) complex, the fitted readings
     half: np.ndarray  # (k,) bool: a half order of a frame with an unknown 720 deg cycle
     measured_moment: np.ndarray | None  # (k, 3) complex: the part of moment measured (gas)
+    # self-calibration: the pairs' redundancy rows before whitening, (k, 2r, n_sys) and (k, 2r)
+    redundancy: tuple[np.ndarray, np.ndarray] | None = None
 
 
 @dataclass(frozen=True)
@@ -423,18 +425,35 @@ class InertiaEstimator:
         self.stats.rejected[reason] += 1
         return FrameOutcome(frame.time_s, frame.rpm, (), {}, reason, {})
 
-    def _raw_noise_var(
-        self, fit: RigidFit, motion: RigidMotion, readings: np.ndarray
-    ) -> np.ndarray:
-        """Per-order channel noise variance of one frame: what the rigid fit leaves,
-        less what the calibrated sensor errors explain once they are estimated."""
-        if not self._cal or self._cal_hat is None or fit.null is not None:
-            return motion.noise_var
-        H, y = redundancy_rows(
-            self.setup, fit, readings, motion.gamma_o, motion.omega_dot, np.ones(len(readings))
+    def _redundancy_raw(
+        self, fit: RigidFit, motion: RigidMotion, readings: np.ndarray, ks: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The redundancy rows of the orders ``ks`` of a fitted frame, not whitened (None
+        without self-calibration, or when two sensors leave no redundancy)."""
+        if not self._cal or fit.null is not None:
+            return None
+        return redundancy_rows(
+            self.setup,
+            fit,
+            readings[ks],
+            motion.gamma_o[ks],
+            motion.omega_dot[ks],
+            np.ones(len(ks)),
         )
+
+    def _raw_noise_var(
+        self, motion: RigidMotion, ks: np.ndarray, rows: tuple[np.ndarray, np.ndarray] | None
+    ) -> np.ndarray:
+        """Per-order channel noise variance of one frame: what the rigid fit leaves, less
+        what the calibrated sensor errors explain once they are estimated (``rows``: the
+        orders ``ks``'s redundancy rows)."""
+        if rows is None or self._cal_hat is None:
+            return motion.noise_var
+        H, y = rows
         resid = y - H[:, :, self._cal] @ self._cal_hat
-        return np.sum(resid**2, axis=1) / resid.shape[1]
+        raw = motion.noise_var.copy()
+        raw[ks] = np.sum(resid**2, axis=1) / resid.shape[1]
+        return raw
 
     def _noise_var(
         self, raw_var: np.ndarray, ks: np.ndarray, orders: np.ndarray, floor: float
@@ -471,7 +490,8 @@ class InertiaEstimator:
         (what the dsp errs by near modes), ``gas`` the measured gas moment in ``moment``.
         """
         floor = max(1e-16 * float(np.mean(power)), 1e-30)
-        var = self._noise_var(self._raw_noise_var(fit, motion, readings), ks, orders, floor)
+        redundancy = self._redundancy_raw(fit, motion, readings, ks)
+        var = self._noise_var(self._raw_noise_var(motion, ks, redundancy), ks, orders, floor)
         var = np.maximum(var, dsp_var[ks])
         h = orders[ks]
         self._pending.append(
@@ -489,6 +509,7 @@ class InertiaEstimator:
                 amplitudes=readings[ks],
                 half=((2 * h) % 2 == 1) & self._cycle_unknown(frame),
                 measured_moment=None if gas is None else gas[ks],
+                redundancy=redundancy,
             )
         )
 
@@ -641,7 +662,10 @@ class InertiaEstimator:
         to speak of and give none.)"""
         rows, ys, drs = [], [], []
         for p in batch:
-            dr, y = redundancy_rows(self.setup, p.fit, p.amplitudes, p.gamma_o, p.omega_dot, p.var)
+            assert p.redundancy is not None
+            # whitened with the variance the frame's rows got
+            s = 1.0 / np.sqrt(p.var)
+            dr, y = p.redundancy[0] * s[:, None, None], p.redundancy[1] * s[:, None]
             H = np.zeros((*dr.shape[:2], self.layout.size + ELASTIC_TERMS))
             H[:, :, self._cal_cols] = dr[:, :, self._cal]
             dr[:, :, self._cal] = 0.0
