@@ -92,6 +92,8 @@ class Estimate:
     elastic_mode: dict[str, float] | None = None
     # frames fitted with one rigid-body motion unseen (two sensors): how they were used
     unseen_motion: dict[str, Any] | None = None
+    # each channel's weight in the rigid fit when measured from its noise (median 1)
+    channel_weights: dict[str, float] | None = None
 
     def std(self, name: str) -> float:
         i = self.names.index(name)
@@ -219,6 +221,8 @@ class Estimate:
         }
         if self.unseen_motion is not None:
             doc["unseen_motion"] = self.unseen_motion
+        if self.channel_weights is not None:
+            doc["channel_weights"] = self.channel_weights
         if truth is not None:
             doc["truth"] = truth
         return doc
@@ -270,4 +274,5 @@ def build_estimate(est: InertiaEstimator) -> Estimate:
         variance_factor=factor,
         elastic_mode=None if est.elastic is None else dict(est.elastic),
         unseen_motion=est.partial.report(),
+        channel_weights=est.measured_weights(),
     )

@@ -44,6 +44,9 @@ class Corrections:
     # each channel's gain and each sensor's alignment estimated with the rest, the
     # declared tolerances as their priors (the sweep's varied motion separates them)
     self_calibration: bool = False
+    # each channel weighed in the rigid fit by its noise, measured along the sweep
+    # (estimator/channel_noise.py); off: equal weights
+    channel_weights: bool = False
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from estimator.channel_noise import ChannelNoise
 from estimator.equations import Linearisation, ParameterLayout, frame_rows, linearisation_at
 from estimator.gating import (
     FrameLike,
@@ -36,6 +37,7 @@ from estimator.gating import (
     frame_gate,
     neighbour_leakage,
     overlaps_previous,
+    revolution,
 )
 from estimator.kinematics import KinematicsError, RigidFit, RigidMotion
 from estimator.partial_pairs import PartialPairs
@@ -57,6 +59,10 @@ def relinearise_due(used: int) -> bool:
     every = RELINEARISE_EVERY if used <= RELINEARISE_LATER_AFTER else RELINEARISE_EVERY_LATER
     return used % every == 1
 
+
+# Measured channel weights are taken up when one moved by more than this (log ratio):
+# each change re-decomposes the fit geometry.
+WEIGHT_CHANGE = 0.1
 
 # The half-order sign is decided when, after this many ambiguous frames, the wrong
 # hypothesis leaves this many times the weighted residual of the right one.
@@ -233,6 +239,11 @@ class InertiaEstimator:
         self.scale = self._parameter_scale()
         self._columns: dict[tuple[str, ...], np.ndarray] = {}  # frame channels -> setup columns
         self._fitters: dict[bytes, RigidFit | None] = {}  # channel mask -> geometry
+        # the channels' weights in the rigid fit: declared, measured along the sweep
+        # (refreshed at each relinearisation), or equal
+        self.channel_noise = ChannelNoise(len(setup.channels))
+        self.weights = setup.channel_weights
+        self._measure_weights = setup.channel_weights is None
         # frames whose channels leave one rigid-body motion unseen (two sensors left)
         self.partial = PartialPairs(self)
         self._unseen_run = 0  # consecutive gated frames fitted with a rotation unseen
@@ -279,7 +290,7 @@ class InertiaEstimator:
         key = used.tobytes()
         if key not in self._fitters:
             setup = self.setup
-            weights = None if setup.channel_weights is None else setup.channel_weights[used]
+            weights = None if self.weights is None else self.weights[used]
             try:
                 self._fitters[key] = RigidFit.of(
                     setup.positions[used], setup.directions[used], weights, allow_null=True
@@ -287,6 +298,33 @@ class InertiaEstimator:
             except KinematicsError:
                 self._fitters[key] = None
         return self._fitters[key]
+
+    def _track_noise(self, frame: FrameLike, used: np.ndarray, cols: np.ndarray) -> None:
+        """Add a gated frame's amplitudes to the channel noise estimate (when measured)."""
+        rev = revolution(frame)
+        if rev is None or not (self.setup.corrections.channel_weights and self._measure_weights):
+            return
+        x = np.where(used, frame.amplitudes[:, np.where(used, cols, 0)], np.nan)
+        self.channel_noise.add(rev, tuple(frame.orders), x)
+
+    def _refresh_weights(self) -> None:
+        """Weigh the channels by their measured noise from now on (new frames' fits)."""
+        if not (self.setup.corrections.channel_weights and self._measure_weights):
+            return
+        w = self.channel_noise.weights()
+        if w is None:
+            return
+        if self.weights is None or np.max(np.abs(np.log(w / self.weights))) > WEIGHT_CHANGE:
+            self.weights = w
+            self._fitters.clear()
+
+    def measured_weights(self) -> dict[str, float] | None:
+        """The channels' weights in the rigid fit when measured from their noise, by name."""
+        if not (self.setup.corrections.channel_weights and self._measure_weights):
+            return None
+        if self.weights is None:
+            return None
+        return dict(zip(self.setup.channels, self.weights.tolist(), strict=True))
 
     # -- update -------------------------------------------------------------------------
     def update(self, frame: FrameLike) -> FrameOutcome:
@@ -311,6 +349,7 @@ class InertiaEstimator:
             fitter = None
             if reason is None:
                 used, cols = self._channel_mask(frame)
+                self._track_noise(frame, used, cols)
                 if used.sum() < 6:
                     reason = "too_few_channels"
                 elif (fitter := self._fitter(used)) is None:
@@ -684,6 +723,7 @@ class InertiaEstimator:
             self.decision = {"ratio": ratio, "after_frames": self.stats.ambiguous_frames}
 
     def _relinearise(self) -> None:
+        self._refresh_weights()
         self._decide_half_order_sign()
         sol = self.solve(self.best_state().state)
         if not np.all(sol.observable[:9]):

@@ -138,6 +138,7 @@ def estimator_setup(
         crank_offset=corr.crank_offset,
         mount_scale=corr.mount_scale and corr.suspension and has_mounts,
         self_calibration=corr.self_calibration,
+        channel_weights=corr.channel_weights,
     )
     if corr.self_calibration and len(sensor_of_channel) <= 6:
         raise config.ConfigError(

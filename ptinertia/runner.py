@@ -51,6 +51,10 @@ def make_estimator(
         crank_offset=s.crank_offset and "crank_offset" not in corrections_off,
         mount_scale=s.mount_scale and "mount_scale" not in corrections_off,
         self_calibration=s.self_calibration and "self_calibration" not in corrections_off,
+        channel_weights="channel_weights" not in corrections_off
+        and (
+            s.channel_weights == "measured" or (s.channel_weights == "auto" and s.self_calibration)
+        ),
     )
     tolerances = Tolerances(
         gain_rel=s.gain_tolerance_pct / 100.0,

@@ -17,7 +17,14 @@ from ptinertia.paths import DEFAULT_BENCH
 from ptinertia.runner import RunOptions, print_table, run_source, write_json
 from ptinertia.sinks import Sink
 
-CORRECTIONS = ("suspension", "gyroscopic", "unbalance", "crank_offset", "self_calibration")
+CORRECTIONS = (
+    "suspension",
+    "gyroscopic",
+    "unbalance",
+    "crank_offset",
+    "self_calibration",
+    "channel_weights",
+)
 
 
 def add_parser(sub: Any, name: str, help_text: str) -> None:
