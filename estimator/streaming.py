@@ -243,7 +243,7 @@ class InertiaEstimator:
         # (refreshed at each relinearisation), or equal
         self.channel_noise = ChannelNoise(len(setup.channels))
         self.weights = setup.channel_weights
-        self._measure_weights = setup.channel_weights is None
+        self._measure_weights = corr.channel_weights and setup.channel_weights is None
         # frames whose channels leave one rigid-body motion unseen (two sensors left)
         self.partial = PartialPairs(self)
         self._unseen_run = 0  # consecutive gated frames fitted with a rotation unseen
@@ -301,15 +301,14 @@ class InertiaEstimator:
 
     def _track_noise(self, frame: FrameLike, used: np.ndarray, cols: np.ndarray) -> None:
         """Add a gated frame's amplitudes to the channel noise estimate (when measured)."""
-        rev = revolution(frame)
-        if rev is None or not (self.setup.corrections.channel_weights and self._measure_weights):
+        if not self._measure_weights or (rev := revolution(frame)) is None:
             return
         x = np.where(used, frame.amplitudes[:, np.where(used, cols, 0)], np.nan)
         self.channel_noise.add(rev, tuple(frame.orders), x)
 
     def _refresh_weights(self) -> None:
         """Weigh the channels by their measured noise from now on (new frames' fits)."""
-        if not (self.setup.corrections.channel_weights and self._measure_weights):
+        if not self._measure_weights:
             return
         w = self.channel_noise.weights()
         if w is None:
@@ -320,9 +319,7 @@ class InertiaEstimator:
 
     def measured_weights(self) -> dict[str, float] | None:
         """The channels' weights in the rigid fit when measured from their noise, by name."""
-        if not (self.setup.corrections.channel_weights and self._measure_weights):
-            return None
-        if self.weights is None:
+        if not self._measure_weights or self.weights is None:
             return None
         return dict(zip(self.setup.channels, self.weights.tolist(), strict=True))
 
