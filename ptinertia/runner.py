@@ -44,17 +44,17 @@ def make_estimator(
     """The streaming estimator with the bench file's ``[estimator]`` settings (``pressure``:
     the gas torque comes from that channel, see :func:`ptinertia.estimation.pressure_gas`)."""
     s = bench.estimator
+    self_calibration = s.self_calibration and "self_calibration" not in corrections_off
     corrections = Corrections(
         suspension=s.suspension and "suspension" not in corrections_off,
         gyroscopic=s.gyroscopic and "gyroscopic" not in corrections_off,
         unbalance=s.unbalance and "unbalance" not in corrections_off,
         crank_offset=s.crank_offset and "crank_offset" not in corrections_off,
         mount_scale=s.mount_scale and "mount_scale" not in corrections_off,
-        self_calibration=s.self_calibration and "self_calibration" not in corrections_off,
+        self_calibration=self_calibration,
+        # "auto" follows the self-calibration actually run (not switched off by --no)
         channel_weights="channel_weights" not in corrections_off
-        and (
-            s.channel_weights == "measured" or (s.channel_weights == "auto" and s.self_calibration)
-        ),
+        and (s.channel_weights == "measured" or (s.channel_weights == "auto" and self_calibration)),
     )
     tolerances = Tolerances(
         gain_rel=s.gain_tolerance_pct / 100.0,

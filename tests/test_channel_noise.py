@@ -12,6 +12,7 @@ from test_estimator_accuracy import I3, run
 
 from estimator.channel_noise import CAPACITY, ChannelNoise
 from ptinertia.config import load_bench
+from ptinertia.runner import make_estimator
 from ptinertia.sources import REALISTIC_SIMULATION, open_source
 
 ORDERS = (1.0, 1.5, 2.0, 3.0, 4.5, 6.0)
@@ -99,3 +100,12 @@ def test_simulated_bench_weights_match_the_simulator_noise():
 def test_equal_weights_without_self_calibration():
     doc = run(I3, {"duration_s": 10.0, "noise_snr_db": 40.0})
     assert "channel_weights" not in doc
+
+
+def test_auto_weights_follow_the_self_calibration_actually_run():
+    bench = load_bench(I3)
+    est = bench.estimator.model_copy(update={"self_calibration": True})
+    bench = bench.model_copy(update={"estimator": est})
+    assert make_estimator(bench).setup.corrections.channel_weights
+    # --no self_calibration: equal weights, as without self-calibration
+    assert not make_estimator(bench, ("self_calibration",)).setup.corrections.channel_weights
