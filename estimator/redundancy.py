@@ -28,11 +28,15 @@ from estimator.setup import EstimatorSetup
 from estimator.systematic import reading_sensitivity, systematic_names, systematic_stds
 
 # What self-calibration estimates: each channel's gain and each sensor's alignment.
-# Not the positions: per order the motion keeps nearly one shape along a sweep, so
-# the redundancy rows hardly see them (their 1 sigma stays within 10 % of the prior),
-# and the equations of motion see them only through their weak rpm dependence. Measured
-# on the simulated i3 at 40 dB with no sensor error at all, calibrating them as well
-# moved Iyz by 10 % and the cog by 12 mm. They stay in the type-B covariance.
+# Not the positions. With three triaxial sensors these rows see five combinations of
+# the nine position errors (a common move and a common stretch are rigid motions),
+# and fixed gain and alignment errors leave the same residual for every motion: four
+# of the five exactly, with errors of a few times their tolerances, the fifth nearly
+# (tests/test_redundancy.py; a fourth sensor changes that). So these rows cannot tell
+# a moved sensor from a turned or re-gained one; only the priors and the equations of
+# motion, through their weak rpm dependence, could. Measured on the simulated i3 at
+# 40 dB with no sensor error at all, calibrating the positions as well moved Iyz by
+# 10 % and the cog by 12 mm. They stay in the type-B covariance.
 CALIBRATED = ("gain:", "align:")
 
 
