@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from estimator.equations import INERTIA_TERMS, linearisation_at
+from estimator.hypotheses import DECIDE_RATIO, Accumulator, better_sign
 from estimator.partial import (
     MAX_PAIRS,
     Contribution,
@@ -28,7 +29,7 @@ from estimator.result import capped_ratio
 from powertrain.rigidbody import inertia_terms
 
 if TYPE_CHECKING:
-    from estimator.streaming import Accumulator, InertiaEstimator, _Pending
+    from estimator.streaming import InertiaEstimator, _Pending
 
 FIRST_SOLVE_PAIRS = 48
 
@@ -117,8 +118,6 @@ class PartialPairs:
             rss[sign] = self.est.solve(solutions[sign].contribution.added_to(bases[sign])).rss
         if len(signs) == 2:
             # decided as the measured frames' signs are
-            from estimator.streaming import DECIDE_RATIO, better_sign
-
             self.own_sign, self.sign_ratio = better_sign(rss)
             self.sign_decided = self.sign_ratio >= DECIDE_RATIO
         else:

@@ -39,10 +39,11 @@ from estimator.gating import (
     overlaps_previous,
     revolution,
 )
+from estimator.hypotheses import DECIDE_AFTER_FRAMES, DECIDE_RATIO, Accumulator, better_sign
 from estimator.kinematics import KinematicsError, RigidFit, RigidMotion
 from estimator.partial_pairs import PartialPairs
 from estimator.redundancy import calibrated_names, redundancy_rows
-from estimator.rls import RlsSolution, RlsState, rank_decision, rls_init, rls_solve, rls_update
+from estimator.rls import RlsSolution, RlsState, rls_solve, rls_update
 from estimator.setup import EstimatorSetup
 from estimator.systematic import motion_sensitivity, systematic_names, systematic_stds
 
@@ -63,11 +64,6 @@ def relinearise_due(used: int) -> bool:
 # Measured channel weights are taken up when one moved by more than this (log ratio):
 # each change re-decomposes the fit geometry.
 WEIGHT_CHANGE = 0.1
-
-# The half-order sign is decided when, after this many ambiguous frames, the wrong
-# hypothesis leaves this many times the weighted residual of the right one.
-DECIDE_AFTER_FRAMES = 40
-DECIDE_RATIO = 100.0
 
 # Elastic-mode tail. Below an elastic mode its response grows like (f / f_e)^2, and the
 # part of its shape that looks rigid at the sensors biases the fit long before the
@@ -91,48 +87,6 @@ UNSEEN_AFTER_FRAMES = 8
 
 # Frame flags (dsp.frames.FLAGS) that make the crank angle, and so every phase, untrustworthy.
 # "nan", "clipped" and "missing_channel" only drop the affected channels (channel_ok).
-
-
-@dataclass
-class Accumulator:
-    """Information state plus the systematic-error sensitivity ``S`` (n, n_p)."""
-
-    state: RlsState
-    sens: np.ndarray
-
-    @classmethod
-    def empty(cls, n: int, n_sys: int) -> Accumulator:
-        return cls(state=rls_init(n), sens=np.zeros((n, n_sys)))
-
-    def leading(self, n: int) -> Accumulator:
-        """The state of the first ``n`` parameters alone (the others not in the model)."""
-        st = self.state
-        return Accumulator(RlsState(st.info[:n, :n], st.vec[:n], st.yty, st.rows), self.sens[:n])
-
-    def marginal(self, n: int, scale: np.ndarray) -> Accumulator:
-        """The state of the first ``n`` parameters with the others fitted alongside.
-
-        The Schur complement of the joint normal equations: solving it gives
-        exactly the first ``n`` entries of the joint solution, and its inverse is
-        their joint covariance. ``scale`` (of all parameters) sets the rank
-        decision for the others.
-        """
-        st = self.state
-        s = scale[n:]
-        tail = st.info[n:, n:] * np.outer(s, s)
-        evals, evecs, keep, _, _ = rank_decision(tail, 1e-10)
-        inv = ((evecs[:, keep] / evals[keep]) @ evecs[:, keep].T) * np.outer(s, s)
-        cross = st.info[:n, n:]
-        gain = cross @ inv
-        return Accumulator(
-            RlsState(
-                info=st.info[:n, :n] - gain @ cross.T,
-                vec=st.vec[:n] - gain @ st.vec[n:],
-                yty=st.yty - float(st.vec[n:] @ inv @ st.vec[n:]),
-                rows=st.rows - float(np.sum(keep)),
-            ),
-            self.sens[:n] - gain @ self.sens[n:],
-        )
 
 
 @dataclass(frozen=True)
@@ -180,14 +134,6 @@ class EstimatorStats:
     skipped: int = (
         0  # overlapping frames left out (not rejected: their data are in their neighbours)
     )
-
-
-def better_sign(rss: dict[int, float]) -> tuple[int, float]:
-    """The half-order sign hypothesis with the smaller weighted residual ``rss``, and the
-    other's residual over its (infinite when the better one fits exactly)."""
-    best = min(rss, key=lambda s: rss[s])
-    ratio = rss[-best] / rss[best] if rss[best] > 0 else float("inf")
-    return best, ratio
 
 
 class InertiaEstimator:

@@ -1,0 +1,69 @@
+"""The state each half-order sign hypothesis carries, and how the residuals decide between them.
+
+Without a 720 deg reference the sign of every half-order amplitude is unknown:
+the streaming estimator keeps one :class:`Accumulator` per sign (+1 as
+measured, -1 flipped) and, once the residuals leave no doubt, drops the loser.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimator.rls import RlsState, rank_decision, rls_init
+
+# The half-order sign is decided when, after this many ambiguous frames, the wrong
+# hypothesis leaves this many times the weighted residual of the right one.
+DECIDE_AFTER_FRAMES = 40
+DECIDE_RATIO = 100.0
+
+
+@dataclass
+class Accumulator:
+    """Information state plus the systematic-error sensitivity ``S`` (n, n_p)."""
+
+    state: RlsState
+    sens: np.ndarray
+
+    @classmethod
+    def empty(cls, n: int, n_sys: int) -> Accumulator:
+        return cls(state=rls_init(n), sens=np.zeros((n, n_sys)))
+
+    def leading(self, n: int) -> Accumulator:
+        """The state of the first ``n`` parameters alone (the others not in the model)."""
+        st = self.state
+        return Accumulator(RlsState(st.info[:n, :n], st.vec[:n], st.yty, st.rows), self.sens[:n])
+
+    def marginal(self, n: int, scale: np.ndarray) -> Accumulator:
+        """The state of the first ``n`` parameters with the others fitted alongside.
+
+        The Schur complement of the joint normal equations: solving it gives
+        exactly the first ``n`` entries of the joint solution, and its inverse is
+        their joint covariance. ``scale`` (of all parameters) sets the rank
+        decision for the others.
+        """
+        st = self.state
+        s = scale[n:]
+        tail = st.info[n:, n:] * np.outer(s, s)
+        evals, evecs, keep, _, _ = rank_decision(tail, 1e-10)
+        inv = ((evecs[:, keep] / evals[keep]) @ evecs[:, keep].T) * np.outer(s, s)
+        cross = st.info[:n, n:]
+        gain = cross @ inv
+        return Accumulator(
+            RlsState(
+                info=st.info[:n, :n] - gain @ cross.T,
+                vec=st.vec[:n] - gain @ st.vec[n:],
+                yty=st.yty - float(st.vec[n:] @ inv @ st.vec[n:]),
+                rows=st.rows - float(np.sum(keep)),
+            ),
+            self.sens[:n] - gain @ self.sens[n:],
+        )
+
+
+def better_sign(rss: dict[int, float]) -> tuple[int, float]:
+    """The half-order sign hypothesis with the smaller weighted residual ``rss``, and the
+    other's residual over its (infinite when the better one fits exactly)."""
+    best = min(rss, key=lambda s: rss[s])
+    ratio = rss[-best] / rss[best] if rss[best] > 0 else float("inf")
+    return best, ratio
