@@ -125,9 +125,10 @@ def test_realistic_run_principal_terms_cog_and_unbalance(realistic_default: dict
 @pytest.mark.slow
 @pytest.mark.xfail(
     strict=True,
-    reason="products of inertia within 2 % of their own value need the sensor geometry to better "
-    "than 1 deg / 2 mm; [estimator] self_calibration gets the angles and gains from the sweep "
-    "(Ixy/Ixz/Iyz mean 1.7/0.5/6.1 %) but not the positions, which limit Iyz (see README, accuracy)",
+    reason="products of inertia within 2 % of their own value need the sensor positions to "
+    "0.5 mm, not 2 mm; [estimator] self_calibration gets the angles and gains from the sweep "
+    "(Ixy/Ixz/Iyz mean 1.0/0.4/5.0 %) but cannot tell the positions from them with three "
+    "sensors (see README, accuracy; benchmarks/bench_sensor_positions.py)",
 )
 def test_realistic_run_products_within_2_percent_of_their_own_value(
     realistic_default: dict[str, Any],
