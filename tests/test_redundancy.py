@@ -46,6 +46,17 @@ def _readings(motion: np.ndarray, positions: np.ndarray, directions: np.ndarray)
     return np.einsum("pcj,cj->pc", gamma, directions)
 
 
+def _fitted_rows(setup: EstimatorSetup, y_meas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Fit the rigid motion of each reading set (P, n_ch) with the nominal geometry and
+    return its redundancy rows H, y (unit noise)."""
+    n_ch = len(setup.channels)
+    fit = RigidFit.of(setup.positions, setup.directions).on_channels(np.arange(n_ch))
+    m = fit.fit_many(y_meas[:, None, :])
+    g = np.concatenate([x.gamma_o for x in m])
+    o = np.concatenate([x.omega_dot for x in m])
+    return redundancy_rows(setup, fit, y_meas, g, o, np.ones(len(y_meas)))
+
+
 def test_a_rigid_motion_seen_by_exact_sensors_leaves_nothing():
     setup = _setup()
     fit = RigidFit.of(setup.positions, setup.directions).on_channels(np.arange(9))
@@ -57,16 +68,12 @@ def test_a_rigid_motion_seen_by_exact_sensors_leaves_nothing():
     rng = np.random.default_rng(0)
     motion = rng.standard_normal((5, 6)) + 1j * rng.standard_normal((5, 6))
     y_meas = _readings(motion, setup.positions, setup.directions)
-    m = fit.fit_many(y_meas[:, None, :])
-    g = np.concatenate([x.gamma_o for x in m])
-    o = np.concatenate([x.omega_dot for x in m])
-    _, y = redundancy_rows(setup, fit, y_meas, g, o, np.ones(5))
+    _, y = _fitted_rows(setup, y_meas)
     np.testing.assert_allclose(y, 0.0, atol=1e-12)
 
 
 def test_rows_explain_the_residual_of_sensors_built_wrong():
     setup = _setup()
-    fit = RigidFit.of(setup.positions, setup.directions).on_channels(np.arange(9))
     rng = np.random.default_rng(1)
     eps = 1e-4  # small: the rows are first order, the check is to second order
     gains = eps * rng.standard_normal(9)
@@ -76,10 +83,7 @@ def test_rows_explain_the_residual_of_sensors_built_wrong():
     positions = np.repeat(POSITIONS + moves, 3, axis=0)
     motion = rng.standard_normal((40, 6)) + 1j * rng.standard_normal((40, 6))
     y_meas = (1.0 + gains) * _readings(motion, positions, directions)
-    m = fit.fit_many(y_meas[:, None, :])
-    g = np.concatenate([x.gamma_o for x in m])
-    o = np.concatenate([x.omega_dot for x in m])
-    H, y = redundancy_rows(setup, fit, y_meas, g, o, np.ones(40))
+    H, y = _fitted_rows(setup, y_meas)
     # the calibration columns hold the correction: minus the error, in systematic_names order
     error = np.concatenate([gains, *[np.concatenate([turns[s], moves[s]]) for s in range(3)]])
     assert len(error) == len(systematic_names(setup))
@@ -93,16 +97,12 @@ def _unexplained_by_gains_and_turns(sensor_positions: np.ndarray, seed: int) -> 
     errors explain, over many motions of every direction (exact readings, 0.1 mm moves)."""
     setup = _setup(sensor_positions)
     n_s = len(sensor_positions)
-    fit = RigidFit.of(setup.positions, setup.directions).on_channels(np.arange(3 * n_s))
     rng = np.random.default_rng(seed)
     moves = 1e-4 * rng.standard_normal((n_s, 3))
     positions = np.repeat(sensor_positions + moves, 3, axis=0)
     motion = rng.standard_normal((60, 6)) + 1j * rng.standard_normal((60, 6))
     y_meas = _readings(motion, positions, setup.directions)
-    m = fit.fit_many(y_meas[:, None, :])
-    g = np.concatenate([x.gamma_o for x in m])
-    o = np.concatenate([x.omega_dot for x in m])
-    H, y = redundancy_rows(setup, fit, y_meas, g, o, np.ones(60))
+    H, y = _fitted_rows(setup, y_meas)
     names = systematic_names(setup)
     keep = [i for i, name in enumerate(names) if not name.startswith("pos:")]
     a = H[:, :, keep].reshape(-1, len(keep))
