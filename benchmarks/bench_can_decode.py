@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.can_codec import RawFrame, frame_time_s, load_plan
-from acquisition.can_source import FrameDecoder
+from acquisition.can.codec import RawFrame, frame_time_s, load_plan
+from acquisition.can.source import FrameDecoder
 from ptinertia.commands.can_sim import simulate_to_bus
 from ptinertia.config import load_bench
 
@@ -54,7 +54,7 @@ def bus_path_rate(bench, plan, seconds: float) -> tuple[float, int]:
 
     import can
 
-    from acquisition.can_source import CanBusSource
+    from acquisition.can.source import CanBusSource
 
     channel = "bench-can-decode"
     src = CanBusSource(plan, interface="virtual", channel=channel, idle_timeout_s=5.0)

@@ -124,7 +124,7 @@ def rls_timing() -> tuple[float, float]:
     import sys
 
     sys.path.insert(0, str(ROOT / "tests"))
-    from estimator_harness import Body, frames, make_setup
+    from support.estimator_harness import Body, frames, make_setup
 
     from estimator.rls import rls_init, rls_update
     from estimator.streaming import InertiaEstimator

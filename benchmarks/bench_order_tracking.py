@@ -195,7 +195,7 @@ def latency() -> None:
 
 
 def _sim_sweep():
-    from acquisition.sweep import RpmProfile, ramp
+    from acquisition.sim.sweep import RpmProfile, ramp
     from ptinertia.config import load_bench
     from ptinertia.sources import open_source
 

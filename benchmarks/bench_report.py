@@ -63,8 +63,8 @@ def main() -> None:
             )
             cli.append(time.perf_counter() - t0)
 
-        from ptinertia.report import build_report, write_report
-        from ptinertia.report_data import load
+        from ptinertia.report.build import build_report, write_report
+        from ptinertia.report.data import load
 
         split = []
         for _ in range(args.repeat):

@@ -7,7 +7,7 @@ is ``X_h = 2 sum w x exp(-i h phi) omega dt / sum w omega dt`` over the 720 deg
 window ``c_j +- 360 deg`` with partition-of-unity tapers (:mod:`dsp.frames`),
 built from per-segment sums (:mod:`dsp.sums`), then corrected for the leakage
 that a sweep causes (:mod:`dsp.leakage`). Why this method, with the figures
-measured by ``benchmarks/bench_order_tracking.py`` and ``tests/test_order_accuracy.py``
+measured by ``benchmarks/bench_order_tracking.py`` and ``tests/dsp/test_order_accuracy.py``
 (simulated i3 bench, 60-2 wheel, 9 channels at 5120 Hz, orders up to 6 present):
 
 * Leakage. The window's periodic extension is constant, so a neighbouring half
@@ -66,7 +66,7 @@ measured by ``benchmarks/bench_order_tracking.py`` and ``tests/test_order_accura
   come out within 1.1e-6 of the largest harmonic at 5120 Hz (the single-precision
   carrier angle, growing with the order); in a 1500 -> 4500 rpm sweep in 20 s with
   amplitudes growing as up to rpm^2, within 6e-5 (uncorrected: 1.4e-2)
-  (``tests/test_dsp_spectrum.py``). Its cost is per order, not per channel:
+  (``tests/dsp/test_dsp_spectrum.py``). Its cost is per order, not per channel:
   17 internal orders against the accelerometers' 8: on the live load above with
   the pressure's spectrum, 140x real time instead of 190x (+35 % CPU; carriers,
   sums and the correction of the extra orders; ``benchmarks/bench_order_tracking.py``).

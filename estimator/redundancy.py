@@ -32,7 +32,7 @@ from estimator.systematic import reading_sensitivity, systematic_names, systemat
 # the nine position errors (a common move and a common stretch are rigid motions),
 # and fixed gain and alignment errors leave the same residual for every motion: four
 # of the five exactly, with errors of a few times their tolerances, the fifth nearly
-# (tests/test_redundancy.py; a fourth sensor changes that). So these rows cannot tell
+# (tests/estimator/test_redundancy.py; a fourth sensor changes that). So these rows cannot tell
 # a moved sensor from a turned or re-gained one; only the priors and the equations of
 # motion, through their weak rpm dependence, could. Measured on the simulated i3 at
 # 40 dB with no sensor error at all, calibrating the positions as well moved Iyz by

@@ -1,6 +1,6 @@
 """Open a source from a short spec: ``sim``, ``file:PATH``, ``can:INTERFACE:CHANNEL``.
 
-The spec names the backend (:mod:`acquisition.registry`, imported lazily); the
+The spec names the backend (:mod:`ptinertia.registry`, imported lazily); the
 bench file says which channels the estimate needs, so a CSV or MF4 recording
 is checked against it on opening (a missing channel is a :class:`SourceError`
 naming it, not a silent hole later on). CAN logs and live buses are checked by
@@ -12,10 +12,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from acquisition.registry import file_kind, source_backend
+from acquisition.sim.sweep import RpmProfile
 from acquisition.stream import Source, SourceError, StreamLayout
-from acquisition.sweep import RpmProfile
 from ptinertia.config import Bench, Simulation, Tacho, parse_bench
+from ptinertia.registry import file_kind, source_backend
 
 # options of the simulated source that are not bench-file keys
 SIM_OPTIONS = (
@@ -49,7 +49,7 @@ def open_source(spec: str, bench: Bench, **overrides: Any) -> Source:
     ----------
     spec : str
         ``"sim"`` (the simulated bench); ``"file:PATH"``: a CSV base file or an
-        MF4 recording (:mod:`acquisition.csvfile`, :mod:`acquisition.mdf`), a
+        MF4 recording (:mod:`acquisition.files.csvfile`, :mod:`acquisition.files.mdf`), a
         CAN log (``.blf .asc .trc .log``, or an MF4 of raw CAN frames), an MCAP
         recording to replay (a bare path with one of those extensions works
         too); ``"can:INTERFACE:CHANNEL"`` a live bus (either part defaults to
@@ -173,7 +173,7 @@ def open_file(path: str | Path, bench: Bench, **overrides: Any) -> Source:
 def _is_can_log(path: Path) -> bool:
     """An MF4 of raw CAN frames (asammdf bus logging), read by the CAN log source."""
     try:
-        from acquisition.can_logs import is_can_log
+        from acquisition.can.logs import is_can_log
     except ImportError:
         return False
     return bool(is_can_log(path))

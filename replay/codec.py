@@ -129,7 +129,7 @@ def decode_event(data: bytes) -> tuple[str, SourceEvent]:
 
 
 def encode_can(frames: Any, time_s: float) -> bytes:
-    """``/raw/can``: a batch of ``acquisition.can_codec.RawFrame`` as columns."""
+    """``/raw/can``: a batch of ``acquisition.can.codec.RawFrame`` as columns."""
     msg = wire_class("CanFrames")(
         time_s=time_s,
         timestamp_ns=[int(f.timestamp_ns) for f in frames],
@@ -143,7 +143,7 @@ def encode_can(frames: Any, time_s: float) -> bytes:
 
 def decode_can(data: bytes) -> list[Any]:
     """The batch of ``RawFrame`` as received."""
-    from acquisition.can_codec import RawFrame
+    from acquisition.can.codec import RawFrame
 
     msg = wire_class("CanFrames").FromString(data)
     n = len(msg.timestamp_ns)
@@ -390,7 +390,7 @@ def decode_estimate(data: bytes) -> tuple[float, float, Any, bool]:
 
 def layout_to_json(layout: StreamLayout) -> str:
     """The layout (groups, edge channels, metadata) as JSON; floats round-trip exactly."""
-    from acquisition.csvwriter import json_default
+    from acquisition.files.csvwriter import json_default
 
     doc = {
         "groups": [

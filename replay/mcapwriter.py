@@ -13,7 +13,7 @@ indexes it and writes it.
 The file is the one ``mcap.writer.Writer`` (1.6, default options) writes
 for the same calls, byte for byte: the same records in the same order, the
 schemas and channels inside the first chunk, message indexes after each
-chunk, the same summary section and footer. ``tests/test_mcap_writer.py``
+chunk, the same summary section and footer. ``tests/replay/test_mcap_writer.py``
 checks it.
 
 Order and bounds. Every write is a job on one FIFO queue drained by the one

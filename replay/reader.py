@@ -221,7 +221,7 @@ class RecordedLog:
                 yield EstimateUpdate(time_s, rpm, estimate)
 
     def can_frames(self) -> Iterator[list[Any]]:
-        """The raw CAN frames as received, in batches of ``acquisition.can_codec.RawFrame``.
+        """The raw CAN frames as received, in batches of ``acquisition.can.codec.RawFrame``.
 
         Empty unless the source was a CAN bus. ``CanFrameSource(plan, log.can_frames())``
         decodes them again (with the recorded DBC, ``attachments``, or a new one).

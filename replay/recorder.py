@@ -248,7 +248,7 @@ class McapRecorder(Sink):
         channel(TOPIC_CAN, "CanFrames")  # always registered: a reader finds every topic up front
 
     def _run_metadata(self, context: Any, layout: StreamLayout) -> dict[str, str]:
-        from acquisition.csvwriter import json_default
+        from acquisition.files.csvwriter import json_default
 
         truth = getattr(context, "truth", None)
         if truth is None:
@@ -337,7 +337,7 @@ class McapRecorder(Sink):
         self._add(TOPIC_ESTIMATE, update.time_s, data)
 
     def on_can_frames(self, frames: Any) -> None:
-        """A batch of raw CAN frames (``acquisition.can_codec.RawFrame``) as received.
+        """A batch of raw CAN frames (``acquisition.can.codec.RawFrame``) as received.
 
         Pass this method as the CAN source's ``frame_listener``: it is called on
         the acquisition thread, and it is safe to.
@@ -465,7 +465,7 @@ def record_source(
 
 
 class McapFileWriter:
-    """The stream writer interface of ``acquisition.registry.WRITERS`` for ``.mcap``.
+    """The stream writer interface of ``ptinertia.registry.WRITERS`` for ``.mcap``.
 
     Lifecycle ``start(layout)``, ``write(item)`` for every item, ``finish()``
     (or a context manager), like ``CsvWriter``: ``ptinertia simulate --out x.mcap``

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from acquisition.can_codec import CanPlan, RawFrame, TxFrame, frame_crc
+from acquisition.can.codec import CanPlan, RawFrame, TxFrame, frame_crc
 from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
 
@@ -303,7 +303,7 @@ def simulate_to_bus(
     data_bitrate: int | None = None,
 ) -> dict[str, Any]:
     """Run the simulated DAQ on ``bus`` (and/or ``log_frame``); return the summary."""
-    from acquisition.can_codec import FrameEncoder, bus_load
+    from acquisition.can.codec import FrameEncoder, bus_load
     from ptinertia.sources import open_source
 
     source = open_source("sim", bench, block_s=0.02, **(sim_overrides or {}))
@@ -379,10 +379,10 @@ def _start_time(item: Any, layout: Any) -> float | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from acquisition.can_codec import load_plan
-    from acquisition.can_logs import FrameLogWriter
-    from acquisition.can_source import open_bus
-    from acquisition.sweep import parse_sweep
+    from acquisition.can.codec import load_plan
+    from acquisition.can.logs import FrameLogWriter
+    from acquisition.can.source import open_bus
+    from acquisition.sim.sweep import parse_sweep
     from ptinertia.config import load_bench
 
     bench = load_bench(args.bench)

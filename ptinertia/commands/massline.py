@@ -77,10 +77,10 @@ def compute(
     tolerances: Any = None,
 ) -> dict[str, Any]:
     """The result document of a mass-line evaluation."""
-    from acquisition.frf_matrix import SensorPoint, frf_matrix
-    from acquisition.modal_setup import load_modal_setup
-    from acquisition.uff import read_uff
-    from estimator.massline import FrfGeometry, estimate_mass_line
+    from acquisition.classical.frf_matrix import SensorPoint, frf_matrix
+    from acquisition.classical.modal_setup import load_modal_setup
+    from acquisition.classical.uff import read_uff
+    from estimator.classical.massline import FrfGeometry, estimate_mass_line
     from ptinertia.commands.compare import estimate_document
     from ptinertia.config import load_bench
 
@@ -183,7 +183,7 @@ def format_report(doc: dict[str, Any]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from estimator.massline import MassLineTolerances
+    from estimator.classical.massline import MassLineTolerances
     from ptinertia.commands.compare import write_document
 
     values = {

@@ -31,7 +31,7 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
 
 
 def _swings(test: Any) -> list[Any]:
-    from estimator.pendulum import Swing
+    from estimator.classical.pendulum import Swing
 
     unc = test.uncertainty
     out = []
@@ -67,8 +67,8 @@ def _swings(test: Any) -> list[Any]:
 
 def compute(path: str) -> dict[str, Any]:
     """The result document of a pendulum test file."""
-    from acquisition.pendulum_file import load_pendulum_test
-    from estimator.pendulum import (
+    from acquisition.classical.pendulum_file import load_pendulum_test
+    from estimator.classical.pendulum import (
         BEST_CONDITION,
         CONDITION_WARN,
         Plate,

@@ -115,8 +115,8 @@ def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None)
 
 def redecoded_can(log: Any, bench: Any, dbc: str, log_path: Path) -> Any:
     """A source decoding the log's raw CAN frames again with ``dbc``."""
-    from acquisition.can_codec import load_plan
-    from acquisition.can_source import CanFrameSource
+    from acquisition.can.codec import load_plan
+    from acquisition.can.source import CanFrameSource
     from replay.schemas import TOPIC_CAN
 
     batches = iter(log.can_frames())

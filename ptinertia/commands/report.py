@@ -29,7 +29,7 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ptinertia.report import make_report
+    from ptinertia.report.build import make_report
 
     src = Path(args.input)
     out = Path(args.out) if args.out else src.with_suffix(".html")

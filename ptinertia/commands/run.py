@@ -136,7 +136,7 @@ def viewer_sinks(mode: str | None, record: str | None) -> list[Sink]:
     if mode == "off":
         return []
     try:
-        from ptinertia import viewer
+        from ptinertia.viewer import rerun_sink as viewer
     except ImportError:
         if mode is None:
             return []

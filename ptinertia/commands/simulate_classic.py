@@ -65,8 +65,8 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
 
 
 def simulate_pendulum(args: argparse.Namespace) -> str:
-    from acquisition.classic_sim import PendulumNoise, simulate_pendulum_test
-    from acquisition.pendulum_file import dumps_pendulum_test
+    from acquisition.classical.classic_sim import PendulumNoise, simulate_pendulum_test
+    from acquisition.classical.pendulum_file import dumps_pendulum_test
     from ptinertia.bench import build_model
     from ptinertia.config import load_bench
 
@@ -115,14 +115,14 @@ def simulate_pendulum(args: argparse.Namespace) -> str:
 
 
 def simulate_frf(args: argparse.Namespace) -> str:
-    from acquisition.classic_sim import (
+    from acquisition.classical.classic_sim import (
         ElasticModeSpec,
         default_hits,
         simulate_frfs,
         soft_suspension,
     )
-    from acquisition.frf_matrix import frfs_from_matrix
-    from acquisition.uff import write_uff
+    from acquisition.classical.frf_matrix import frfs_from_matrix
+    from acquisition.classical.uff import write_uff
     from powertrain.mounted import MountedPowertrain
     from ptinertia.bench import build_model
     from ptinertia.config import load_bench

@@ -1,0 +1,146 @@
+"""CAN sources: one import point, the log/replay source and the ``can:`` registry entry.
+
+:class:`CanFrameSource` decodes batches of raw frames (a CAN log, raw frames replayed from
+a recording); :func:`open_can` builds the live :class:`~acquisition.can.bus.CanBusSource`
+for ``--source can:INTERFACE:CHANNEL`` (``ptinertia.registry`` names it here). The rest
+is split along its seams and re-exported, so ``from acquisition.can.source import X``
+keeps working:
+
+* :mod:`acquisition.can.decoder`: :class:`FrameDecoder`, :func:`decode_frames` (placement, losses).
+* :mod:`acquisition.can.reorder`: :class:`DecoderOptions` and the per-message decoder state.
+* :mod:`acquisition.can.stats`: :class:`DecoderStats`, :class:`StreamStats` (loss accounting).
+* :mod:`acquisition.can.bus`: the live bus, its receive thread and python-can glue.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator, Sequence
+from typing import TYPE_CHECKING, Any
+
+from acquisition.can.bus import CanBusSource, bus_error_kind, message_to_frame, open_bus
+from acquisition.can.dbc import load_plan
+from acquisition.can.decoder import FrameDecoder, decode_frames
+from acquisition.can.frames import RawFrame
+from acquisition.can.plan import CanPlan
+from acquisition.can.reorder import DecoderOptions
+from acquisition.can.stats import DecoderStats, StreamStats
+from acquisition.stream import Source, SourceError, SourceEvent, StreamItem, StreamLayout
+
+if TYPE_CHECKING:
+    from ptinertia.config import Bench
+
+__all__ = [
+    "CAN_OPTIONS",
+    "CanBusSource",
+    "CanFrameSource",
+    "DecoderOptions",
+    "DecoderStats",
+    "FrameDecoder",
+    "StreamStats",
+    "bus_error_kind",
+    "decode_frames",
+    "message_to_frame",
+    "open_bus",
+    "open_can",
+]
+
+
+class CanFrameSource(Source):
+    """A source over batches of raw frames (a CAN log, raw frames replayed from a recording).
+
+    Parameters
+    ----------
+    plan : CanPlan
+    batches : iterable of sequences of RawFrame
+    options : DecoderOptions
+    metadata : extra layout metadata
+    """
+
+    def __init__(
+        self,
+        plan: CanPlan,
+        batches: Iterable[Sequence[RawFrame]],
+        options: DecoderOptions | None = None,
+        metadata: dict[str, Any] | None = None,
+    ) -> None:
+        super().__init__()
+        self.decoder = FrameDecoder(plan, options)
+        self._batches = batches
+        meta = dict(plan.layout.metadata)
+        meta.update(metadata or {})
+        self._layout = StreamLayout(plan.layout.groups, plan.layout.edge_channels, meta)
+
+    @property
+    def layout(self) -> StreamLayout:
+        return self._layout
+
+    @property
+    def stats(self) -> DecoderStats:
+        return self.decoder.stats
+
+    def _iter_items(self) -> Iterator[StreamItem]:
+        for batch in self._batches:
+            yield from self.decoder.feed(batch)
+        yield from self.decoder.finish()
+        yield SourceEvent(
+            "can_stats", self.decoder.stats.summary(), None, self.decoder.stats.total("lost")
+        )
+
+
+CAN_OPTIONS = (
+    "dbc",
+    "bitrate",
+    "data_bitrate",
+    "fd",
+    "bus_kwargs",
+    "reorder_window_s",
+    "idle_timeout_s",
+    "stop_grace_s",
+    "max_outage_s",
+    "frame_listener",
+    "block_s",
+)
+
+
+def open_can(arg: str, bench: Bench, **overrides: Any) -> CanBusSource:
+    """The live source of ``--source can:INTERFACE:CHANNEL`` (either part defaults to ``[can]``).
+
+    Overrides: ``dbc``, ``bitrate``, ``data_bitrate``, ``fd``, ``bus_kwargs``,
+    ``reorder_window_s``, ``idle_timeout_s``, ``stop_grace_s``, ``max_outage_s``,
+    ``frame_listener``.
+    """
+    bad = sorted(set(overrides) - set(CAN_OPTIONS))
+    if bad:
+        raise SourceError(
+            f"source 'can:{arg}': unknown option {bad[0]!r}; known: {', '.join(CAN_OPTIONS)}"
+        )
+    interface, _, channel = arg.partition(":")
+    cfg = bench.can
+    interface = interface or cfg.interface
+    channel = channel or cfg.channel
+    plan = load_plan(bench, overrides.get("dbc"))
+    fd = bool(overrides.get("fd", cfg.fd))
+    if not fd:
+        fd_msgs = [m.name for m in plan.messages if m.is_fd]
+        if fd_msgs:
+            raise SourceError(
+                f"the DBC's {fd_msgs[0]} is a CAN FD frame but the bus is classic CAN (fd = false)"
+            )
+    kwargs: dict[str, Any] = {"fd": fd, "bitrate": int(overrides.get("bitrate", cfg.bitrate))}
+    if fd:
+        kwargs["data_bitrate"] = int(overrides.get("data_bitrate", cfg.data_bitrate))
+    kwargs.update(overrides.get("bus_kwargs") or {})
+    opts = DecoderOptions(
+        reorder_window_s=float(overrides.get("reorder_window_s", DecoderOptions.reorder_window_s))
+    )
+    return CanBusSource(
+        plan,
+        interface=interface,
+        channel=channel,
+        bus_kwargs=kwargs,
+        options=opts,
+        idle_timeout_s=overrides.get("idle_timeout_s", 10.0),
+        stop_grace_s=float(overrides.get("stop_grace_s", 0.2)),
+        max_outage_s=float(overrides.get("max_outage_s", 60.0)),
+        frame_listener=overrides.get("frame_listener"),
+    )

@@ -1,0 +1,210 @@
+"""ASAM MDF4 recordings (``.mf4``) through asammdf: streaming reader and writer.
+
+Layout (``docs/file-formats.md``): one channel group per sample group, its
+acquisition name the group name (``accel``, ``rpm``, ``pressure``, ``tacho``),
+its master channel the time (s); a tacho edge channel is a channel group of
+its own whose single channel, commented ``ptinertia:edges``, holds the edge
+times (s, float64) and whose master is the same times. Samples and times are
+written as float64, so they read back bit for bit. The metadata (simulated
+truth, bench) is an embedded attachment ``ptinertia-metadata.json``.
+
+The reader pulls ``records_per_chunk`` records of one group at a time
+(asammdf reads lazily), so long recordings stream.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from acquisition.files.csvwriter import json_default
+from acquisition.files.windowed import Chunk, EdgeStream, SampleStream, WindowedFileSource
+from acquisition.stream import (
+    ChannelSpec,
+    EdgeBlock,
+    SampleBlock,
+    SourceError,
+    StreamItem,
+    StreamLayout,
+)
+
+EDGE_COMMENT = "ptinertia:edges"
+METADATA_NAME = "ptinertia-metadata.json"
+
+
+def _open_mdf(path: Path) -> Any:
+    from asammdf import MDF
+
+    if not path.is_file():
+        raise SourceError(f"{path}: no such MDF file")
+    try:
+        return MDF(path)
+    except Exception as err:  # asammdf raises many types for a file that is not MDF
+        raise SourceError(
+            f"{path}: not a readable MDF4 file ({type(err).__name__}: {err})"
+        ) from None
+
+
+def _mdf_chunks(
+    mdf: Any, gi: int, indices: list[int], n: int, per_chunk: int, where: str
+) -> Iterator[Chunk]:
+    for start in range(0, n, per_chunk):
+        count = min(per_chunk, n - start)
+        try:
+            times = np.asarray(
+                mdf.get_master(gi, record_offset=start, record_count=count), dtype=float
+            )
+            sigs = [
+                mdf.get(
+                    group=gi, index=ci, record_offset=start, record_count=count, samples_only=True
+                )[0]
+                for ci in indices
+            ]
+        except Exception as err:
+            raise SourceError(
+                f"{where}: cannot read records {start}..{start + count} ({err})"
+            ) from None
+        data = np.array(sigs, dtype=float) if sigs else None
+        yield start, times, data
+
+
+class MdfSource(WindowedFileSource):
+    """Stream an MDF4 recording written in the layout above.
+
+    Parameters
+    ----------
+    path : path
+    block_s : float
+        Window length of the merged stream (s).
+    records_per_chunk : int
+        Records read at a time per channel group.
+    """
+
+    def __init__(
+        self, path: str | Path, block_s: float = 0.1, records_per_chunk: int = 65536
+    ) -> None:
+        self.path = Path(path)
+        self._mdf = _open_mdf(self.path)
+        try:
+            samples: list[SampleStream] = []
+            edges: list[EdgeStream] = []
+            for gi, group in enumerate(self._mdf.groups):
+                cg = group.channel_group
+                n = int(cg.cycles_nr)
+                master = self._mdf.masters_db.get(gi)
+                chans = [(ci, c) for ci, c in enumerate(group.channels) if ci != master]
+                name = cg.acq_name or f"group{gi}"
+                where = f"{self.path} group {name!r}"
+                if n == 0 or not chans:
+                    continue
+                if len(chans) == 1 and chans[0][1].comment == EDGE_COMMENT:
+                    ch = chans[0][1].name
+                    edges.append(
+                        EdgeStream(
+                            ch,
+                            f"{self.path} channel {ch!r}",
+                            _mdf_chunks(self._mdf, gi, [], n, records_per_chunk, where),
+                            "record",
+                        )
+                    )
+                    continue
+                specs = []
+                for _, c in chans:
+                    if not c.name or c.name.lower() == "nan":
+                        raise SourceError(f"{where}: a channel has no usable name ({c.name!r})")
+                    specs.append(ChannelSpec(c.name, c.unit or ""))
+                chunks = _mdf_chunks(
+                    self._mdf, gi, [ci for ci, _ in chans], n, records_per_chunk, where
+                )
+                samples.append(SampleStream(name, specs, where, chunks, "record"))
+            super().__init__(samples, edges, self._metadata(), block_s)
+        except BaseException:
+            self._mdf.close()
+            raise
+
+    def _metadata(self) -> dict[str, Any]:
+        for i, att in enumerate(self._mdf.attachments):
+            if str(att.file_name).endswith(METADATA_NAME):
+                data, _, _ = self._mdf.extract_attachment(i)
+                try:
+                    meta = json.loads(data)
+                except ValueError as err:
+                    raise SourceError(
+                        f"{self.path}: attachment {METADATA_NAME} is not JSON ({err})"
+                    ) from None
+                return meta if isinstance(meta, dict) else {}
+        return {}
+
+    def _shutdown(self) -> None:
+        self._mdf.close()
+
+
+class MdfWriter:
+    """Write a stream as an MDF4 file (the layout :class:`MdfSource` reads).
+
+    Lifecycle: ``start(layout)``, ``write(item)``, ``finish()`` (saves the file).
+    asammdf spools the appended blocks to a temporary file until ``finish``, so
+    memory stays flat; the disk holds the data twice until then.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._mdf: Any = None
+        self._index: dict[str, int] = {}
+        self._layout: StreamLayout | None = None
+        self.paths: list[Path] = []
+
+    def start(self, layout: StreamLayout) -> None:
+        from asammdf import MDF, Signal
+
+        self._layout = layout
+        self._mdf = MDF(version="4.10")
+        empty = np.zeros(0)
+        for g in layout.groups:
+            sigs = [Signal(empty, empty, name=c.name, unit=c.unit) for c in g.channels]
+            self._index[g.name] = self._mdf.append(
+                sigs, acq_name=g.name, comment=f"rate_hz={g.rate_hz!r}"
+            )
+        for ch in layout.edge_channels:
+            sig = Signal(empty, empty, name=ch, unit="s", comment=EDGE_COMMENT)
+            self._index["\0edge:" + ch] = self._mdf.append(
+                [sig], acq_name=ch, comment="tacho edge times"
+            )
+
+    def write(self, item: StreamItem) -> None:
+        if self._layout is None:
+            raise RuntimeError("MdfWriter.write before start")
+        if isinstance(item, SampleBlock):
+            g = self._layout.group(item.group)
+            t = g.t0_s + np.arange(item.first_index, item.first_index + item.n_samples) / g.rate_hz
+            self._mdf.extend(self._index[g.name], [(t, None), *((row, None) for row in item.data)])
+        elif isinstance(item, EdgeBlock):
+            t = np.asarray(item.times_s, dtype=float)
+            self._mdf.extend(self._index["\0edge:" + item.channel], [(t, None), (t, None)])
+
+    def finish(self) -> list[Path]:
+        if self._mdf is None:
+            return self.paths
+        meta = json.dumps(
+            self._layout.metadata if self._layout else {}, default=json_default
+        ).encode()
+        self._mdf.attach(meta, file_name=METADATA_NAME, embedded=True, compression=True)
+        try:
+            self._mdf.save(self.path, overwrite=True)
+        except OSError as err:
+            raise SourceError(f"{self.path}: cannot write ({err.strerror})") from None
+        finally:
+            self._mdf.close()
+            self._mdf = None
+        self.paths = [self.path]
+        return self.paths
+
+    def __enter__(self) -> MdfWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.finish()

@@ -1,0 +1,1 @@
+"""ptinertia.report.build."""

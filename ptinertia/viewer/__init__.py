@@ -1,0 +1,1 @@
+"""ptinertia.viewer.rerun_sink."""

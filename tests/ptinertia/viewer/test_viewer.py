@@ -1,0 +1,596 @@
+"""The Rerun view: option parsing, the geometry it draws, and what lands in a saved ``.rrd``.
+
+No viewer is ever started: the sink saves to a file (read back with Rerun's own
+``RrdReader``) or serves on 127.0.0.1 only.
+"""
+
+from __future__ import annotations
+
+import io
+import socket
+import subprocess
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from acquisition.stream import SourceEvent, StreamLayout
+from dsp.frames import OrderFrame
+from estimator.kinematics import fit_rigid_motion
+from estimator.result import principal_axes
+from estimator.streaming import InertiaEstimator
+from ptinertia.bench import build_simulated_model
+from ptinertia.config import load_bench
+from ptinertia.errors import UsageError, user_error_types
+from ptinertia.estimation import estimator_setup
+from ptinertia.sinks import EstimateUpdate, RunContext
+from ptinertia.viewer.options import open_recording, parse_rerun_option
+from ptinertia.viewer.rerun_sink import RerunSink, ViewerMode, estimate_rows, make_viewer_sink
+from ptinertia.viewer.scene import (
+    covariance_ellipsoid,
+    displacement_amplitudes,
+    displacement_at,
+    equivalent_box,
+    exaggerated_pose,
+    nice_exaggeration,
+    peak_excursion,
+)
+
+ROOT = Path(__file__).resolve().parents[3]
+I3 = ROOT / "examples" / "i3-bench.toml"
+NO_DISPLAY: dict[str, str] = {}
+X11 = {"DISPLAY": ":0"}
+
+
+# -- option parsing ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("text", [None, "", "auto"])
+def test_default_never_spawns_without_a_display(text, tmp_path):
+    mode = parse_rerun_option(text, tmp_path / "run.mcap", env=NO_DISPLAY, platform="linux")
+    assert mode.kind == "save" and mode.defaulted
+    assert mode.path == tmp_path / "run.rrd"
+    assert mode.open_hint() == f"Rerun view saved to {mode.path}; open it with: rerun {mode.path}"
+
+
+def test_default_without_recording_saves_a_timestamped_file_here():
+    mode = parse_rerun_option(
+        None, None, env=NO_DISPLAY, platform="linux", now=datetime(2024, 1, 2, 3, 4, 5)
+    )
+    assert mode.path == Path.cwd() / "ptinertia-20240102-030405.rrd"
+
+
+@pytest.mark.parametrize("env", [X11, {"WAYLAND_DISPLAY": "wayland-0"}])
+def test_default_spawns_where_there_is_a_display(env):
+    mode = parse_rerun_option(None, None, env=env, platform="linux")
+    assert (mode.kind, mode.defaulted) == ("spawn", True)
+
+
+def test_explicit_spawn_without_display_is_a_user_error():
+    with pytest.raises(UsageError, match="no display"):
+        parse_rerun_option("spawn", None, env=NO_DISPLAY, platform="linux")
+    assert parse_rerun_option("spawn", None, env=NO_DISPLAY, platform="darwin").kind == "spawn"
+
+
+def test_make_viewer_sink_headless_saves(monkeypatch, tmp_path):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr(sys, "platform", "linux")
+    sink = make_viewer_sink(None, tmp_path / "run.mcap")
+    assert sink is not None and sink.mode.kind == "save" and sink.mode.path == tmp_path / "run.rrd"
+    assert make_viewer_sink("off") is None
+
+
+@pytest.mark.parametrize(
+    ("text", "url"),
+    [
+        ("connect", "rerun+http://127.0.0.1:9876/proxy"),
+        ("connect=10.0.0.5:9000", "rerun+http://10.0.0.5:9000/proxy"),
+        ("connect=viewer-host", "rerun+http://viewer-host:9876/proxy"),
+        ("connect=:9877", "rerun+http://127.0.0.1:9877/proxy"),
+        ("connect=[::1]:9877", "rerun+http://[::1]:9877/proxy"),
+        ("connect=rerun+https://example.org/proxy", "rerun+https://example.org/proxy"),
+    ],
+)
+def test_connect_addresses(text, url):
+    assert parse_rerun_option(text).url == url
+
+
+@pytest.mark.parametrize(
+    ("text", "bind", "port"),
+    [
+        ("serve", "127.0.0.1", 9876),
+        ("serve=9000", "127.0.0.1", 9000),
+        ("serve=localhost:9001", "127.0.0.1", 9001),
+        ("serve=0.0.0.0:9002", "0.0.0.0", 9002),
+        ("serve=[::1]:9003", "::1", 9003),
+    ],
+)
+def test_serve_binds_localhost_unless_told(text, bind, port):
+    mode = parse_rerun_option(text)
+    assert (mode.kind, mode.bind_ip, mode.port) == ("serve", bind, port)
+
+
+def test_save_path(tmp_path):
+    assert parse_rerun_option(f"save={tmp_path / 'a.rrd'}").path == tmp_path / "a.rrd"
+    assert parse_rerun_option(f"save={tmp_path / 'a'}").path == tmp_path / "a.rrd"
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("bogus", "expected spawn, connect"),
+        ("save=/no/such/dir/x.rrd", "does not exist"),
+        ("serve=myhost:9000", "must be an IP address"),
+        ("serve=:70000", "port must be 1-65535"),
+        ("connect=localhost:x1", "port must be 1-65535"),
+        ("connect=http://host:9876", "URL scheme"),
+        ("off=1", "expected spawn"),
+    ],
+)
+def test_bad_options_are_user_errors(text, message):
+    with pytest.raises(UsageError, match=message):
+        parse_rerun_option(text)
+    assert issubclass(UsageError, user_error_types())
+
+
+def test_save_into_a_directory_is_refused(tmp_path):
+    with pytest.raises(UsageError, match="is a directory"):
+        parse_rerun_option(f"save={tmp_path}")
+
+
+def test_importing_the_viewer_does_not_import_rerun():
+    code = "import sys, ptinertia.viewer.rerun_sink; print('rerun' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def _closed_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_connect_to_nothing_fails_fast_instead_of_hanging():
+    mode = parse_rerun_option(f"connect=127.0.0.1:{_closed_port()}")
+    t0 = time.monotonic()
+    with pytest.raises(UsageError, match=r"no Rerun viewer at 127\.0\.0\.1"):
+        open_recording(mode, None, io.StringIO())
+    assert time.monotonic() - t0 < 3.0
+
+
+def _listening_sockets_of_this_process() -> list[str]:
+    """Local addresses (hex, as in /proc/net/tcp*) of this process's listening TCP sockets."""
+    fd_dir = Path("/proc/self/fd")
+    inodes = set()
+    for fd in fd_dir.iterdir():
+        try:
+            link = fd.readlink().as_posix()
+        except OSError:
+            continue
+        if link.startswith("socket:["):
+            inodes.add(link[8:-1])
+    out = []
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        for line in Path(table).read_text().splitlines()[1:]:
+            f = line.split()
+            if f[3] == "0A" and f[9] in inodes:  # 0A = LISTEN
+                out.append(f[1].split(":")[0])
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="needs Linux /proc")
+def test_serve_listens_on_loopback_only():
+    before = set(_listening_sockets_of_this_process())
+    mode = ViewerMode("serve", bind_ip="127.0.0.1", port=0, memory_limit="16MiB")
+    rec = open_recording(mode, None, io.StringIO())
+    try:
+        for _ in range(50):  # the server starts on a background thread
+            new = set(_listening_sockets_of_this_process()) - before
+            if new:
+                break
+            time.sleep(0.02)
+        assert new == {"0100007F"}  # 127.0.0.1, and nothing on 0.0.0.0 or ::
+    finally:
+        rec.disconnect()
+
+
+# -- geometry ---------------------------------------------------------------------------------
+
+
+def _uniform_box_moments(half: np.ndarray, mass: float) -> np.ndarray:
+    """Principal moments of a uniform box by Gauss-Legendre quadrature of ``(r^2 - x_i^2) dm``.
+
+    Independent of the closed form the code uses; 3 points per axis are exact for the
+    quadratic integrand.
+    """
+    nodes, weights = np.polynomial.legendre.leggauss(3)
+    g = [nodes * h for h in half]
+    w = np.einsum("i,j,k->ijk", weights, weights, weights) / 8.0  # weights sum to 8 on [-1, 1]^3
+    x, y, z = np.meshgrid(*g, indexing="ij")
+    return mass * np.array(
+        [np.sum(w * (y**2 + z**2)), np.sum(w * (x**2 + z**2)), np.sum(w * (x**2 + y**2))]
+    )
+
+
+def test_equivalent_box_has_the_principal_moments():
+    bench = load_bench(I3)
+    moments, _ = principal_axes(bench.powertrain.inertia_kgm2.matrix())
+    half = equivalent_box(moments, 110.0)
+    np.testing.assert_allclose(_uniform_box_moments(half, 110.0), moments, rtol=1e-12)
+
+
+def test_cog_ellipsoid_holds_the_right_share_of_samples():
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(3, 3)) * 1e-3
+    cov = a @ a.T + np.diag([1e-7, 4e-7, 2e-7])
+    half, axes = covariance_ellipsoid(cov, 2.0)
+    assert np.isclose(np.linalg.det(axes), 1.0)
+    # points on the drawn surface have Mahalanobis distance k
+    u = rng.normal(size=(50, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    surface = (axes @ (half * u).T).T
+    np.testing.assert_allclose(np.einsum("ij,jk,ik->i", surface, np.linalg.inv(cov), surface), 4.0)
+    # and it holds P(chi2_3 <= 4) = 0.739 of Gaussian samples
+    n = 40000
+    x = rng.multivariate_normal(np.zeros(3), cov, size=n)
+    local = x @ axes / half
+    share = np.mean(np.sum(local**2, axis=1) <= 1.0)
+    p = chi2.cdf(4.0, 3)
+    assert abs(share - p) < 4 * np.sqrt(p * (1 - p) / n)
+
+
+@pytest.fixture(scope="module")
+def i3_simulated(i3):
+    bench = i3
+    model, truth = build_simulated_model(bench)
+    return bench, model, truth
+
+
+def test_displacement_matches_the_harmonic_solve(i3_simulated):
+    """u_G and theta from the fitted accelerations equal the model's own 6x6 solve."""
+    bench, model, _ = i3_simulated
+    orders = (1.0, 1.5, 2.0)
+    rpm = 3100.0
+    amps = model.channel_amplitudes(rpm, orders)[0]
+    motion = fit_rigid_motion(amps, model.channel_positions, model.channel_directions)
+    u_o, theta = displacement_amplitudes(motion, orders, rpm)
+    cog = np.asarray(bench.powertrain.cog_m)
+    u_g = u_o + np.cross(theta, cog - motion.origin)
+    q = model.response(rpm, orders)
+    np.testing.assert_allclose(u_g, q[:, :3], rtol=1e-7, atol=1e-9 * np.abs(q[:, :3]).max())
+    np.testing.assert_allclose(theta, q[:, 3:], rtol=1e-7, atol=1e-9 * np.abs(q[:, 3:]).max())
+
+
+def test_displacement_twice_differentiated_is_the_acceleration(i3_simulated):
+    _, model, _ = i3_simulated
+    orders = np.array([1.0, 1.5, 2.0])
+    rpm = 2400.0
+    omega = rpm * 2 * np.pi / 60
+    motion = fit_rigid_motion(
+        model.channel_amplitudes(rpm, orders)[0], model.channel_positions, model.channel_directions
+    )
+    u_o, theta = displacement_amplitudes(motion, orders, rpm)
+    t, dt = 0.0123, 2e-5
+    u = [displacement_at(u_o, theta, orders, omega * s)[0] for s in (t - dt, t, t + dt)]
+    accel = (u[0] - 2 * u[1] + u[2]) / dt**2
+    expected = (motion.gamma_o * np.exp(1j * orders * omega * t)[:, None]).sum(axis=0).real
+    np.testing.assert_allclose(accel, expected, rtol=1e-4, atol=1e-4 * np.abs(expected).max())
+
+
+def test_exaggerated_pose_is_the_rigid_displacement_to_first_order():
+    rng = np.random.default_rng(5)
+    origin, u, theta = rng.normal(size=3), rng.normal(size=3) * 1e-5, rng.normal(size=3) * 1e-5
+    points = rng.normal(size=(5, 3))
+    for e in (1.0, 10.0):
+        t, r = exaggerated_pose(origin, u, theta, e)
+        moved = points @ r.T + t
+        linear = points + e * (u + np.cross(theta, points - origin))
+        np.testing.assert_allclose(moved, linear, atol=10 * (e * 1e-5 * 3) ** 2)
+    t, r = exaggerated_pose(origin, u, theta, 1e4)  # large: still a proper rotation
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+    assert np.isclose(np.linalg.det(r), 1.0)
+    t, r = exaggerated_pose(origin, u, np.zeros(3), 300.0)
+    np.testing.assert_allclose(points @ r.T + t, points + 300.0 * u, atol=1e-15)
+
+
+@pytest.mark.parametrize("excursion", [3.7e-6, 1e-5, 2.4e-4, 0.02])
+def test_exaggeration_is_the_largest_1_2_5_step_within_target(excursion):
+    target = 0.05
+    e = nice_exaggeration(excursion, target)
+    mantissa = e / 10 ** np.floor(np.log10(e))
+    assert np.isclose(mantissa, 1) or np.isclose(mantissa, 2) or np.isclose(mantissa, 5)
+    assert e * excursion <= target * (1 + 1e-12)
+    steps = [1, 2, 5, 10, 20, 50]
+    above = next(
+        s * 10 ** np.floor(np.log10(e))
+        for s in steps
+        if s * 10 ** np.floor(np.log10(e)) > e * 1.001
+    )
+    assert above * excursion > target or e == 1.0
+
+
+def test_peak_excursion_bounds_the_motion_of_points_within_radius():
+    rng = np.random.default_rng(8)
+    orders = np.array([1.0, 1.5, 2.0])
+    u_o = (rng.normal(size=(3, 3)) + 1j * rng.normal(size=(3, 3))) * 1e-5
+    theta = (rng.normal(size=(3, 3)) + 1j * rng.normal(size=(3, 3))) * 1e-5
+    radius = 0.4
+    bound = peak_excursion(u_o, theta, radius)
+    worst = 0.0
+    for phi in np.linspace(0, 4 * np.pi, 97):
+        u, th = displacement_at(u_o, theta, orders, phi)
+        p = rng.normal(size=(20, 3))
+        p *= radius / np.linalg.norm(p, axis=1, keepdims=True)
+        worst = max(worst, float(np.abs(u + np.cross(th, p)).max()))
+    assert worst <= bound and worst > 0.2 * bound
+
+
+# -- the saved recording ----------------------------------------------------------------------
+
+
+def _read_rrd(path: Path) -> tuple[dict[str, list], dict[str, list], list[tuple[str, str]]]:
+    """Temporal and static record batches per entity path, and the blueprint's (view class, origin)."""
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(path)
+    temporal: dict[str, list] = {}
+    static: dict[str, list] = {}
+    for chunk in reader.stream().to_chunks():
+        if chunk.num_rows == 0:
+            continue
+        target = static if chunk.is_static else temporal
+        target.setdefault(chunk.entity_path, []).append(chunk.to_record_batch())
+    views = []
+    for bp in reader.blueprints():
+        for chunk in reader.stream(store=bp).to_chunks():
+            batch = chunk.to_record_batch()
+            if "ViewBlueprint:space_origin" in batch.schema.names:
+                views.append(
+                    (
+                        batch.column("ViewBlueprint:class_identifier").to_pylist()[0][0],
+                        batch.column("ViewBlueprint:space_origin").to_pylist()[0][0],
+                    )
+                )
+    return temporal, static, views
+
+
+def _rows(batches: list, column: str) -> tuple[np.ndarray, list]:
+    """(time in s, values) of one component over all batches, in time order."""
+    times, values = [], []
+    for b in batches:
+        if column not in b.schema.names:
+            continue
+        times += [t / 1e9 for t in b.column("time").cast("int64").to_pylist()]
+        values += b.column(column).to_pylist()
+    order = np.argsort(times, kind="stable")
+    return np.asarray(times)[order], [values[i] for i in order]
+
+
+class _Clock:
+    """A wall clock that jumps 0.3 s per reading: the sink flushes every other frame."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        self.now += 0.3
+        return self.now
+
+
+@pytest.fixture(scope="module")
+def saved_run(i3_simulated, tmp_path_factory):
+    """Exact frames of a 1500-4500 rpm sweep through the real estimator into a saved view."""
+    bench, model, truth = i3_simulated
+    setup = estimator_setup(bench)
+    estimator = InertiaEstimator(setup)
+    orders = tuple(bench.dsp.orders)
+    rpms = np.linspace(1500.0, 4500.0, 40)
+    times = np.cumsum(np.full(rpms.size, 0.15))
+    amps = model.channel_amplitudes(rpms, orders)
+    context = RunContext(
+        "", bench, StreamLayout(()), setup, truth, {"dsp": {"orders": list(orders)}}, "sim"
+    )
+    path = tmp_path_factory.mktemp("viewer") / "run.rrd"
+    out = io.StringIO()
+    sink = RerunSink(ViewerMode("save", path=path), out=out, clock=_Clock())
+    sink.start(context)
+    n_ch = len(model.channel_names)
+    last = None
+    for i, rpm in enumerate(rpms):
+        frame = OrderFrame(
+            float(times[i]), float(rpm), 0.0, orders, model.channel_names, amps[i],
+            np.ones(n_ch, bool), 0.0, np.zeros(n_ch), frozenset(),
+        )  # fmt: skip
+        outcome = estimator.update(frame)
+        sink.on_frame(frame, outcome)
+        if outcome.reason is None:
+            last = estimator.estimate()
+            sink.on_estimate(EstimateUpdate(frame.time_s, frame.rpm, last))
+    sink.on_event(SourceEvent("gap", "3 samples lost", time_s=1.0))
+    sink.close(last)
+    sink.close(last)  # a second close is harmless
+    temporal, static, views = _read_rrd(path)
+    return {
+        "temporal": temporal, "static": static, "views": views, "rpms": rpms,
+        "times": times, "amps": amps, "estimate": last, "truth": truth, "out": out.getvalue(),
+        "model": model, "path": path,
+    }  # fmt: skip
+
+
+def test_saved_view_has_every_entity_with_data(saved_run):
+    temporal, static = saved_run["temporal"], saved_run["static"]
+    expected = ["/rpm", "/quality/relative_residual", "/quality/used_orders", "/events"]
+    expected += [f"/orders/H{h:g}/{k}" for h in (1, 1.5, 2) for k in ("amplitude", "phase")]
+    expected += [f"/estimate/inertia/{t}" for t in ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")]
+    expected += [f"/estimate/cog/{g}" for g in ("Gx", "Gy", "Gz")]
+    expected += ["/estimate/extra/crank_offset", "/estimate/extra/unbalance"]
+    expected += ["/bench/moving", "/bench/moving/powertrain", "/bench/moving/powertrain/box"]
+    expected += ["/bench/moving/powertrain/principal_axes", "/bench/cog", "/bench/cog/ellipsoid"]
+    missing = [p for p in expected if p not in temporal]
+    assert not missing
+    for p in ["/bench", "/bench/mounts", "/bench/truth/box", "/bench/nominal_cog"]:
+        assert p in static
+    sensors = [p for p in static if p.startswith("/bench/moving/sensors/") and p.endswith("/axes")]
+    assert len(sensors) == 3
+    for batch in temporal["/estimate/inertia/Ixx"]:
+        assert {"time", "rpm"} <= set(batch.schema.names)  # both timelines, for Figs. 13/15
+    assert "rerun " + str(saved_run["path"]) in saved_run["out"]
+
+
+def test_saved_rpm_and_orders_are_the_frames(saved_run):
+    t, rpm = _rows(saved_run["temporal"]["/rpm"], "Scalars:scalars")
+    np.testing.assert_allclose(t, saved_run["times"], atol=1e-9)
+    np.testing.assert_allclose(np.ravel(rpm), saved_run["rpms"], rtol=1e-15)
+    _, amp = _rows(saved_run["temporal"]["/orders/H1.5/amplitude"], "Scalars:scalars")
+    _, phase = _rows(saved_run["temporal"]["/orders/H1.5/phase"], "Scalars:scalars")
+    x = saved_run["amps"][:, 1, :]  # order 1.5, every channel
+    np.testing.assert_allclose(np.asarray(amp), np.abs(x), rtol=1e-12)
+    np.testing.assert_allclose(np.exp(1j * np.radians(phase)), x / np.abs(x), atol=1e-9)
+
+
+def test_saved_bands_are_two_sigma_around_the_estimate(saved_run):
+    est = saved_run["estimate"]
+    for name, path in [("Ixy", "/estimate/inertia/Ixy"), ("Gz", "/estimate/cog/Gz")]:
+        _, rows = _rows(saved_run["temporal"][path], "Scalars:scalars")
+        value, hi, lo, truth = rows[-1]
+        expected_truth = (
+            saved_run["truth"]["inertia_kgm2"][name]
+            if name.startswith("I")
+            else saved_run["truth"]["cog_m"][2]
+        )
+        assert truth == expected_truth
+        assert value == pytest.approx(est.value(name), rel=1e-12)
+        assert hi - value == pytest.approx(2 * est.std(name), rel=1e-9)
+        assert value - lo == pytest.approx(2 * est.std(name), rel=1e-9)
+    _, rows = _rows(saved_run["temporal"]["/estimate/inertia/Ixx"], "Scalars:scalars")
+    assert rows[-1][3] == saved_run["truth"]["inertia_kgm2"]["Ixx"]  # the flat truth line
+    assert estimate_rows(est)["Ixx"] == (est.value("Ixx"), est.std("Ixx"))
+
+
+def test_saved_box_carries_the_estimated_inertia(saved_run):
+    """The drawn box's own inertia (by quadrature) is the final estimate's, on its principal axes."""
+    est, temporal = saved_run["estimate"], saved_run["temporal"]
+    moments, axes = principal_axes(est.inertia)
+    _, half = _rows(temporal["/bench/moving/powertrain/box"], "Boxes3D:half_sizes")
+    drawn = _uniform_box_moments(np.asarray(half[-1][0]), saved_run["truth"]["mass_kg"])
+    np.testing.assert_allclose(drawn, moments, rtol=1e-6)  # float32 in the file
+    _, mats = _rows(temporal["/bench/moving/powertrain"], "Transform3D:mat3x3")
+    _, trans = _rows(temporal["/bench/moving/powertrain"], "Transform3D:translation")
+    mat = np.asarray(mats[-1]).reshape(3, 3).T  # Rerun stores mat3x3 column-major
+    np.testing.assert_allclose(np.abs(mat.T @ axes), np.eye(3), atol=1e-5)
+    np.testing.assert_allclose(trans[-1][0], est.cog, atol=1e-6)
+    # the cog ellipsoid: 2 sigma along the principal directions of the cog covariance
+    _, size = _rows(temporal["/bench/cog/ellipsoid"], "Ellipsoids3D:half_sizes")
+    var = np.linalg.eigvalsh(est.cov[6:9, 6:9])
+    np.testing.assert_allclose(np.sort(size[-1][0]), 2 * np.sqrt(var), rtol=1e-6)
+
+
+def test_saved_motion_is_animated_and_rigid(saved_run):
+    _, mats = _rows(saved_run["temporal"]["/bench/moving"], "Transform3D:mat3x3")
+    _, trans = _rows(saved_run["temporal"]["/bench/moving"], "Transform3D:translation")
+    assert len(trans) >= 30
+    spread = np.ptp(np.asarray(trans, dtype=float), axis=0)
+    assert np.max(spread) > 1e-3  # it moves visibly (mm, exaggerated) ...
+    for m in mats[:5]:  # ... as a rigid body
+        r = np.asarray(m).reshape(3, 3)
+        np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-6)
+
+
+def test_blueprint_views_show_data(saved_run):
+    """Every view of the default layout points at an entity that has data: no empty panel."""
+    views = saved_run["views"]
+    assert ("3D", "/bench") in views
+    have = set(saved_run["temporal"]) | set(saved_run["static"])
+    for cls, origin in views:
+        assert any(p == origin or p.startswith(origin + "/") for p in have), (cls, origin)
+    plotted = {o for c, o in views if c == "TimeSeries"}
+    assert {"/rpm", "/estimate/inertia/Ixx", "/estimate/cog/Gz", "/orders/H1.5/phase"} <= plotted
+
+
+def test_mass_is_plotted_when_estimated(tmp_path):
+    """The inline 4 has a free order-2 force: mass is estimated and gets its own band plot."""
+    bench = load_bench(ROOT / "examples" / "i4-bench.toml")
+    model, truth = build_simulated_model(bench)
+    setup = estimator_setup(bench)
+    assert not setup.mass_known
+    estimator = InertiaEstimator(setup)
+    orders = tuple(bench.dsp.orders)
+    rpms = np.linspace(2000.0, 4500.0, 12)
+    amps = model.channel_amplitudes(rpms, orders)
+    context = RunContext("", bench, StreamLayout(()), setup, truth, {}, "sim")
+    sink = RerunSink(ViewerMode("save", path=tmp_path / "i4.rrd"), out=io.StringIO())
+    sink.start(context)
+    n_ch = len(model.channel_names)
+    est = None
+    for i, rpm in enumerate(rpms):
+        frame = OrderFrame(
+            0.2 * i, float(rpm), 0.0, orders, model.channel_names, amps[i],
+            np.ones(n_ch, bool), 0.0, np.zeros(n_ch), frozenset(),
+        )  # fmt: skip
+        outcome = estimator.update(frame)
+        sink.on_frame(frame, outcome)
+        if outcome.reason is None:
+            est = estimator.estimate()
+            sink.on_estimate(EstimateUpdate(frame.time_s, frame.rpm, est))
+    sink.close(est)
+    temporal, _, views = _read_rrd(tmp_path / "i4.rrd")
+    assert ("TimeSeries", "/estimate/extra/mass") in views
+    _, rows = _rows(temporal["/estimate/extra/mass"], "Scalars:scalars")
+    mass, std = est.mass()
+    assert rows[-1][0] == pytest.approx(mass, rel=1e-12)
+    assert rows[-1][1] - rows[-1][0] == pytest.approx(2 * std, rel=1e-9)
+    assert rows[-1][3] == truth["mass_kg"]
+
+
+def test_serve_on_a_busy_port_is_a_user_error():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        sink = RerunSink(ViewerMode("serve", port=port), out=io.StringIO())
+        with pytest.raises(UsageError, match=f"cannot listen on 127.0.0.1:{port}"):
+            sink.start(None)  # type: ignore[arg-type]  # fails before reading the context
+
+
+def test_run_command_saves_a_view(tmp_path, capsys):
+    """``ptinertia run --rerun save=PATH`` end to end on a short simulated sweep."""
+    from ptinertia.cli import main
+
+    path = tmp_path / "cli.rrd"
+    args = ["run", "--rerun", f"save={path}", "--duration", "3", "--sweep", "2500:3200", "--quiet"]
+    assert main(args) == 0
+    assert f"rerun {path}" in capsys.readouterr().err
+    temporal, static, _ = _read_rrd(path)
+    for p in [
+        "/rpm",
+        "/orders/H1/amplitude",
+        "/estimate/inertia/Ixx",
+        "/bench/moving/powertrain/box",
+    ]:
+        assert p in temporal
+    assert "/bench/truth/box" in static
+
+
+def test_connect_streams_to_a_listening_server(i3_simulated):
+    """connect= reaches a Rerun server (ours, on 127.0.0.1) and closes without waiting."""
+    bench, _, truth = i3_simulated
+    port = _closed_port()
+    server = open_recording(
+        ViewerMode("serve", port=port, memory_limit="16MiB"), None, io.StringIO()
+    )
+    try:
+        setup = estimator_setup(bench)
+        context = RunContext("", bench, StreamLayout(()), setup, truth, {}, "sim")
+        sink = RerunSink(parse_rerun_option(f"connect=127.0.0.1:{port}"), out=io.StringIO())
+        t0 = time.monotonic()
+        sink.start(context)
+        sink.on_event(SourceEvent("gap", "test"))
+        sink.close(None)
+        assert time.monotonic() - t0 < 3.0
+    finally:
+        server.disconnect()

@@ -1,0 +1,103 @@
+"""The hand-laid protobuf bytes of order frames and sample blocks against the protobuf classes.
+
+``replay.wire`` writes the two most frequent messages without the protobuf
+library; ``codec.encode_*_reference`` build them through it. A third-party
+reader (the public classes of ``replay.schemas``) must read the same message
+from both, bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from support.mcap_logs import make_frame
+
+from acquisition.stream import ChannelSpec, SampleBlock, SampleGroup
+from dsp.frames import OrderFrame
+from replay import codec
+from replay.schemas import message_class, wire_class
+
+
+def frame(
+    orders: tuple[float, ...],
+    channels: tuple[str, ...],
+    amplitudes: np.ndarray,
+    flags: frozenset[str] = frozenset(),
+    ok: np.ndarray | None = None,
+) -> OrderFrame:
+    n_ch = len(channels)
+    return OrderFrame(
+        time_s=0.0,
+        rpm=3000.0,
+        crank_angle_rad=-0.0,
+        orders=orders,
+        channels=channels,
+        amplitudes=amplitudes,
+        channel_ok=np.ones(n_ch, bool) if ok is None else ok,
+        rpm_change=0.0,
+        leakage=np.linspace(0.0, 1e-3, n_ch),
+        flags=flags,
+    )
+
+
+def corner_frames() -> list[OrderFrame]:
+    rng = np.random.default_rng(11)
+    frames = [make_frame(t, rng) for t in (0.0, 0.25, 0.75)]  # NaN amplitude, ok False, a flag
+    channels = tuple(f"s{i // 3}_{'xyz'[i % 3]}" for i in range(10))
+    amp = rng.standard_normal((3, 10)) + 1j * rng.standard_normal((3, 10))
+    amp[0, 0] = 0.0  # magnitude and phase 0: fields the protobuf library leaves out
+    amp[0, 1] = complex(-0.0, -0.0)
+    amp[1, 2] = complex(-1.0, 0.0)  # phase 180 deg
+    amp[2, 3] = complex(math.inf, 1.0)
+    ok = np.arange(10) % 4 != 0
+    frames += [
+        frame((1.0, 1.5, 3.0), channels, amp, frozenset({"nan", "clipped", "cycle_ambiguous"}), ok),
+        frame((), channels, np.zeros((0, 10), complex)),
+        frame((2.0,), ("x" * 200,), np.array([[1 + 2j]])),  # lengths past one varint byte
+        frame((0.5, 1.0), ("é", ""), np.ones((2, 2), complex)),  # non-ASCII and empty names
+    ]
+    return frames
+
+
+@pytest.mark.parametrize("k", range(len(corner_frames())))
+def test_order_frame_reads_as_the_protobuf_built_one(k: int) -> None:
+    f = corner_frames()[k]
+    fast, reference = codec.encode_frame(f), codec.encode_frame_reference(f)
+    cls = message_class("OrderFrame")
+    assert cls.FromString(fast).SerializeToString() == reference
+    back = codec.decode_frame(fast)
+    assert back.amplitudes.tobytes() == np.asarray(f.amplitudes, complex).tobytes()
+    assert back.leakage.tobytes() == np.asarray(f.leakage, float).tobytes()
+    np.testing.assert_array_equal(back.channel_ok, f.channel_ok)
+    assert (back.orders, back.channels, back.flags) == (f.orders, f.channels, f.flags)
+    for name in ("time_s", "rpm", "crank_angle_rad", "rpm_change"):
+        assert np.float64(getattr(back, name)).tobytes() == np.float64(getattr(f, name)).tobytes()
+
+
+def test_order_frame_of_the_wrong_shape_is_refused() -> None:
+    f = make_frame(0.1, np.random.default_rng(0))
+    codec.encode_frame(f)  # caches the layout of 3 orders x 4 channels
+    bad = frame(f.orders, f.channels, np.ones((3, 3), complex))
+    with pytest.raises(ValueError, match=r"expected amplitudes of shape \(3, 4\)"):
+        codec.encode_frame(bad)
+
+
+@pytest.mark.parametrize(
+    ("n_ch", "n", "first_index", "t0_s"),
+    [(10, 2560, 0, 0.0), (1, 1, -5, 0.25), (3, 0, 7, -0.0), (2, 3, 2**40, 1e-300)],
+)
+def test_sample_block_is_the_protobuf_libraries_bytes(
+    n_ch: int, n: int, first_index: int, t0_s: float
+) -> None:
+    group = SampleGroup("acc", 25600.0, tuple(ChannelSpec(f"c{i}", "V") for i in range(n_ch)), t0_s)
+    data = np.random.default_rng(n).standard_normal((n_ch, n))
+    if data.size:
+        data.flat[0] = np.nan
+    block = SampleBlock("acc", first_index, data)
+    fast = codec.encode_samples(block, group)
+    assert fast == codec.encode_samples_reference(block, group)
+    public = message_class("SampleBlock").FromString(fast)
+    assert np.array(public.data, np.float32).tobytes() == data.astype("<f4").tobytes()
+    assert wire_class("SampleBlock").FromString(fast).first_index == first_index

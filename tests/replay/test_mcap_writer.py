@@ -1,0 +1,180 @@
+"""The threaded MCAP writer: the same bytes as mcap's own writer, errors in the caller's thread.
+
+``replay.mcapwriter.ThreadedWriter`` compresses and writes chunks on a
+background thread; the recorder's crash safety and every reader rely on it
+writing exactly what ``mcap.writer.Writer`` writes.
+"""
+
+from __future__ import annotations
+
+import errno
+import io
+import random
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from mcap.exceptions import EndOfFile
+from mcap.reader import NonSeekingReader, make_reader
+from mcap.writer import CompressionType, Writer
+from support.mcap_logs import BENCH_TEXT, assert_same_items, synthetic_items, synthetic_layout
+
+from acquisition.stream import SampleBlock
+from replay.errors import LogError
+from replay.mcapwriter import ThreadedWriter
+from replay.reader import open_log
+from replay.recorder import McapRecorder, RecordingInfo
+
+COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "": CompressionType.NONE}
+
+
+def drive(writer: Any, seed: int) -> None:
+    """One sequence of calls: metadata and attachments, messages of random sizes and times,
+    explicit flushes, metadata in the middle and at the end."""
+    rng = random.Random(seed)
+    writer.start(profile="", library="ptinertia test")
+    writer.add_metadata("run", {"a": "1", "b": "two"})
+    writer.add_attachment(5, 6, "bench.toml", "application/toml", b"[bench]\n")
+    s1 = writer.register_schema("S1", "protobuf", b"descriptor")
+    s2 = writer.register_schema("S2", "jsonschema", b"{}")
+    channels = [
+        writer.register_channel(f"/t{i}", "protobuf", s1 if i % 2 else s2) for i in range(4)
+    ]
+    for k in range(2000):
+        t = 10**18 + rng.randrange(10**9)  # not in order: chunk and file bounds are min and max
+        size = rng.choice([0, 5, 100, 3000])
+        writer.add_message(rng.choice(channels), t, rng.randbytes(size), t + 7, rng.randrange(3))
+        if rng.random() < 0.01:
+            writer.flush()
+        if k == 1000:
+            writer.add_metadata("mid", {"k": "v"})
+    writer.add_metadata("end", {"status": "finished"})
+    writer.finish()
+
+
+@pytest.mark.parametrize("compression", list(COMPRESSIONS))
+@pytest.mark.parametrize("seed", [0, 1])
+def test_same_bytes_as_the_mcap_writer(compression: str, seed: int) -> None:
+    if compression == "lz4":
+        pytest.importorskip("lz4")
+    ours, theirs = io.BytesIO(), io.BytesIO()
+    drive(ThreadedWriter(ours, chunk_size=50_000, compression=compression), seed)
+    drive(Writer(theirs, chunk_size=50_000, compression=COMPRESSIONS[compression]), seed)
+    assert len(theirs.getvalue()) > 100_000
+    assert ours.getvalue() == theirs.getvalue()
+    summary = make_reader(io.BytesIO(ours.getvalue())).get_summary()
+    assert summary is not None and summary.statistics is not None
+    assert summary.statistics.message_count == 2000
+    assert len(summary.chunk_indexes) > 20  # size-bound and flushed chunks both happened
+
+
+def test_an_empty_file_is_the_mcap_writers_too() -> None:
+    ours, theirs = io.BytesIO(), io.BytesIO()
+    for writer in (ThreadedWriter(ours), Writer(theirs)):
+        writer.start(profile="", library="ptinertia test")
+        writer.register_channel("/x", "json", writer.register_schema("S", "jsonschema", b"{}"))
+        writer.finish()
+    assert ours.getvalue() == theirs.getvalue()
+
+
+def test_a_flushed_chunk_is_in_the_file_after_sync(tmp_path: Path) -> None:
+    path = tmp_path / "open.mcap"
+    with open(path, "wb") as fh:
+        writer = ThreadedWriter(fh)
+        writer.start()
+        schema = writer.register_schema("S", "jsonschema", b"{}")
+        channel = writer.register_channel("/x", "json", schema)
+        for k in range(10):
+            writer.add_message(channel, k, b"{}", k)
+        writer.flush()
+        writer.sync()
+        writer.add_message(channel, 10, b"{}", 10)  # the open chunk: not in the file yet
+        with open(path, "rb") as cut:
+            reader = NonSeekingReader(cut)
+            got = []
+            with pytest.raises(EndOfFile):  # the file ends where the next chunk goes
+                for _, _, message in reader.iter_messages(log_time_order=False):
+                    got.append(message.log_time)
+        assert got == list(range(10))
+        writer.finish()
+    with open(path, "rb") as fh:
+        assert [m.log_time for _, _, m in make_reader(fh).iter_messages()] == list(range(11))
+    assert not _writer_threads()
+
+
+class FailingStream(io.BytesIO):
+    """Accepts ``limit`` bytes, then fails like a full disk."""
+
+    def __init__(self, limit: int) -> None:
+        super().__init__()
+        self.limit = limit
+
+    def write(self, data: Any) -> int:
+        if self.tell() + len(data) > self.limit:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return super().write(data)
+
+
+def test_a_write_error_reaches_the_callers_thread() -> None:
+    writer = ThreadedWriter(FailingStream(20_000), chunk_size=1000)
+    writer.start()
+    channel = writer.register_channel("/x", "", 0)
+    with pytest.raises(OSError, match="No space left"):
+        for k in range(1000):  # the error comes back on a flush after the chunk that failed
+            writer.add_message(channel, k, bytes(100), k)
+            if k % 10 == 9:
+                writer.flush()
+    with pytest.raises(OSError, match="No space left"):
+        writer.finish()
+    writer.finish()  # once finished, a second call is a no-op
+    assert not _writer_threads()
+
+
+def test_recording_to_a_full_disk_is_one_line(tmp_path: Path) -> None:
+    if not Path("/dev/full").exists():
+        pytest.skip("needs /dev/full")
+    rec = McapRecorder("/dev/full")
+    with pytest.raises(LogError, match="cannot write the recording /dev/full: No space left"):
+        rec.start(RecordingInfo(layout=synthetic_layout(), bench_text=BENCH_TEXT))
+    rec.close(None)
+    assert not _writer_threads()
+
+
+def test_ctrl_c_mid_run_leaves_a_finished_file(tmp_path: Path) -> None:
+    """A KeyboardInterrupt between two items, then ``close`` (what the pipeline does)."""
+    layout = synthetic_layout()
+    items = synthetic_items(layout, 3.0, seed=2)
+    path = tmp_path / "interrupted.mcap"
+    rec = McapRecorder(path, chunk_s=0.2)
+    rec.start(RecordingInfo(layout=layout, bench_text=BENCH_TEXT))
+    fed = []
+    try:
+        for k, item in enumerate(items):
+            if k == len(items) // 2:
+                raise KeyboardInterrupt
+            rec.on_item(item)
+            fed.append(item)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        rec.close(None)
+    log = open_log(path)
+    assert log.finished
+    assert_same_items(list(log.items()), fed)
+    assert not _writer_threads()
+
+
+def test_a_failed_start_leaves_no_thread(tmp_path: Path) -> None:
+    rec = McapRecorder(tmp_path / "x.mcap")
+    with pytest.raises(TypeError):  # settings that do not serialise
+        rec.start(RecordingInfo(layout=synthetic_layout(), settings={"x": object()}))
+    assert not _writer_threads()
+    rec.close(None)
+    with pytest.raises(RuntimeError, match="after close"):
+        rec.on_item(SampleBlock("acc", 0, np.zeros((4, 1))))
+
+
+def _writer_threads() -> list[threading.Thread]:
+    return [t for t in threading.enumerate() if t.name == "mcap-writer" and t.is_alive()]
