@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from powertrain.engine import BalanceShaft, Engine, Unbalance
+from powertrain.balancing import BalanceShaft, Unbalance
+from powertrain.engine import Engine
 from powertrain.gas import GasModel, OrdersGas, ParametricGas, TraceGas
 from powertrain.model import BenchModel, ElasticMode
 from powertrain.mounted import Mount

@@ -43,8 +43,9 @@ import numpy.typing as npt
 
 from estimator.result import tensor_from_terms
 from estimator.setup import Tolerances
-from powertrain.engine import Unbalance, rpm_to_omega
+from powertrain.balancing import Unbalance
 from powertrain.errors import PhysicsError
+from powertrain.half_orders import rpm_to_omega
 from powertrain.model import BenchModel
 from powertrain.mounted import Mount
 from powertrain.rigidbody import RigidBody, consistency_problems

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from powertrain.engine import rpm_to_omega
 from powertrain.gas import CylinderGeometry
+from powertrain.half_orders import rpm_to_omega
 from powertrain.model import BenchModel, ElasticMode
 from powertrain.rigidbody import inertia_terms
 from powertrain.sensors import rigid_channel_matrix
