@@ -179,10 +179,18 @@ def _sensors(bench: config.Bench) -> tuple[Sensor, ...]:
     )
 
 
-def build_model(bench: config.Bench) -> BenchModel:
-    """The nominal model: the bench file as the estimator assumes it (no errors, rigid)."""
-    engine = build_engine(bench.engine, gas_model(bench.gas))
-    return BenchModel(_body(bench), _mounts(bench), engine, _sensors(bench))
+def build_model(
+    bench: config.Bench, body: RigidBody | None = None, extra_unbalances: tuple[Unbalance, ...] = ()
+) -> BenchModel:
+    """The nominal model: the bench file as the estimator assumes it (no errors, rigid).
+
+    ``body`` replaces the bench file's powertrain and ``extra_unbalances`` join the
+    engine's: the re-simulation check puts an estimate there
+    (:func:`ptinertia.resim.resim_model`).
+    """
+    engine = build_engine(bench.engine, gas_model(bench.gas), extra_unbalances)
+    body = _body(bench) if body is None else body
+    return BenchModel(body, _mounts(bench), engine, _sensors(bench))
 
 
 def _true_gas(

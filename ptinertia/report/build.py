@@ -21,7 +21,8 @@ from ptinertia.report.html import esc, image, page, verdict
 from ptinertia.report.stats import (
     parameter_covariance,
 )
-from ptinertia.resim import ResimCheck, resim_check
+from ptinertia.resim import resim_check
+from ptinertia.resim_compare import ResimCheck
 
 
 @dataclass

@@ -23,7 +23,8 @@ from ptinertia.report.stats import (
     principal_stats,
     tensors,
 )
-from ptinertia.resim import ResimCheck, estimated_properties, resim_model
+from ptinertia.resim import estimated_properties, resim_model
+from ptinertia.resim_compare import ResimCheck
 
 REASONS = {
     "rpm_unsteady": "speed changed too much across the analysis window (order leakage)",
