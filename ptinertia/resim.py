@@ -42,12 +42,10 @@ from powertrain.balancing import Unbalance
 from powertrain.errors import PhysicsError
 from powertrain.half_orders import rpm_to_omega
 from powertrain.model import BenchModel
-from powertrain.rigidbody import RigidBody, consistency_problems
+from powertrain.rigidbody import TERMS, RigidBody, consistency_problems
 from ptinertia import config
 from ptinertia.bench import build_model
 from ptinertia.resim_compare import LIMIT_DB, LIMIT_DEG, ResimCheck, compare
-
-TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 
 
 @dataclass(frozen=True)
