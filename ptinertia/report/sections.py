@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from estimator.result import Z95
+from ptinertia.bench import build_model
 from ptinertia.report import plots
 from ptinertia.report.data import ConvergenceSeries, ReportData
 from ptinertia.report.html import esc, fixed, flatten, image, table
@@ -260,8 +261,6 @@ def modes_section(
     bench = data.bench
     if bench is None or not bench.mounts:
         return "<h2>5. Rigid-body modes</h2><p>No bench file with mounts: no modes.</p>"
-    from ptinertia.bench import build_model
-
     nominal = build_model(bench)
     if data.result is not None:
         props = estimated_properties(data.result, bench)
