@@ -1,4 +1,7 @@
-"""From segment sums to order frames: readiness, window sums, leakage correction, flags.
+"""From segment sums to order frames: readiness, leakage correction, flags.
+
+The window amplitudes come from :mod:`dsp.window_amplitudes`, the ramp correction
+from :func:`dsp.leakage.ramp_correction`.
 
 Frame ``j`` (window ``c_j +- 360 deg``, ``c_j = j * 360 / frames_per_rev`` deg in
 the wheel angle) is ready once every watched group has processed a sample past
@@ -21,10 +24,11 @@ import numpy as np
 from dsp import angle as ang
 from dsp.frames import OrderFrame
 from dsp.immutable import evolve
-from dsp.leakage import SLOPE_PERIODS
+from dsp.leakage import ramp_correction
 from dsp.segments import decide_pressure
 from dsp.state import TWO_PI, TrackerState
-from dsp.sums import drop_before, window_sums
+from dsp.sum_rows import drop_before, window_sums
+from dsp.window_amplitudes import window_amplitudes
 
 CHUNK = 512  # frames computed together at most (bounds memory after a long dropout)
 
@@ -146,93 +150,17 @@ def _batch(
         ],
         dtype=np.int64,
     )
-    raw = _raw(st, js)
+    raw = window_amplitudes(st, js)
     st, x, corrected = _correct(st, js, chains, raw["x"], raw["tacho_bad"])
     st, spectrum = _spectrum(st, js, chains, raw)
     frames = _finish(st, js, raw, x, corrected, parity, ~decided, chains, spectrum)
     return _forget(st, int(js[-1]) + 1), frames, done
 
 
-def _raw(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]:
-    """Window sums of frames ``js`` for every tracked group, normalised, with flags."""
-    plan = st.plan
-    cfg = plan.config
-    n = cfg.frames_per_rev
-    spacing = TWO_PI / n
-    tw = math.radians(cfg.taper_deg)
-    f, n_ch, n_int = js.size, len(plan.channels), plan.k2.size
-    flags: list[set[str]] = [set() for _ in range(f)]
-    tacho_bad = np.zeros(f, bool)
-    bad_group = np.zeros((f, len(plan.groups)), bool)
-    if st.invalid:
-        lo_phi, hi_phi = (js - n) * spacing - 0.5 * tw, (js + n) * spacing + 0.5 * tw
-    for inv in st.invalid:
-        hit = np.flatnonzero((inv.phi_a < hi_phi) & (inv.phi_b > lo_phi))
-        # a gap in a group that holds nothing but the spectrum channel only NaNs the spectrum
-        if inv.group is None or not plan.groups[inv.group].spectrum_only:
-            for i in hit:
-                flags[i].add(inv.reason)
-        if inv.group is None:
-            tacho_bad[hit] = True
-        else:
-            bad_group[hit, inv.group] = True
-    # window start, centre and end of consecutive frames: f + 2 n distinct angles
-    span = np.arange(int(js[0]) - n, int(js[-1]) + n + 1)
-    at = (js[:, None] + np.array([-n - span[0], -span[0], n - span[0]])).ravel()
-    times, omegas = ang.time_at(st.table, span * spacing)
-    if not np.isfinite(times).all():
-        times = _interpolate_times(st, span * spacing, times)
-    times, omegas = times[at], omegas[at]
-    x = np.full((f, n_int, n_ch), np.nan + 0j)
-    ms = np.full((f, n_ch), np.nan)
-    ok = np.zeros((f, n_ch), bool)
-    for gi, g in enumerate(plan.groups):
-        if not g.track_rows:
-            continue
-        cols = _columns(g.track_cols)
-        s, w, msg, clipped = window_sums(
-            st.groups[gi].acc, int(js[0]), int(js[-1]), n, len(g.track_rows), n_int
-        )
-        with np.errstate(invalid="ignore", divide="ignore"):
-            xg = 2.0 * s / w[:, None, None]  # (f, n_ch_g, n_int)
-        usable = ~(tacho_bad | bad_group[:, gi])
-        if not usable.all():
-            xg[~usable] = np.nan
-            msg[~usable] = np.nan
-        x[:, :, cols] = xg.transpose(0, 2, 1)
-        ms[:, cols] = msg
-        nan = ~np.isfinite(xg).all(axis=2) & usable[:, None]
-        clip = clipped & usable[:, None]
-        ok[:, cols] = usable[:, None] & ~nan & ~clip
-        if nan.any():
-            for i in np.flatnonzero(nan.any(axis=1)):
-                flags[i].add("nan")
-        if clip.any():
-            for i in np.flatnonzero(clip.any(axis=1)):
-                flags[i].add("clipped")
-    return {
-        "x": x,
-        "ms": ms,
-        "ok": ok,
-        "flags": np.array(flags, dtype=object),
-        "times": times.reshape(f, 3),
-        "omegas": omegas.reshape(f, 3),
-        "tacho_bad": tacho_bad,
-        "bad_group": bad_group,
-    }
-
-
-def _columns(cols: tuple[int, ...]) -> slice | list[int]:
-    """``cols`` as a slice when consecutive (a view to assign to, not a scatter)."""
-    if cols == tuple(range(cols[0], cols[0] + len(cols))):
-        return slice(cols[0], cols[0] + len(cols))
-    return list(cols)
-
-
 def _correct(
     st: TrackerState, js: np.ndarray, chains: np.ndarray, x: np.ndarray, tacho_bad: np.ndarray
 ) -> tuple[TrackerState, np.ndarray, np.ndarray]:
-    """Remove ramp leakage from the tracked channels (:func:`ramp_correction`)."""
+    """Remove ramp leakage from the tracked channels (:func:`dsp.leakage.ramp_correction`)."""
     plan = st.plan
     history, x, good = ramp_correction(
         st.history, js, chains, x, tacho_bad, plan.same, plan.image,
@@ -279,94 +207,6 @@ def _spectrum(
         plan.spectrum_image, n, cfg.leakage_correction,
     )  # fmt: skip
     return evolve(st, spec_history=history), x
-
-
-def ramp_correction(
-    history: tuple[np.ndarray, ...],
-    js: np.ndarray,
-    chains: np.ndarray,
-    x: np.ndarray,
-    tacho_bad: np.ndarray,
-    same: np.ndarray,
-    image: np.ndarray,
-    frames_per_rev: int,
-    enabled: bool,
-) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray]:
-    """Remove ramp leakage (:mod:`dsp.leakage`); keep raw amplitudes as the next history.
-
-    ``x`` (f, n_int, n_ch) are the raw amplitudes of frames ``js`` (``chains`` their
-    parity chains), ``history`` the ``(j, chain, x)`` of the frames before them (empty at
-    first), ``same``, ``image`` the coupling of :func:`dsp.leakage.coupling`. Returns the
-    new history, the corrected amplitudes and which (frame, channel) were corrected.
-
-    The ramp of frame ``j`` is the slope at ``u = 0`` of the parabola through ``X_j`` and
-    the two newest valid frames ``j'``, ``j''`` at the same phase of the 720 deg cycle
-    (``j - j'`` a multiple of ``2 fpr``; ``u`` in windows, ``(j' - j) / (2 fpr)``):
-    leakage from an odd number of half orders away flips sign from one revolution to
-    the next and would pollute a ramp taken across it. With ``j'`` alone it is the
-    chord ``(X_j - X_j') * 2 fpr / (j - j')``; with neither the frame is uncorrected.
-    """
-    fpr = frames_per_rev
-    period = 2 * fpr
-    look = SLOPE_PERIODS * period
-    if history:
-        hj, hc, hx = history
-    else:
-        hj, hc, hx = np.empty(0, np.int64), np.empty(0, np.int64), x[:0]
-    all_j = np.concatenate((hj, js))
-    all_c = np.concatenate((hc, chains))
-    all_x = np.concatenate((hx, x))
-    keep = slice(max(all_j.size - look, 0), None)
-    history = (all_j[keep], all_c[keep], all_x[keep])
-    f, n_ch = js.size, x.shape[2]
-    if not enabled:
-        return history, x, np.zeros((f, n_ch), bool)
-
-    first = int(all_j[0])
-    gapless = int(all_j[-1]) - first == all_j.size - 1  # the rule: no frame skipped
-
-    # frame j -> its position in all_* (increasing), -1 if absent
-    def position(want: np.ndarray) -> np.ndarray:
-        if gapless:
-            pos = want - first
-            return np.where((pos >= 0) & (pos < all_j.size), pos, -1)
-        pos = np.minimum(np.searchsorted(all_j, want), all_j.size - 1)
-        return np.where(all_j[pos] == want, pos, -1)
-
-    base = position(js)
-    finite = np.isfinite(all_x).all(axis=1)  # (h + f, n_ch)
-    # candidates one, two, three cycles back (k, f, n_ch): the newest usable one gives the
-    # ramp, the next older one, where there is one, its bend
-    pos = position(js[None, :] - np.arange(1, SLOPE_PERIODS + 1)[:, None] * period)
-    at = np.maximum(pos, 0)
-    usable = ((pos >= 0) & (all_c[at] == chains[None, :]))[:, :, None] & finite[at]
-    rows = np.arange(f)[:, None]
-    newest = np.argmax(usable, axis=0)  # (f, n_ch): first usable k, 0 if none
-    ref = np.where(usable.any(axis=0), pos[newest, rows], -1)
-    older = usable & (np.arange(SLOPE_PERIODS)[:, None, None] > newest[None])
-    ref2 = np.where(older.any(axis=0), pos[np.argmax(older, axis=0), rows], -1)
-    good = (ref >= 0) & finite[base] & ~tacho_bad[:, None]
-    bent = good & (ref2 >= 0)
-    refc, ref2c = np.maximum(ref, 0), np.maximum(ref2, 0)
-    # all_x[ref[f, c], :, c]: advanced indices first, so (f, n_ch, n_int) -> (f, n_int, n_ch)
-    cols = np.arange(n_ch)[None, :]
-    x1 = all_x[refc, :, cols].transpose(0, 2, 1)
-    x2 = all_x[ref2c, :, cols].transpose(0, 2, 1)
-    # how far back, in windows (720 deg): the frames sit at u = 0, -d1, -d2
-    d1 = ((js[:, None] - all_j[refc]) / period)[:, None, :]
-    d2 = ((js[:, None] - all_j[ref2c]) / period)[:, None, :]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        s1 = (x - x1) / d1  # the slope of the chord, i.e. the ramp half a chord back
-        # the parabola through the three frames, A(u) = a + b u + c u^2 (Newton form), has
-        # the slope b = s1 + c d1 at the window's centre; with d1 = 1, d2 = 2 it is
-        # b = (3 X_j - 4 X_j' + X_j'') / 2
-        c = (s1 - (x1 - x2) / (d2 - d1)) / d2
-        b = s1 + np.where(bent[:, None, :], c, 0.0) * d1
-    b = np.where(good[:, None, :], b, 0.0)  # ramp per 720 deg window
-    phase = js % period
-    corr = same[phase] @ b
-    corr += image[phase] @ np.conj(b)
-    return history, x - corr, good
 
 
 def _finish(
@@ -461,18 +301,6 @@ def _finish(
             )
         )
     return frames
-
-
-def _interpolate_times(st: TrackerState, phis: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Times of angles inside an unsynchronised stretch, linear across it."""
-    out = times.copy()
-    for i in np.flatnonzero(~np.isfinite(times)):
-        for inv in st.invalid:
-            if inv.group is None and inv.phi_a <= phis[i] <= inv.phi_b and inv.phi_b > inv.phi_a:
-                f = (phis[i] - inv.phi_a) / (inv.phi_b - inv.phi_a)
-                out[i] = inv.t_a + f * (inv.t_b - inv.t_a)
-                break
-    return out
 
 
 def _forget(st: TrackerState, j_next: int) -> TrackerState:

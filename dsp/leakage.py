@@ -135,3 +135,91 @@ def coupling(
     image = np.exp(2j * np.pi * ((d_image[None] * j) % period) / period) * kap_image[None]
     np.einsum("jii->ji", same)[:] = 0.0  # an order's own ramp does not bias it (kappa(0) = 0)
     return same, image
+
+
+def ramp_correction(
+    history: tuple[np.ndarray, ...],
+    js: np.ndarray,
+    chains: np.ndarray,
+    x: np.ndarray,
+    tacho_bad: np.ndarray,
+    same: np.ndarray,
+    image: np.ndarray,
+    frames_per_rev: int,
+    enabled: bool,
+) -> tuple[tuple[np.ndarray, ...], np.ndarray, np.ndarray]:
+    """Remove ramp leakage (:mod:`dsp.leakage`); keep raw amplitudes as the next history.
+
+    ``x`` (f, n_int, n_ch) are the raw amplitudes of frames ``js`` (``chains`` their
+    parity chains), ``history`` the ``(j, chain, x)`` of the frames before them (empty at
+    first), ``same``, ``image`` the coupling of :func:`dsp.leakage.coupling`. Returns the
+    new history, the corrected amplitudes and which (frame, channel) were corrected.
+
+    The ramp of frame ``j`` is the slope at ``u = 0`` of the parabola through ``X_j`` and
+    the two newest valid frames ``j'``, ``j''`` at the same phase of the 720 deg cycle
+    (``j - j'`` a multiple of ``2 fpr``; ``u`` in windows, ``(j' - j) / (2 fpr)``):
+    leakage from an odd number of half orders away flips sign from one revolution to
+    the next and would pollute a ramp taken across it. With ``j'`` alone it is the
+    chord ``(X_j - X_j') * 2 fpr / (j - j')``; with neither the frame is uncorrected.
+    """
+    fpr = frames_per_rev
+    period = 2 * fpr
+    look = SLOPE_PERIODS * period
+    if history:
+        hj, hc, hx = history
+    else:
+        hj, hc, hx = np.empty(0, np.int64), np.empty(0, np.int64), x[:0]
+    all_j = np.concatenate((hj, js))
+    all_c = np.concatenate((hc, chains))
+    all_x = np.concatenate((hx, x))
+    keep = slice(max(all_j.size - look, 0), None)
+    history = (all_j[keep], all_c[keep], all_x[keep])
+    f, n_ch = js.size, x.shape[2]
+    if not enabled:
+        return history, x, np.zeros((f, n_ch), bool)
+
+    first = int(all_j[0])
+    gapless = int(all_j[-1]) - first == all_j.size - 1  # the rule: no frame skipped
+
+    # frame j -> its position in all_* (increasing), -1 if absent
+    def position(want: np.ndarray) -> np.ndarray:
+        if gapless:
+            pos = want - first
+            return np.where((pos >= 0) & (pos < all_j.size), pos, -1)
+        pos = np.minimum(np.searchsorted(all_j, want), all_j.size - 1)
+        return np.where(all_j[pos] == want, pos, -1)
+
+    base = position(js)
+    finite = np.isfinite(all_x).all(axis=1)  # (h + f, n_ch)
+    # candidates one, two, three cycles back (k, f, n_ch): the newest usable one gives the
+    # ramp, the next older one, where there is one, its bend
+    pos = position(js[None, :] - np.arange(1, SLOPE_PERIODS + 1)[:, None] * period)
+    at = np.maximum(pos, 0)
+    usable = ((pos >= 0) & (all_c[at] == chains[None, :]))[:, :, None] & finite[at]
+    rows = np.arange(f)[:, None]
+    newest = np.argmax(usable, axis=0)  # (f, n_ch): first usable k, 0 if none
+    ref = np.where(usable.any(axis=0), pos[newest, rows], -1)
+    older = usable & (np.arange(SLOPE_PERIODS)[:, None, None] > newest[None])
+    ref2 = np.where(older.any(axis=0), pos[np.argmax(older, axis=0), rows], -1)
+    good = (ref >= 0) & finite[base] & ~tacho_bad[:, None]
+    bent = good & (ref2 >= 0)
+    refc, ref2c = np.maximum(ref, 0), np.maximum(ref2, 0)
+    # all_x[ref[f, c], :, c]: advanced indices first, so (f, n_ch, n_int) -> (f, n_int, n_ch)
+    cols = np.arange(n_ch)[None, :]
+    x1 = all_x[refc, :, cols].transpose(0, 2, 1)
+    x2 = all_x[ref2c, :, cols].transpose(0, 2, 1)
+    # how far back, in windows (720 deg): the frames sit at u = 0, -d1, -d2
+    d1 = ((js[:, None] - all_j[refc]) / period)[:, None, :]
+    d2 = ((js[:, None] - all_j[ref2c]) / period)[:, None, :]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s1 = (x - x1) / d1  # the slope of the chord, i.e. the ramp half a chord back
+        # the parabola through the three frames, A(u) = a + b u + c u^2 (Newton form), has
+        # the slope b = s1 + c d1 at the window's centre; with d1 = 1, d2 = 2 it is
+        # b = (3 X_j - 4 X_j' + X_j'') / 2
+        c = (s1 - (x1 - x2) / (d2 - d1)) / d2
+        b = s1 + np.where(bent[:, None, :], c, 0.0) * d1
+    b = np.where(good[:, None, :], b, 0.0)  # ramp per 720 deg window
+    phase = js % period
+    corr = same[phase] @ b
+    corr += image[phase] @ np.conj(b)
+    return history, x - corr, good

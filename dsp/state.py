@@ -17,7 +17,7 @@ from dsp import angle as ang
 from dsp.config import Plan
 from dsp.immutable import evolve
 from dsp.rpmangle import RpmAngleState
-from dsp.sums import Row
+from dsp.sum_rows import Row
 from dsp.tacho import EdgeDetectorState
 from dsp.wheel import DecoderState, RunStart
 

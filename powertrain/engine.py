@@ -23,10 +23,11 @@ With the block held still and the crank turning at constant ``omega``:
   ``T_crank omega = P_gas - dKE/dt``). The load on the output shaft takes
   ``T_crank`` out of the powertrain; the block reacts it.
 
-Order decomposition: one 720 deg cycle, ``samples_per_cycle`` points, FFT into
-``x(phi) = Re{sum_h X_h exp(i h phi)}`` for every half order ``h``. Inertia
-loads scale with ``omega^2``, so they are decomposed once at unit speed and
-cached; the gas part does not depend on speed.
+Order decomposition (:mod:`powertrain.half_orders`): one 720 deg cycle,
+``samples_per_cycle`` points, FFT into ``x(phi) = Re{sum_h X_h exp(i h phi)}`` for
+every half order ``h``. Inertia loads scale with ``omega^2``, so they are decomposed
+once at unit speed and cached; the gas part does not depend on speed. The balancing
+masses and their loads are in :mod:`powertrain.balancing`.
 
 Crankcase pressure: the piston sees ``p - p_crankcase``; a constant
 crankcase pressure does no work over a cycle but has orders of its own
@@ -41,43 +42,17 @@ from functools import cached_property
 import numpy as np
 import numpy.typing as npt
 
+from powertrain.balancing import BalanceShaft, Unbalance, add_balancing_loads
 from powertrain.errors import PhysicsError
 from powertrain.gas import CYCLE, CylinderGeometry, GasModel, OrdersGas, PressureCycle
+from powertrain.half_orders import (
+    OrderExcitation,
+    half_order_index,
+    half_order_spectrum,
+    rpm_to_omega,
+)
 from powertrain.rigidbody import rotation_matrix
 from powertrain.slider_crank import SliderCrank
-
-
-def rpm_to_omega(rpm: npt.ArrayLike) -> np.ndarray:
-    """rad/s from rev/min."""
-    return np.asarray(rpm, dtype=float) * (2.0 * np.pi / 60.0)
-
-
-@dataclass(frozen=True)
-class Unbalance:
-    """A point mass on the crank: ``mr`` (kg m) at ``angle`` (rad, measured like
-    throw angles: it points along ``c`` when ``phi = angle``), ``axial`` m
-    along ``s`` from the reference point."""
-
-    mr: float
-    angle: float = 0.0
-    axial: float = 0.0
-
-
-@dataclass(frozen=True)
-class BalanceShaft:
-    """A rotating unbalance ``mr`` (kg m) at ``order`` times crank speed.
-
-    ``direction`` +1 turns with the crank, -1 against it. The mass points
-    along ``c`` when ``order * phi = angle`` (rad); in general along
-    ``cos(d (h phi - angle)) c + sin(d (h phi - angle)) t``. Its axis is parallel
-    to ``s`` through ``position`` (3,) m. Its spin inertia is not modelled.
-    """
-
-    order: int
-    mr: float
-    angle: float = 0.0
-    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    direction: int = 1
 
 
 @dataclass(frozen=True, eq=False)
@@ -294,17 +269,10 @@ class Engine:
             moment += np.cross(arm, f_piston) + np.cross(rod_cog, f_rod)
             # -d(J psi_dot)/dt of the rod's own rotation, then minus the inertia torque on the crank.
             roll += -j_r * kin.psi_tt - sc.inertia_torque(kin.theta)
-        for u in self.unbalances:
-            e = np.outer(np.cos(phi - u.angle), c) + np.outer(np.sin(phi - u.angle), t)
-            f = u.mr * e  # centrifugal: -m a = m r omega^2 e
-            force += f
-            moment += np.cross(self.reference_point + u.axial * s - q, f)
-        for b in self.balance_shafts:
-            ang = b.direction * (b.order * phi - b.angle)
-            e = np.outer(np.cos(ang), c) + np.outer(np.sin(ang), t)
-            f = b.mr * b.order**2 * e
-            force += f
-            moment += np.cross(np.asarray(b.position, dtype=float) - q, f)
+        add_balancing_loads(
+            force, moment, self.unbalances, self.balance_shafts, phi, self.frame,
+            self.reference_point, q,
+        )  # fmt: skip
         moment += np.outer(roll, s)
         return force, moment
 
@@ -327,24 +295,16 @@ class Engine:
         """FFT at unit speed of force, moment about the reference point, inertia torque."""
         f, m = self.inertia_loads(self._grid, self.reference_point)
         torque = self.inertia_torque(self._grid, omega=1.0)
-        return _spectrum(f), _spectrum(m), _spectrum(torque)
+        return half_order_spectrum(f), half_order_spectrum(m), half_order_spectrum(torque)
 
     @cached_property
     def _gas_spectrum(self) -> np.ndarray | None:
         if self.gas is None or isinstance(self.gas, OrdersGas):
             return None
-        return _spectrum(self.gas_torque(self._grid))
+        return half_order_spectrum(self.gas_torque(self._grid))
 
     def _index(self, orders: npt.ArrayLike) -> np.ndarray:
-        h = np.atleast_1d(np.asarray(orders, dtype=float))
-        k = np.rint(2 * h).astype(int)
-        bad = (np.abs(2 * h - k) > 1e-9) | (k < 0) | (k >= self.samples_per_cycle // 4)
-        if np.any(bad):
-            raise PhysicsError(
-                f"orders must be multiples of 0.5 in 0..{self.samples_per_cycle // 8}, "
-                f"got {h[bad].tolist()}"
-            )
-        return k
+        return half_order_index(orders, self.samples_per_cycle)
 
     def gas_torque_orders(self, orders: npt.ArrayLike) -> np.ndarray:
         """(n_orders,) complex N m: gas torque delivered to the crank, per order."""
@@ -422,33 +382,6 @@ class Engine:
         fg, mg = self.gas_excitation(orders)
         fi, mi = self.unit_inertia_orders(orders, about)
         return OrderExcitation(fg, mg, fi, mi)
-
-
-@dataclass(frozen=True)
-class OrderExcitation:
-    """Excitation per order split by how it scales with speed (gas: not at all with our
-    pressure models; crank-train inertia: with omega^2). Each (n_orders, 3) complex."""
-
-    gas_force: np.ndarray  # N
-    gas_moment: np.ndarray  # N m
-    unit_inertia_force: np.ndarray  # N / (rad/s)^2
-    unit_inertia_moment: np.ndarray  # N m / (rad/s)^2
-
-    def at(self, rpm: float) -> tuple[np.ndarray, np.ndarray]:
-        """Force (N) and moment (N m) per order at ``rpm`` rev/min."""
-        w2 = float(rpm_to_omega(rpm)) ** 2
-        return (
-            self.gas_force + w2 * self.unit_inertia_force,
-            self.gas_moment + w2 * self.unit_inertia_moment,
-        )
-
-
-def _spectrum(x: np.ndarray) -> np.ndarray:
-    """Complex amplitudes per half order along axis 0: index ``k`` is order ``k / 2``."""
-    n = x.shape[0]
-    y = np.fft.rfft(x, axis=0) * (2.0 / n)
-    y[0] *= 0.5
-    return y
 
 
 def _wrap(angle: float, period: float) -> float:

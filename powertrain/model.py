@@ -34,8 +34,9 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from powertrain.engine import Engine, rpm_to_omega
+from powertrain.engine import Engine
 from powertrain.errors import PhysicsError
+from powertrain.half_orders import rpm_to_omega
 from powertrain.mounted import Modes, Mount, MountedPowertrain
 from powertrain.rigidbody import RigidBody
 from powertrain.sensors import Sensor, channel_geometry, rigid_channel_matrix

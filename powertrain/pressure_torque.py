@@ -30,9 +30,10 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from powertrain.engine import Engine, _spectrum
+from powertrain.engine import Engine
 from powertrain.errors import PhysicsError
 from powertrain.gas import CYCLE
+from powertrain.half_orders import half_order_spectrum
 
 
 @dataclass(frozen=True)
@@ -100,7 +101,7 @@ def pressure_torque_map(
     index = np.rint(2 * h).astype(int)
     return PressureTorqueMap(
         orders=h,
-        constant=_spectrum(constant)[index],
-        from_re=_spectrum(torque_re.T)[index],
-        from_im=_spectrum(torque_im.T)[index],
+        constant=half_order_spectrum(constant)[index],
+        from_re=half_order_spectrum(torque_re.T)[index],
+        from_im=half_order_spectrum(torque_im.T)[index],
     )

@@ -19,13 +19,14 @@ from typing import Any
 
 import numpy as np
 
-from powertrain.engine import BalanceShaft, Engine, Unbalance
+from powertrain.balancing import BalanceShaft, Unbalance
+from powertrain.engine import Engine
 from powertrain.gas import GasModel, OrdersGas, ParametricGas, TraceGas
 from powertrain.model import BenchModel, ElasticMode
 from powertrain.mounted import Mount
 from powertrain.rigidbody import RigidBody, inertia_terms, rotation_matrix
 from powertrain.sensors import Sensor
-from ptinertia import config
+from ptinertia import config, config_powertrain
 from ptinertia.config import ConfigError
 
 DEG = math.pi / 180.0
@@ -85,9 +86,11 @@ def read_pressure_trace(path: str | Path) -> TraceGas:
     return TraceGas(np.array(angles) * DEG, np.array(pressures) * 1e5)
 
 
-def gas_model(gas: config.GasParametric | config.GasTrace | config.GasOrders) -> GasModel:
+def gas_model(
+    gas: config_powertrain.GasParametric | config_powertrain.GasTrace | config_powertrain.GasOrders,
+) -> GasModel:
     """The physics gas model of a ``[gas]`` table (reads the trace file)."""
-    if isinstance(gas, config.GasParametric):
+    if isinstance(gas, config_powertrain.GasParametric):
         return ParametricGas(
             compression_ratio=gas.compression_ratio,
             intake_pressure=gas.intake_pressure_pa,
@@ -99,7 +102,7 @@ def gas_model(gas: config.GasParametric | config.GasTrace | config.GasOrders) ->
             wiebe_a=gas.wiebe_a,
             wiebe_m=gas.wiebe_m,
         )
-    if isinstance(gas, config.GasTrace):
+    if isinstance(gas, config_powertrain.GasTrace):
         return read_pressure_trace(gas.file)
     return OrdersGas(
         tuple(o.order for o in gas.orders),
@@ -111,7 +114,9 @@ def gas_model(gas: config.GasParametric | config.GasTrace | config.GasOrders) ->
 
 
 def build_engine(
-    engine: config.Engine, gas: GasModel | None, extra_unbalances: tuple[Unbalance, ...] = ()
+    engine: config_powertrain.Engine,
+    gas: GasModel | None,
+    extra_unbalances: tuple[Unbalance, ...] = (),
 ) -> Engine:
     """The physics :class:`Engine` of an ``[engine]`` table, SI and rad."""
     return Engine(
@@ -174,19 +179,27 @@ def _sensors(bench: config.Bench) -> tuple[Sensor, ...]:
     )
 
 
-def build_model(bench: config.Bench) -> BenchModel:
-    """The nominal model: the bench file as the estimator assumes it (no errors, rigid)."""
-    engine = build_engine(bench.engine, gas_model(bench.gas))
-    return BenchModel(_body(bench), _mounts(bench), engine, _sensors(bench))
+def build_model(
+    bench: config.Bench, body: RigidBody | None = None, extra_unbalances: tuple[Unbalance, ...] = ()
+) -> BenchModel:
+    """The nominal model: the bench file as the estimator assumes it (no errors, rigid).
+
+    ``body`` replaces the bench file's powertrain and ``extra_unbalances`` join the
+    engine's: the re-simulation check puts an estimate there
+    (:func:`ptinertia.resim.resim_model`).
+    """
+    engine = build_engine(bench.engine, gas_model(bench.gas), extra_unbalances)
+    body = _body(bench) if body is None else body
+    return BenchModel(body, _mounts(bench), engine, _sensors(bench))
 
 
 def _true_gas(
     bench: config.Bench, sim: config.Simulation
-) -> config.GasParametric | config.GasTrace | config.GasOrders:
+) -> config_powertrain.GasParametric | config_powertrain.GasTrace | config_powertrain.GasOrders:
     """The gas the simulated engine burns: ``[gas]``, its heat release off by the given share."""
     if not sim.heat_release_error_pct:
         return bench.gas
-    if not isinstance(bench.gas, config.GasParametric):
+    if not isinstance(bench.gas, config_powertrain.GasParametric):
         raise ConfigError(
             "[simulation] heat_release_error_pct: needs [gas] model = 'parametric', "
             f"got {bench.gas.model!r}"

@@ -21,7 +21,8 @@ from estimator.setup import (
     MountStiffness,
     Tolerances,
 )
-from powertrain.engine import Engine, OrderExcitation
+from powertrain.engine import Engine
+from powertrain.half_orders import OrderExcitation
 from powertrain.model import BenchModel
 from powertrain.pressure_torque import PressureTorqueMap, pressure_torque_map
 from ptinertia import config

@@ -31,9 +31,9 @@ from typing import Any
 import numpy as np
 
 from estimator.result import Z95
+from powertrain.rigidbody import TERMS
 from ptinertia.errors import UsageError
 
-TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 COG = ("Gx", "Gy", "Gz")
 FORMATS = ("toml", "json", "csv", "nastran")
 # unit system -> (mass, length, inertia) factor from SI, and their names

@@ -2,13 +2,26 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 from acquisition.stream import SourceEvent, StreamItem, StreamLayout
 from dsp.config import OrderTrackerConfig
+from dsp.errors import DspConfigError
 from dsp.orders import OrderTracker
 from dsp.tacho import TachoConfig
-from ptinertia.config import Bench
+from ptinertia.config import Bench, Tacho
+
+# the [tacho] keys the tracker reads, by name; the acquisition's own (sample_rate_hz,
+# rpm_rate_hz) stay behind, and the tracker's thresholds keep their defaults
+_TRACKER_TACHO_KEYS = frozenset(f.name for f in dataclasses.fields(TachoConfig)) & set(
+    Tacho.model_fields
+)
+
+
+def tacho_config(tacho: Tacho) -> TachoConfig:
+    """The tracker's tacho settings of a ``[tacho]`` table: the keys both share by name."""
+    return TachoConfig(**tacho.model_dump(include=set(_TRACKER_TACHO_KEYS)))
 
 
 def tracker_config(
@@ -17,26 +30,10 @@ def tracker_config(
     """The dsp configuration the bench file asks for (``orders`` overrides ``[dsp] orders``;
     ``spectrum_channel``: a channel tracked at every half order up to
     ``[estimator] pressure_max_order``, the cylinder pressure the gas torque comes from)."""
-    t = bench.tacho
-    tacho = TachoConfig(
-        kind=t.kind,
-        teeth=t.teeth,
-        missing=t.missing,
-        delivery=t.delivery,
-        channel=t.channel,
-        tdc_after_gap_deg=t.tdc_after_gap_deg,
-        tdc_offset_deg=t.tdc_offset_deg,
-        rpm_channel=t.rpm_channel,
-        phase_reference=t.phase_reference,
-        cam_channel=t.cam_channel,
-        cam_angle_deg=t.cam_angle_deg,
-        pressure_channel=t.pressure_channel,
-    )
+    tacho = tacho_config(bench.tacho)
     channels = tuple(c for s in bench.sensors for c in s.channels if c)
     fpr = bench.dsp.frames_per_rev
     if fpr != int(fpr):
-        from dsp.errors import DspConfigError
-
         raise DspConfigError(f"[dsp] frames_per_rev: expected a whole number, got {fpr}")
     return OrderTrackerConfig(
         tacho=tacho,

@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from ptinertia.bench import build_model
+from ptinertia.config import load_bench
 from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
 
@@ -49,9 +51,6 @@ def parse_orders(text: str | None, max_order: float) -> np.ndarray:
 
 def excitation_table(bench_path: str, rpm: float, orders_text: str | None) -> dict[str, Any]:
     """Everything the command prints, as plain data (complex kept as complex)."""
-    from ptinertia.bench import build_model
-    from ptinertia.config import load_bench
-
     if not rpm > 0:
         raise UsageError(f"--rpm: expected a positive speed, got {rpm:g}")
     bench = load_bench(bench_path)

@@ -15,12 +15,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ptinertia.config import load_bench, loads_bench
 from ptinertia.errors import UsageError
+from ptinertia.export import FORMATS, UNITS, export, properties_from_result
+from replay.reader import open_log
 
 
 def add_parser(sub: Any, name: str, help_text: str) -> None:
-    from ptinertia.export import FORMATS, UNITS
-
     p = sub.add_parser(name, help=help_text, description=__doc__)
     p.add_argument("result", help="result document (ptinertia run --json), or a run's LOG.mcap")
     p.add_argument("--format", required=True, choices=FORMATS, help="output format")
@@ -49,9 +50,6 @@ def _result(path: Path) -> tuple[dict[str, Any], float | None]:
             return json.loads(path.read_text(encoding="utf-8")), None
         except (OSError, json.JSONDecodeError) as err:
             raise UsageError(f"{path}: not a readable result document ({err})") from None
-    from ptinertia.config import loads_bench
-    from replay.reader import open_log
-
     log = open_log(path)
     doc = log.result
     if doc is None:
@@ -81,9 +79,6 @@ def _grid_at(text: str | None) -> tuple[float, float, float] | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ptinertia.config import load_bench
-    from ptinertia.export import export, properties_from_result
-
     doc, log_mass = _result(Path(args.result))
     bench_mass = load_bench(args.bench).powertrain.mass_kg if args.bench else log_mass
     props = properties_from_result(doc, mass=args.mass, bench_mass=bench_mass)

@@ -6,7 +6,7 @@ the set-up file or the UFF node table. The mass-line band is chosen between
 the suspension modes and the first elastic mode (printed; ``--band``
 overrides it). All excitations are fitted at once, with the suspension's
 residual stiffness estimated alongside (``--no-residual-stiffness`` shows the
-bias it removes).
+bias it removes). The evaluation is :func:`ptinertia.classical.massline_document`.
 """
 
 from __future__ import annotations
@@ -15,16 +15,17 @@ import argparse
 import math
 from typing import Any
 
-import numpy as np
-
+from estimator.classical.massline import MassLineTolerances
+from estimator.result import Z95
+from ptinertia.classical import massline_document
 from ptinertia.errors import UsageError
+from ptinertia.estimates import write_document
+from ptinertia.paths import DEFAULT_BENCH
 
 DEG = math.pi / 180.0
 
 
 def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentParser:
-    from ptinertia.paths import DEFAULT_BENCH
-
     p = subparsers.add_parser(
         name, help=help_text, description=__doc__.splitlines()[0] if __doc__ else None
     )
@@ -67,95 +68,7 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
     return p
 
 
-def compute(
-    frf_path: str,
-    bench_path: str,
-    setup_path: str | None = None,
-    band: tuple[float, float] | None = None,
-    residual_stiffness: bool = True,
-    node_tolerance_m: float = 0.005,
-    tolerances: Any = None,
-) -> dict[str, Any]:
-    """The result document of a mass-line evaluation."""
-    from acquisition.classical.frf_matrix import SensorPoint, frf_matrix
-    from acquisition.classical.modal_setup import load_modal_setup
-    from acquisition.classical.uff import read_uff
-    from estimator.classical.massline import FrfGeometry, estimate_mass_line
-    from ptinertia.commands.compare import estimate_document
-    from ptinertia.config import load_bench
-
-    if band is not None and not (0 <= band[0] < band[1]):
-        raise UsageError(f"--band: expected 0 <= LOW < HIGH, got {band[0]:g} {band[1]:g}")
-    if not node_tolerance_m > 0:
-        raise UsageError(f"--node-tolerance-mm: expected > 0, got {1e3 * node_tolerance_m:g}")
-    bench = load_bench(bench_path)
-    sensors = [
-        SensorPoint(s.name, np.array(s.position_m), np.array(s.axes), tuple(s.channels))
-        for s in bench.sensors
-    ]
-    setup = None if setup_path is None else load_modal_setup(setup_path)
-    uff = read_uff(frf_path)
-    data = frf_matrix(uff, sensors, setup, node_tolerance_m)
-    geometry = FrfGeometry(
-        channel_positions=data.channel_positions,
-        channel_directions=data.channel_directions,
-        force_positions=data.excitation_positions,
-        force_directions=data.excitation_directions,
-        channel_names=data.channel_names,
-        excitation_names=data.excitation_names,
-        channel_sensor=data.channel_sensor,
-    )
-    result = estimate_mass_line(
-        data.frequency_hz, data.h, geometry, band, residual_stiffness, tolerances
-    )
-    body = result.body
-    std = body.std
-    doc = estimate_document(
-        method="massline",
-        terms=body.terms,
-        terms_std=std[4:],
-        cog=body.cog,
-        cog_std=std[1:4],
-        mass=body.mass,
-        mass_std=float(std[0]),
-        covariance=(["mass", "Gx", "Gy", "Gz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz"], body.cov),
-    )
-    doc.update(
-        {
-            "source": str(frf_path),
-            "bench": str(bench_path),
-            "band_hz": {
-                "low": result.band.low_hz,
-                "high": result.band.high_hz,
-                "chosen": result.band.chosen,
-                "resonances": list(result.band.resonances_hz),
-            },
-            "fit": {
-                "powers": list(result.fit.powers),
-                "residual_stiffness": residual_stiffness,
-                "lines": result.fit.lines,
-                "misfit": result.fit.misfit,
-                "residual_share": result.fit.residual_share,
-            },
-            "rigid_body": {
-                "misfit": body.rigid_misfit,
-                "variance_factor": body.variance_factor,
-                "chi2": body.chi2,
-                "dof": body.dof,
-                "iterations": body.iterations,
-            },
-            "excitations": list(data.excitation_names),
-            "channels": list(data.channel_names),
-            "response_nodes": data.response_nodes,
-            "unused_frfs": data.unused,
-        }
-    )
-    return doc
-
-
 def format_report(doc: dict[str, Any]) -> str:
-    from ptinertia.commands.compare import Z95
-
     band = doc["band_hz"]
     res = ", ".join(f"{r:.4g}" for r in band["resonances"])
     powers = ", ".join(f"{2 * k:+d}" for k in doc["fit"]["powers"])
@@ -183,9 +96,6 @@ def format_report(doc: dict[str, Any]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from estimator.classical.massline import MassLineTolerances
-    from ptinertia.commands.compare import write_document
-
     values = {
         "--force-gain-pct": args.force_gain_pct,
         "--hit-position-mm": args.hit_position_mm,
@@ -197,6 +107,10 @@ def run(args: argparse.Namespace) -> int:
     for option, value in values.items():
         if not value >= 0:
             raise UsageError(f"{option}: expected a 1-sigma value >= 0, got {value:g}")
+    if args.band is not None and not (0 <= args.band[0] < args.band[1]):
+        raise UsageError(f"--band: expected 0 <= LOW < HIGH, got {args.band[0]:g} {args.band[1]:g}")
+    if not args.node_tolerance_mm / 1e3 > 0:
+        raise UsageError(f"--node-tolerance-mm: expected > 0, got {args.node_tolerance_mm:g}")
     tolerances = MassLineTolerances(
         force_gain_rel=args.force_gain_pct / 100,
         hit_position_m=args.hit_position_mm / 1e3,
@@ -205,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
         sensor_position_m=args.sensor_position_mm / 1e3,
         sensor_alignment_rad=args.sensor_alignment_deg * DEG,
     )
-    doc = compute(
+    doc = massline_document(
         args.frf,
         args.bench,
         args.setup,

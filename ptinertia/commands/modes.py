@@ -12,6 +12,8 @@ import argparse
 import json
 from typing import Any
 
+from ptinertia.bench import build_model
+from ptinertia.config import load_bench
 from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
 
@@ -29,9 +31,6 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
 
 
 def compute(bench_path: str, rpm: float | None) -> dict[str, Any]:
-    from ptinertia.bench import build_model
-    from ptinertia.config import load_bench
-
     if rpm is not None and rpm < 0:
         raise UsageError(f"--rpm: expected a speed >= 0, got {rpm:g}")
     bench = load_bench(bench_path)

@@ -26,8 +26,12 @@ from typing import Any
 
 import numpy as np
 
+from dsp.orders import OrderTracker
+from ptinertia.config import load_bench
 from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
+from ptinertia.sources import open_source
+from ptinertia.tracking import tracker_config
 
 # Flags that leave a frame's amplitudes trustworthy for the plot: the cycle may be off by
 # 360 deg (half-order signs) and the angle rebased, but the magnitudes are right.
@@ -66,18 +70,12 @@ def parse_orders(text: str | None) -> tuple[float, ...] | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ptinertia.config import load_bench
-    from ptinertia.sources import open_source
-    from ptinertia.tracking import tracker_config
-
     orders = parse_orders(args.orders)
     bench = load_bench(args.bench)
     if args.file != "sim" and not Path(args.file).exists():
         raise UsageError(f"{args.file}: no such file")
     spec = "sim" if args.file == "sim" else "file:" + args.file
     config = tracker_config(bench, orders)
-    from dsp.orders import OrderTracker
-
     frames = []
     events: Counter[str] = Counter()
     with open_source(spec, bench) as source:
@@ -153,6 +151,7 @@ def write_csv(path: Path, frames: list[Any]) -> None:
 
 def plot(path: Path, frames: list[Any], title: str = "") -> None:
     """Amplitude (dB re 1 m/s^2) above phase (deg) vs rpm, one column per order."""
+    # matplotlib here, not at the top: it takes a second to import and only --plot needs it
     import matplotlib
 
     matplotlib.use("Agg")

@@ -14,6 +14,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from acquisition.can.codec import load_plan
+from acquisition.can.source import CanFrameSource
 from ptinertia.commands.run import (
     CORRECTIONS,
     add_mount_scale_flag,
@@ -26,6 +28,10 @@ from ptinertia.commands.run import (
 from ptinertia.config import load_bench, loads_bench
 from ptinertia.errors import UsageError
 from ptinertia.runner import RunOptions, print_table, run_source, write_json
+from ptinertia.sources import check_channels
+from replay.reader import find_logs, open_log
+from replay.schemas import TOPIC_CAN
+from replay.source import McapSource
 
 
 def add_parser(sub: Any, name: str, help_text: str) -> None:
@@ -68,9 +74,6 @@ def parse_speed(text: str) -> float | None:
 
 
 def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None) -> int:
-    from replay.reader import open_log
-    from replay.source import McapSource
-
     log = open_log(log_path)
     if args.bench:
         bench_text = Path(args.bench).read_text(encoding="utf-8")
@@ -82,8 +85,6 @@ def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None)
         bench = loads_bench(bench_text, f"{log_path}:bench.toml")
     bench = with_mount_scale(bench, args.mount_scale)
     source: Any = McapSource(log, speed=parse_speed(args.speed))
-    from ptinertia.sources import check_channels
-
     if args.dbc:
         source = redecoded_can(log, bench, args.dbc, log_path)
     check_channels(source.layout, bench, str(log_path))
@@ -115,10 +116,6 @@ def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None)
 
 def redecoded_can(log: Any, bench: Any, dbc: str, log_path: Path) -> Any:
     """A source decoding the log's raw CAN frames again with ``dbc``."""
-    from acquisition.can.codec import load_plan
-    from acquisition.can.source import CanFrameSource
-    from replay.schemas import TOPIC_CAN
-
     batches = iter(log.can_frames())
     first = next(batches, None) if TOPIC_CAN in log.topics else None
     if first is None:
@@ -130,8 +127,6 @@ def redecoded_can(log: Any, bench: Any, dbc: str, log_path: Path) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
-    from replay.reader import find_logs
-
     target = Path(args.log)
     logs = find_logs(target)
     if target.is_dir():

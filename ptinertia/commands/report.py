@@ -15,6 +15,8 @@ from pathlib import Path
 from typing import Any
 
 from ptinertia.errors import UsageError
+from ptinertia.report.build import make_report
+from ptinertia.reprocess import reprocess_log
 
 
 def add_parser(sub: Any, name: str, help_text: str) -> None:
@@ -29,8 +31,6 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ptinertia.report.build import make_report
-
     src = Path(args.input)
     out = Path(args.out) if args.out else src.with_suffix(".html")
     if out.resolve() == src.resolve():
@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     if not out.parent.is_dir():
         raise UsageError(f"--out {out}: directory {out.parent} does not exist")
     t0 = time.perf_counter()
-    report = make_report(src, out, bench=args.bench, png_dir=args.png)
+    report = make_report(src, out, bench=args.bench, png_dir=args.png, reprocess=reprocess_log)
     for line in report.headline:
         print(line)
     size = out.stat().st_size / 1e6

@@ -16,6 +16,8 @@ from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
 from ptinertia.runner import RunOptions, print_table, run_source, write_json
 from ptinertia.sinks import Sink
+from ptinertia.sources import REALISTIC_SIMULATION, open_source
+from replay.recorder import McapRecorder
 
 CORRECTIONS = (
     "suspension",
@@ -91,8 +93,6 @@ def sim_overrides(args: argparse.Namespace) -> dict[str, Any]:
     """The ``[simulation]`` overrides given on the command line."""
     out: dict[str, Any] = {}
     if args.realistic:
-        from ptinertia.sources import REALISTIC_SIMULATION
-
         out.update(REALISTIC_SIMULATION)
     if args.sweep:
         try:
@@ -136,6 +136,8 @@ def viewer_sinks(mode: str | None, record: str | None) -> list[Sink]:
     if mode == "off":
         return []
     try:
+        # here, not at the top: the sink imports rerun (heavy, and absent from some installs),
+        # which a headless run never needs
         from ptinertia.viewer import rerun_sink as viewer
     except ImportError:
         if mode is None:
@@ -148,14 +150,10 @@ def viewer_sinks(mode: str | None, record: str | None) -> list[Sink]:
 def recorder_sinks(path: str | None) -> list[Sink]:
     if path is None:
         return []
-    from replay.recorder import McapRecorder
-
     return [McapRecorder(path)]
 
 
 def run(args: argparse.Namespace) -> int:
-    from ptinertia.sources import open_source
-
     bench_path = Path(args.bench)
     bench = with_mount_scale(load_bench(bench_path), args.mount_scale)
     bench_text = bench_path.read_text(encoding="utf-8")

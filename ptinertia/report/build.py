@@ -13,15 +13,17 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 from ptinertia.report import plots, sections
-from ptinertia.report.data import ReportData
+from ptinertia.report.data import ReportData, Reprocess, load
 from ptinertia.report.html import esc, image, page, verdict
 from ptinertia.report.stats import (
     parameter_covariance,
 )
-from ptinertia.resim import ResimCheck, resim_check
+from ptinertia.resim import resim_check
+from ptinertia.resim_compare import ResimCheck
 
 
 @dataclass
@@ -130,8 +132,6 @@ def _residual_section(data: ReportData, figures: dict[str, bytes]) -> str:
 
 def build_report(data: ReportData) -> Report:
     """Render the report (pure: no file is written)."""
-    from importlib.metadata import PackageNotFoundError, version
-
     try:
         ver = version("ptinertia")
     except PackageNotFoundError:  # pragma: no cover - run from a source tree
@@ -193,11 +193,14 @@ def write_report(report: Report, out: str | Path, png_dir: str | Path | None = N
 
 
 def make_report(
-    path: str | Path, out: str | Path, bench: str | None = None, png_dir: str | Path | None = None
+    path: str | Path,
+    out: str | Path,
+    bench: str | None = None,
+    png_dir: str | Path | None = None,
+    reprocess: Reprocess | None = None,
 ) -> Report:
-    """Load, render and write: what ``ptinertia report`` does."""
-    from ptinertia.report.data import load
-
-    report = build_report(load(path, bench))
+    """Load, render and write: what ``ptinertia report`` does (``reprocess``: runs the chain
+    on a recording that needs it, see :func:`ptinertia.report.data.load_recording`)."""
+    report = build_report(load(path, bench, reprocess))
     write_report(report, out, png_dir)
     return report

@@ -6,9 +6,9 @@ Three inputs, one :class:`ReportData`:
   frames, the gating decisions, the published estimates and the final result
   are read back as recorded, nothing is recomputed;
 * a raw-only recording (``simulate --out x.mcap``, a crashed run whose final
-  estimate was lost): the chain is run on it first, in process, with the bench
-  file and settings stored in the log (as ``ptinertia replay`` would), and the
-  report says so;
+  estimate was lost): the caller's ``reprocess`` (:mod:`ptinertia.reprocess`) runs
+  the chain on it first, with the bench file stored in the log (as
+  ``ptinertia replay`` would), and the report says so;
 * a result document (``run --json``): only the final estimate; with ``--bench``
   also the modes and the predicted order amplitudes, but nothing measured.
 """
@@ -16,6 +16,7 @@ Three inputs, one :class:`ReportData`:
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,7 +26,13 @@ import numpy as np
 from estimator.result import Estimate
 from ptinertia import config
 from ptinertia.errors import UsageError
-from ptinertia.sinks import EstimateUpdate, RunContext, Sink
+from ptinertia.reprocess import Reprocessed
+from ptinertia.runner import result_truth
+from ptinertia.sinks import EstimateUpdate
+from replay.reader import open_log
+
+# runs the chain over a recording: (log, bench, bench text, where) -> the processed run
+Reprocess = Callable[[Any, config.Bench, str, str], Reprocessed]
 
 
 @dataclass(frozen=True)
@@ -192,36 +199,18 @@ def why_no_estimate(gating: GatingSeries | None, frames: FrameSeries | None) -> 
     )
 
 
-class _Collector(Sink):
-    """Keeps what a recording would have kept, in memory."""
-
-    def __init__(self) -> None:
-        self.frames: list[Any] = []
-        self.outcomes: list[Any] = []
-        self.updates: list[EstimateUpdate] = []
-        self.context: RunContext | None = None
-
-    def start(self, context: RunContext) -> None:
-        self.context = context
-
-    def on_frame(self, frame: Any, outcome: Any) -> None:
-        self.frames.append(frame)
-        self.outcomes.append(outcome)
-
-    def on_estimate(self, update: EstimateUpdate) -> None:
-        self.updates.append(update)
-
-
 def _truth_doc(truth: Any) -> dict[str, Any] | None:
-    from ptinertia.runner import result_truth
-
     return result_truth(truth) if isinstance(truth, dict) else None
 
 
-def load_recording(path: Path, bench_path: str | None = None) -> ReportData:
-    """A :class:`ReportData` from an MCAP recording (raw-only logs are estimated first)."""
-    from replay.reader import open_log
+def load_recording(
+    path: Path, bench_path: str | None = None, reprocess: Reprocess | None = None
+) -> ReportData:
+    """A :class:`ReportData` from an MCAP recording.
 
+    A raw-only log, or any log with another bench file (``bench_path``), is processed
+    by ``reprocess`` first (the app's :func:`ptinertia.reprocess.reprocess_log`).
+    """
     log = open_log(path)
     if bench_path:
         bench_text = Path(bench_path).read_text(encoding="utf-8")
@@ -235,7 +224,14 @@ def load_recording(path: Path, bench_path: str | None = None) -> ReportData:
     if log.settings and not bench_path:
         data = _from_run_log(path, log, bench, bench_text, list(log.frames()))
     else:
-        data = _estimate_raw(path, log, bench, bench_text, rerun_reason=bool(bench_path))
+        if reprocess is None:
+            why = "--bench given" if bench_path else "a raw-only recording"
+            raise UsageError(
+                f"{path}: {why}: the chain must run on it first, and no reprocess was given "
+                "(ptinertia.reprocess.reprocess_log)"
+            )
+        processed = reprocess(log, bench, bench_text, str(path))
+        data = _from_reprocessed(path, log, bench, bench_text, processed, bool(bench_path))
     data.notes = [*log.report.lines(), *data.notes]
     return data
 
@@ -284,43 +280,32 @@ def _from_run_log(
     )
 
 
-def _estimate_raw(
-    path: Path, log: Any, bench: config.Bench, text: str, rerun_reason: bool
+def _from_reprocessed(
+    path: Path, log: Any, bench: config.Bench, text: str, run: Reprocessed, rerun_reason: bool
 ) -> ReportData:
-    from ptinertia.runner import RunOptions, run_source
-    from ptinertia.sources import check_channels
-    from replay.source import McapSource
-
-    source = McapSource(log)
-    check_channels(source.layout, bench, str(path))
-    collector = _Collector()
-    summary, doc = run_source(
-        bench, text, source, log.source or "replay", RunOptions(quiet=True, sinks=(collector,))
-    )
-    frames = frame_series(collector.frames)
-    gating = gating_series(collector.outcomes, frames) if frames is not None else None
+    frames = frame_series(run.frames)
+    gating = gating_series(run.outcomes, frames) if frames is not None else None
     why = (
         "--bench given: the estimate was recomputed from the raw data with that bench file"
         if rerun_reason
         else "raw-only recording: the estimate was computed by the report from the raw data, "
         "with the bench file stored in the log (as `ptinertia replay` would)"
     )
-    ctx = collector.context
     truth = _truth_doc(log.truth)
     return ReportData(
         source_path=path,
         kind="raw recording (estimated by the report)",
         bench=bench,
         bench_text=text,
-        result=doc,
-        final=summary.estimate,
+        result=run.result,
+        final=run.final,
         truth=truth,
-        settings=dict(ctx.settings) if ctx is not None else {},
+        settings=run.settings,
         frames=frames,
         gating=gating,
-        convergence=convergence_series(collector.updates),
+        convergence=convergence_series(run.updates),
         notes=[why],
-        no_estimate=None if doc is not None else why_no_estimate(gating, frames),
+        no_estimate=None if run.result is not None else why_no_estimate(gating, frames),
         source_spec=log.source,
     )
 
@@ -352,11 +337,14 @@ def load_result(path: Path, bench_path: str | None = None) -> ReportData:
     )
 
 
-def load(path: str | Path, bench_path: str | None = None) -> ReportData:
-    """Dispatch on the file: ``.json`` is a result document, anything else a recording."""
+def load(
+    path: str | Path, bench_path: str | None = None, reprocess: Reprocess | None = None
+) -> ReportData:
+    """Dispatch on the file: ``.json`` is a result document, anything else a recording
+    (``reprocess``: see :func:`load_recording`)."""
     path = Path(path)
     if not path.exists():
         raise UsageError(f"{path}: no such file")
     if path.suffix.lower() == ".json":
         return load_result(path, bench_path)
-    return load_recording(path, bench_path)
+    return load_recording(path, bench_path, reprocess)

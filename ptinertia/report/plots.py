@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 from estimator.result import Z95
 from ptinertia.report.data import ConvergenceSeries, FrameSeries, GatingSeries
 from ptinertia.report.stats import ModeStats
-from ptinertia.resim import ResimCheck
+from ptinertia.resim_compare import ResimCheck
 
 DPI = 80
 MARGINS = {"left": 0.07, "right": 0.98, "top": 0.9, "bottom": 0.1, "hspace": 0.3, "wspace": 0.25}

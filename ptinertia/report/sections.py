@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from estimator.result import Z95
+from ptinertia.bench import build_model
 from ptinertia.report import plots
 from ptinertia.report.data import ConvergenceSeries, ReportData
 from ptinertia.report.html import esc, fixed, flatten, image, table
@@ -23,7 +24,8 @@ from ptinertia.report.stats import (
     principal_stats,
     tensors,
 )
-from ptinertia.resim import ResimCheck, estimated_properties, resim_model
+from ptinertia.resim import estimated_properties, resim_model
+from ptinertia.resim_compare import ResimCheck
 
 REASONS = {
     "rpm_unsteady": "speed changed too much across the analysis window (order leakage)",
@@ -259,8 +261,6 @@ def modes_section(
     bench = data.bench
     if bench is None or not bench.mounts:
         return "<h2>5. Rigid-body modes</h2><p>No bench file with mounts: no modes.</p>"
-    from ptinertia.bench import build_model
-
     nominal = build_model(bench)
     if data.result is not None:
         props = estimated_properties(data.result, bench)

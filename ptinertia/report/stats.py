@@ -18,9 +18,8 @@ import numpy as np
 
 from estimator.result import Z95
 from powertrain.mounted import Mount, MountedPowertrain
-from powertrain.rigidbody import RigidBody, consistency_problems
+from powertrain.rigidbody import TERMS, RigidBody, consistency_problems
 
-TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 COG = ("Gx", "Gy", "Gz")
 
 

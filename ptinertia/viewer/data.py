@@ -12,10 +12,11 @@ from typing import Any
 import numpy as np
 
 from estimator.result import Estimate
+from powertrain.rigidbody import TERMS
 from ptinertia.viewer import layout as lay
 
 BAND_K = 2.0  # the bands are value +- 2 sigma
-CORE = lay.INERTIA_TERMS + lay.COG_TERMS
+CORE = TERMS + lay.COG_TERMS
 NAN2 = (math.nan, math.nan)
 
 
@@ -111,7 +112,7 @@ def truth_values(truth: dict[str, Any] | None) -> dict[str, float]:
     out: dict[str, float] = {}
     inertia = value(truth.get("inertia_kgm2"))
     if isinstance(inertia, dict):
-        out.update({k: float(inertia[k]) for k in lay.INERTIA_TERMS if inertia.get(k) is not None})
+        out.update({k: float(inertia[k]) for k in TERMS if inertia.get(k) is not None})
     cog = value(truth.get("cog_m"))
     if cog is not None:
         out.update({k: float(v) for k, v in zip(lay.COG_TERMS, cog, strict=True)})

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from powertrain.rigidbody import TERMS
+
 TIME = "time"
 RPM_TIMELINE = "rpm"
 
@@ -19,7 +21,6 @@ RPM = "rpm"
 EVENTS = "events"
 RESIDUAL = "quality/relative_residual"
 USED_ORDERS = "quality/used_orders"
-INERTIA_TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 COG_TERMS = ("Gx", "Gy", "Gz")
 EXTRAS = ("mass", "crank_offset", "unbalance")
 EXTRA_UNITS = {"mass": "kg", "crank_offset": "deg", "unbalance": "kg m"}
@@ -59,7 +60,7 @@ def order_phase(order: float) -> str:
 
 
 def estimate_path(name: str) -> str:
-    group = "inertia" if name in INERTIA_TERMS else "cog" if name in COG_TERMS else "extra"
+    group = "inertia" if name in TERMS else "cog" if name in COG_TERMS else "extra"
     return f"estimate/{group}/{name}"
 
 
@@ -91,7 +92,7 @@ def default_blueprint(orders: list[float], extras: list[str], has_truth: bool) -
         )
 
     inertia = rrb.Grid(
-        *[plot(estimate_path(t), f"{t} [kg m²] ±2σ") for t in INERTIA_TERMS],
+        *[plot(estimate_path(t), f"{t} [kg m²] ±2σ") for t in TERMS],
         grid_columns=3,
         name="inertia",
     )

@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from estimator.result import enforce_physical, principal_axes, tensor_from_terms
+from powertrain.rigidbody import TERMS
 from ptinertia.sinks import RunContext
 from ptinertia.viewer import layout as lay
 from ptinertia.viewer.scene import equivalent_box
@@ -46,7 +47,7 @@ def log_static(
     labels = [lay.order_label(h) for h in orders]
     rec.log(lay.RESIDUAL, s(names=labels), static=True)
     rec.log(lay.USED_ORDERS, s(names=["orders used"]), static=True)
-    for name in lay.INERTIA_TERMS + lay.COG_TERMS + extras:
+    for name in TERMS + lay.COG_TERMS + extras:
         has_truth = name in truth
         rec.log(
             lay.estimate_path(name),
@@ -98,7 +99,7 @@ def log_static(
         static=True,
     )
     if {"Ixx", "Gx"} <= set(truth):
-        terms = np.array([truth[t] for t in lay.INERTIA_TERMS])
+        terms = np.array([truth[t] for t in TERMS])
         moments, axes = principal_axes(enforce_physical(tensor_from_terms(terms))[0])
         mass = truth.get("mass", float(setup.mass_nominal))
         cog = [truth[g] for g in lay.COG_TERMS]

@@ -16,9 +16,11 @@ from support.engines import (
     inline4,
 )
 
-from powertrain.engine import BalanceShaft, Engine, Unbalance, rpm_to_omega
+from powertrain.balancing import BalanceShaft, Unbalance
+from powertrain.engine import Engine
 from powertrain.errors import PhysicsError
 from powertrain.gas import CylinderGeometry, OrdersGas, ParametricGas
+from powertrain.half_orders import rpm_to_omega
 from powertrain.slider_crank import kinematics, piston_acceleration_coefficients
 
 

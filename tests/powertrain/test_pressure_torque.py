@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from support.engines import GAS, inline3, inline4
 
-from powertrain.engine import _spectrum
 from powertrain.errors import PhysicsError
 from powertrain.gas import CYCLE
+from powertrain.half_orders import half_order_spectrum
 from powertrain.pressure_torque import pressure_torque_map
 
 
@@ -19,7 +19,7 @@ def pressure_spectrum(engine, max_order: float) -> np.ndarray:
     """Cylinder-1 pressure orders 0 .. max_order (Pa) of the engine's own gas model."""
     n = engine.samples_per_cycle
     p = engine.cylinder_pressure(np.arange(n) * CYCLE / n)
-    return _spectrum(p)[: round(2 * max_order) + 1]
+    return half_order_spectrum(p)[: round(2 * max_order) + 1]
 
 
 @pytest.mark.parametrize("make", [inline3, inline4])

@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from powertrain.engine import rpm_to_omega
 from powertrain.gas import CylinderGeometry
+from powertrain.half_orders import rpm_to_omega
 from powertrain.model import BenchModel, ElasticMode
 from powertrain.rigidbody import inertia_terms
 from powertrain.sensors import rigid_channel_matrix
-from ptinertia import config
+from ptinertia import config, config_powertrain
 from ptinertia.bench import build_model, build_simulated_model, gas_model, read_pressure_trace
 from ptinertia.cli import main
 from ptinertia.config import ConfigError, load_bench
@@ -257,7 +257,7 @@ def test_malformed_trace_is_a_one_line_config_error(tmp_path, body, message):
 
 def test_missing_trace_names_the_file(tmp_path):
     with pytest.raises(ConfigError, match=r"nope\.csv: cannot read pressure trace"):
-        gas_model(config.GasTrace(model="trace", file=str(tmp_path / "nope.csv")))
+        gas_model(config_powertrain.GasTrace(model="trace", file=str(tmp_path / "nope.csv")))
 
 
 def test_torque_table_gas_has_no_pressure(bench):

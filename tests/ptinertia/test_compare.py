@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from ptinertia.cli import main
-from ptinertia.commands.compare import compare, estimate_document, read_estimate
 from ptinertia.errors import UsageError
+from ptinertia.estimates import compare_estimates as compare
+from ptinertia.estimates import estimate_document, read_estimate
 from ptinertia.paths import EXAMPLES_DIR
 
 TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")

@@ -23,7 +23,6 @@ from ptinertia.config import load_bench
 from ptinertia.paths import DEFAULT_BENCH
 from ptinertia.report.data import load
 from ptinertia.resim import (
-    compare,
     estimated_properties,
     predict,
     resim_check,
@@ -32,6 +31,7 @@ from ptinertia.resim import (
     rigid_motion,
     tolerance_sigma,
 )
+from ptinertia.resim_compare import compare
 
 ORDERS = (1.0, 1.5, 2.0)
 

@@ -254,7 +254,7 @@ def test_cog_from_plumb_lines():
 
 def test_the_example_test_file_finds_the_i3_bench():
     """examples/pendulum-test.toml is a noisy test of the i3 bench's powertrain."""
-    from ptinertia.commands.pendulum import compute
+    from ptinertia.classical import pendulum_document as compute
 
     doc = compute(str(EXAMPLES_DIR / "pendulum-test.toml"))
     p = load_bench(EXAMPLES_DIR / "i3-bench.toml").powertrain

@@ -22,6 +22,7 @@ from ptinertia.paths import DEFAULT_BENCH
 from ptinertia.report.build import build_report, make_report
 from ptinertia.report.data import load
 from ptinertia.report.stats import principal_stats, tensors
+from ptinertia.reprocess import reprocess_log
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -131,7 +132,7 @@ def test_raw_only_log_is_estimated_by_the_report(
     recorded = open_log(log)
     raw = tmp_path / "raw.mcap"
     record_source(McapSource(recorded), raw, bench_text=recorded.bench_text, truth=recorded.truth)
-    data = load(raw)
+    data = load(raw, reprocess=reprocess_log)
     assert data.kind.startswith("raw recording")
     assert any("raw-only recording" in n for n in data.notes)
     assert data.result is not None and recorded.result is not None

@@ -1,0 +1,105 @@
+"""Raw order amplitudes of consecutive frames, from the window sums of each tracked group.
+
+Each frame's window sums (:func:`dsp.sum_rows.window_sums`) are normalised by the window's
+weight, NaN where the tacho or the group is unusable, and flagged (``nan``, ``clipped``,
+the reasons of the unsynchronised stretches they overlap). The leakage correction
+(:func:`dsp.leakage.ramp_correction`) and the frame objects (:mod:`dsp.assemble`) come after.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from dsp import angle as ang
+from dsp.state import TWO_PI, TrackerState
+from dsp.sum_rows import window_sums
+
+
+def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]:
+    """Window sums of frames ``js`` for every tracked group, normalised, with flags."""
+    plan = st.plan
+    cfg = plan.config
+    n = cfg.frames_per_rev
+    spacing = TWO_PI / n
+    tw = math.radians(cfg.taper_deg)
+    f, n_ch, n_int = js.size, len(plan.channels), plan.k2.size
+    flags: list[set[str]] = [set() for _ in range(f)]
+    tacho_bad = np.zeros(f, bool)
+    bad_group = np.zeros((f, len(plan.groups)), bool)
+    if st.invalid:
+        lo_phi, hi_phi = (js - n) * spacing - 0.5 * tw, (js + n) * spacing + 0.5 * tw
+    for inv in st.invalid:
+        hit = np.flatnonzero((inv.phi_a < hi_phi) & (inv.phi_b > lo_phi))
+        # a gap in a group that holds nothing but the spectrum channel only NaNs the spectrum
+        if inv.group is None or not plan.groups[inv.group].spectrum_only:
+            for i in hit:
+                flags[i].add(inv.reason)
+        if inv.group is None:
+            tacho_bad[hit] = True
+        else:
+            bad_group[hit, inv.group] = True
+    # window start, centre and end of consecutive frames: f + 2 n distinct angles
+    span = np.arange(int(js[0]) - n, int(js[-1]) + n + 1)
+    at = (js[:, None] + np.array([-n - span[0], -span[0], n - span[0]])).ravel()
+    times, omegas = ang.time_at(st.table, span * spacing)
+    if not np.isfinite(times).all():
+        times = interpolate_times(st, span * spacing, times)
+    times, omegas = times[at], omegas[at]
+    x = np.full((f, n_int, n_ch), np.nan + 0j)
+    ms = np.full((f, n_ch), np.nan)
+    ok = np.zeros((f, n_ch), bool)
+    for gi, g in enumerate(plan.groups):
+        if not g.track_rows:
+            continue
+        cols = _columns(g.track_cols)
+        s, w, msg, clipped = window_sums(
+            st.groups[gi].acc, int(js[0]), int(js[-1]), n, len(g.track_rows), n_int
+        )
+        with np.errstate(invalid="ignore", divide="ignore"):
+            xg = 2.0 * s / w[:, None, None]  # (f, n_ch_g, n_int)
+        usable = ~(tacho_bad | bad_group[:, gi])
+        if not usable.all():
+            xg[~usable] = np.nan
+            msg[~usable] = np.nan
+        x[:, :, cols] = xg.transpose(0, 2, 1)
+        ms[:, cols] = msg
+        nan = ~np.isfinite(xg).all(axis=2) & usable[:, None]
+        clip = clipped & usable[:, None]
+        ok[:, cols] = usable[:, None] & ~nan & ~clip
+        if nan.any():
+            for i in np.flatnonzero(nan.any(axis=1)):
+                flags[i].add("nan")
+        if clip.any():
+            for i in np.flatnonzero(clip.any(axis=1)):
+                flags[i].add("clipped")
+    return {
+        "x": x,
+        "ms": ms,
+        "ok": ok,
+        "flags": np.array(flags, dtype=object),
+        "times": times.reshape(f, 3),
+        "omegas": omegas.reshape(f, 3),
+        "tacho_bad": tacho_bad,
+        "bad_group": bad_group,
+    }
+
+
+def _columns(cols: tuple[int, ...]) -> slice | list[int]:
+    """``cols`` as a slice when consecutive (a view to assign to, not a scatter)."""
+    if cols == tuple(range(cols[0], cols[0] + len(cols))):
+        return slice(cols[0], cols[0] + len(cols))
+    return list(cols)
+
+
+def interpolate_times(st: TrackerState, phis: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Times of angles inside an unsynchronised stretch, linear across it."""
+    out = times.copy()
+    for i in np.flatnonzero(~np.isfinite(times)):
+        for inv in st.invalid:
+            if inv.group is None and inv.phi_a <= phis[i] <= inv.phi_b and inv.phi_b > inv.phi_a:
+                f = (phis[i] - inv.phi_a) / (inv.phi_b - inv.phi_a)
+                out[i] = inv.t_a + f * (inv.t_b - inv.t_a)
+                break
+    return out
