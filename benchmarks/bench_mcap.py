@@ -57,9 +57,8 @@ TEETH = 60
 def make_stream(seconds: float) -> tuple[StreamLayout, list[Any]]:
     """Raw items plus ``("frame", frame, outcome)`` and ``("estimate", update)`` markers, in time order."""
     from dsp.frames import OrderFrame
-    from estimator.result import Estimate
+    from estimator.result import Estimate, EstimateUpdate
     from estimator.streaming import FrameOutcome
-    from ptinertia.sinks import EstimateUpdate
 
     rng = np.random.default_rng(1)
     acc = SampleGroup(

@@ -31,6 +31,7 @@ from mcap.reader import NonSeekingReader, SeekingReader
 from mcap.records import Attachment, Channel, Metadata, Schema
 
 from acquisition.stream import StreamItem, StreamLayout
+from estimator.result import EstimateUpdate
 from replay import codec
 from replay.chunks import (
     MAGIC,
@@ -212,10 +213,8 @@ class RecordedLog:
         """The recorded gating decisions (``estimator.streaming.FrameOutcome``, no motion)."""
         yield from self._decoded(TOPIC_GATING, codec.decode_outcome)
 
-    def estimates(self) -> Iterator[Any]:
-        """The estimate after each used frame, as ``ptinertia.sinks.EstimateUpdate``."""
-        from ptinertia.sinks import EstimateUpdate
-
+    def estimates(self) -> Iterator[EstimateUpdate]:
+        """The estimate after each used frame, as :class:`estimator.result.EstimateUpdate`."""
         for time_s, rpm, estimate, final in self._decoded(TOPIC_ESTIMATE, codec.decode_estimate):
             if not final:
                 yield EstimateUpdate(time_s, rpm, estimate)

@@ -51,7 +51,7 @@ from typing import IO, Any
 from mcap.well_known import MessageEncoding, SchemaEncoding
 
 from acquisition.stream import EdgeBlock, SampleBlock, SourceEvent, StreamItem, StreamLayout
-from ptinertia.sinks import EstimateUpdate, Sink
+from estimator.result import EstimateUpdate
 from replay import codec
 from replay.errors import LogError
 from replay.mcapwriter import ThreadedWriter
@@ -138,8 +138,12 @@ def _check_topics(layout: StreamLayout) -> None:
         seen.add(topic)
 
 
-class McapRecorder(Sink):
-    """A :class:`ptinertia.sinks.Sink` writing everything it is told to an MCAP file.
+class McapRecorder:
+    """A sink of the pipeline writing everything it is told to an MCAP file.
+
+    It has every hook of the app's ``Sink`` protocol (``start``, ``on_item``,
+    ``on_frame``, ``on_estimate``, ``on_event``, ``on_backlog``, ``close``),
+    so the app takes it as one; replay does not import the app.
 
     Parameters
     ----------
@@ -335,6 +339,9 @@ class McapRecorder(Sink):
         self._require_started()
         data = codec.encode_estimate(update.time_s, update.rpm, update.estimate)
         self._add(TOPIC_ESTIMATE, update.time_s, data)
+
+    def on_backlog(self, seconds: float) -> None:
+        """Not recorded: the backlog says how the live run kept up, not what it measured."""
 
     def on_can_frames(self, frames: Any) -> None:
         """A batch of raw CAN frames (``acquisition.can.codec.RawFrame``) as received.

@@ -22,10 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from estimator.result import Estimate
+from estimator.result import Estimate, EstimateUpdate
 from ptinertia import config
 from ptinertia.errors import UsageError
-from ptinertia.sinks import EstimateUpdate, RunContext, Sink
+from ptinertia.sinks import RunContext, Sink
 
 
 @dataclass(frozen=True)

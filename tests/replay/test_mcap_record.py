@@ -38,9 +38,8 @@ from acquisition.stream import (
     StreamLayout,
 )
 from dsp.frames import OrderFrame
-from estimator.result import RATIO_CAP, Estimate
+from estimator.result import RATIO_CAP, Estimate, EstimateUpdate
 from estimator.streaming import FrameOutcome
-from ptinertia.sinks import EstimateUpdate
 from replay.reader import open_log
 from replay.recorder import McapRecorder, RecordingInfo, record_source
 

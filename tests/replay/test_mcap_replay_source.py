@@ -11,7 +11,8 @@ import pytest
 from support.mcap_logs import assert_same_items, record, synthetic_items, synthetic_layout
 
 from acquisition.stream import SampleBlock, StreamItem
-from ptinertia.sinks import EstimateUpdate, Sink
+from estimator.result import EstimateUpdate
+from ptinertia.sinks import Sink
 from replay.errors import LogError
 from replay.recorder import McapRecorder
 from replay.source import McapSource, item_end_time
