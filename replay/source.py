@@ -13,11 +13,18 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Any
 
-from acquisition.stream import EdgeBlock, SampleBlock, Source, StreamItem, StreamLayout
+from acquisition.stream import (
+    ChannelNeed,
+    EdgeBlock,
+    SampleBlock,
+    Source,
+    StreamItem,
+    StreamLayout,
+    check_channels,
+)
 from replay.errors import LogError
 from replay.reader import ReadReport, RecordedLog, open_log
 
@@ -84,19 +91,26 @@ class McapSource(Source):
         self._stop.set()
 
 
-def open_replay(path: str | Path, bench: Any = None, speed: float | None = None) -> McapSource:
-    """A :class:`McapSource`, checked against the channels ``bench`` needs (if given).
+def open_replay(
+    path: str | Path, required: Iterable[ChannelNeed] = (), speed: float | None = None
+) -> McapSource:
+    """A :class:`McapSource`, checked against the channels a consumer needs.
+
+    Parameters
+    ----------
+    path : the recording.
+    required : the channels the estimate needs (the app's
+        ``ptinertia.sources.required_channels`` of the bench, e.g. a ``--bench``
+        override); empty: no check.
+    speed : as for :class:`McapSource`.
 
     Raises
     ------
     LogError
         The file is not a replayable recording.
     SourceError
-        ``bench`` (e.g. a ``--bench`` override) needs a channel the recording lacks.
+        A required channel is missing from the recording.
     """
     source = McapSource(path, speed=speed)
-    if bench is not None:
-        from ptinertia.sources import check_channels
-
-        check_channels(source.layout, bench, str(path))
+    check_channels(source.layout, required, str(path))
     return source

@@ -82,11 +82,12 @@ def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None)
         bench = loads_bench(bench_text, f"{log_path}:bench.toml")
     bench = with_mount_scale(bench, args.mount_scale)
     source: Any = McapSource(log, speed=parse_speed(args.speed))
-    from ptinertia.sources import check_channels
+    from acquisition.stream import check_channels
+    from ptinertia.sources import required_channels
 
     if args.dbc:
         source = redecoded_can(log, bench, args.dbc, log_path)
-    check_channels(source.layout, bench, str(log_path))
+    check_channels(source.layout, required_channels(bench), str(log_path))
     sinks = recorder_sinks(args.record) + viewer_sinks(args.rerun, args.record)
     options = RunOptions(
         orders=parse_orders(args.orders),

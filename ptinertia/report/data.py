@@ -287,12 +287,13 @@ def _from_run_log(
 def _estimate_raw(
     path: Path, log: Any, bench: config.Bench, text: str, rerun_reason: bool
 ) -> ReportData:
+    from acquisition.stream import check_channels
     from ptinertia.runner import RunOptions, run_source
-    from ptinertia.sources import check_channels
+    from ptinertia.sources import required_channels
     from replay.source import McapSource
 
     source = McapSource(log)
-    check_channels(source.layout, bench, str(path))
+    check_channels(source.layout, required_channels(bench), str(path))
     collector = _Collector()
     summary, doc = run_source(
         bench, text, source, log.source or "replay", RunOptions(quiet=True, sinks=(collector,))

@@ -304,6 +304,7 @@ def test_unknown_topics_and_bad_messages_are_skipped_and_reported(tmp_path: Path
 
 def test_bench_that_no_longer_matches_the_channels(tmp_path: Path) -> None:
     from ptinertia.config import load_bench
+    from ptinertia.sources import required_channels
     from replay.source import open_replay
 
     layout = synthetic_layout()
@@ -311,7 +312,7 @@ def test_bench_that_no_longer_matches_the_channels(tmp_path: Path) -> None:
     record_source(synthetic_items(layout, 0.2), path, layout=layout)
     bench = load_bench(ROOT / "examples" / "i3-bench.toml")
     with pytest.raises(SourceError, match="not found") as info:
-        open_replay(path, bench=bench)
+        open_replay(path, required_channels(bench))
     assert "\n" not in str(info.value) and str(path) in str(info.value)
 
 
