@@ -13,3 +13,7 @@ from acquisition.stream import SourceError
 
 class LogError(SourceError):
     """A recording cannot be written or read (empty, not MCAP, truncated before any data, missing topics)."""
+
+
+class BadMessage(Exception):
+    """One message cannot be decoded against the layout (the reader skips it and reports it)."""

@@ -32,7 +32,7 @@ from mcap.records import Attachment, Channel, Metadata, Schema
 
 from acquisition.stream import StreamItem, StreamLayout
 from estimator.result import EstimateUpdate
-from replay import codec
+from replay import results_codec, stream_codec
 from replay.chunks import (
     MAGIC,
     chunk_payload,
@@ -44,7 +44,7 @@ from replay.chunks import (
     walk_messages,
 )
 from replay.chunks import READ_ERRORS as _READ_ERRORS
-from replay.errors import LogError
+from replay.errors import BadMessage, LogError
 from replay.schemas import (
     BENCH_ATTACHMENT,
     FORMAT,
@@ -194,48 +194,50 @@ class RecordedLog:
         for topic, name, _, data in self.messages(kinds):
             try:
                 if name == full_name("SampleBlock"):
-                    yield codec.decode_samples(data, self.layout)
+                    yield stream_codec.decode_samples(data, self.layout)
                 elif name == full_name("EdgeBlock"):
-                    yield codec.decode_edges(data, self.layout)
+                    yield stream_codec.decode_edges(data, self.layout)
                 else:
-                    origin, event = codec.decode_event(data)
+                    origin, event = stream_codec.decode_event(data)
                     if origin != "dsp":
                         yield event
-            except (codec.BadMessage, ValueError) as err:
+            except (BadMessage, ValueError) as err:
                 self.report.skipped[topic] += 1
                 self.report.note(f"{topic}: {err}")
 
     def frames(self) -> Iterator[Any]:
         """The recorded order frames (``dsp.frames.OrderFrame``)."""
-        yield from self._decoded(TOPIC_ORDERS, codec.decode_frame)
+        yield from self._decoded(TOPIC_ORDERS, results_codec.decode_frame)
 
     def outcomes(self) -> Iterator[Any]:
         """The recorded gating decisions (``estimator.streaming.FrameOutcome``, no motion)."""
-        yield from self._decoded(TOPIC_GATING, codec.decode_outcome)
+        yield from self._decoded(TOPIC_GATING, results_codec.decode_outcome)
 
     def estimates(self) -> Iterator[EstimateUpdate]:
         """The estimate after each used frame, as :class:`estimator.result.EstimateUpdate`."""
-        for time_s, rpm, estimate, final in self._decoded(TOPIC_ESTIMATE, codec.decode_estimate):
+        for time_s, rpm, estimate, final in self._decoded(
+            TOPIC_ESTIMATE, results_codec.decode_estimate
+        ):
             if not final:
                 yield EstimateUpdate(time_s, rpm, estimate)
 
     def can_frames(self) -> Iterator[list[Any]]:
-        """The raw CAN frames as received, in batches of ``acquisition.can.codec.RawFrame``.
+        """The raw CAN frames as received, in batches of ``acquisition.can.frames.RawFrame``.
 
         Empty unless the source was a CAN bus. ``CanFrameSource(plan, log.can_frames())``
         decodes them again (with the recorded DBC, ``attachments``, or a new one).
         """
-        yield from self._decoded(TOPIC_CAN, codec.decode_can)
+        yield from self._decoded(TOPIC_CAN, stream_codec.decode_can)
 
     def events(self) -> Iterator[tuple[str, Any]]:
         """Every recorded event as ``(origin, SourceEvent)``; origin ``source`` or ``dsp``."""
-        yield from self._decoded(TOPIC_EVENTS, codec.decode_event)
+        yield from self._decoded(TOPIC_EVENTS, stream_codec.decode_event)
 
     def _decoded(self, topic: str, decode: Any) -> Iterator[Any]:
         for _, _, _, data in self.messages([topic]):
             try:
                 yield decode(data)
-            except (codec.BadMessage, ValueError) as err:
+            except (BadMessage, ValueError) as err:
                 self.report.skipped[topic] += 1
                 self.report.note(f"{topic}: {err}")
 
@@ -244,7 +246,7 @@ class RecordedLog:
 
         It differs from the last update when frames were rejected after the last used one.
         """
-        for _, _, estimate, final in self._decoded(TOPIC_ESTIMATE, codec.decode_estimate):
+        for _, _, estimate, final in self._decoded(TOPIC_ESTIMATE, results_codec.decode_estimate):
             if final:
                 return estimate
         return None
@@ -426,7 +428,7 @@ def _build(path: Path, scan: _Scan, report: ReadReport) -> RecordedLog:
             f"reads versions 1 to {SCHEMA_VERSION}"
         )
     try:
-        layout = codec.layout_from_json(run["layout"])
+        layout = stream_codec.layout_from_json(run["layout"])
         settings = json.loads(run.get("settings") or "{}")
         truth = json.loads(run.get("truth") or "null")
         origin = int(run.get("time_origin_ns", "0"))

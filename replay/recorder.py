@@ -52,7 +52,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 
 from acquisition.stream import EdgeBlock, SampleBlock, SourceEvent, StreamItem, StreamLayout
 from estimator.result import EstimateUpdate
-from replay import codec
+from replay import results_codec, stream_codec
 from replay.errors import LogError
 from replay.mcapwriter import ThreadedWriter
 from replay.schemas import (
@@ -262,7 +262,7 @@ class McapRecorder:
             "schema_version": str(SCHEMA_VERSION),
             "ptinertia_version": _version(),
             "source": str(getattr(context, "source", "") or ""),
-            "layout": codec.layout_to_json(layout),
+            "layout": stream_codec.layout_to_json(layout),
             "settings": json.dumps(getattr(context, "settings", None) or {}, default=json_default),
             "truth": json.dumps(truth, default=json_default),
             "time_origin_ns": str(self._origin_ns),
@@ -282,7 +282,7 @@ class McapRecorder:
             try:
                 if final is not None:
                     # the final estimate also counts the frames rejected after the last used one
-                    data = codec.encode_estimate(self._t_last, math.nan, final, final=True)
+                    data = results_codec.encode_estimate(self._t_last, math.nan, final, final=True)
                     self._add_locked(TOPIC_ESTIMATE, self._t_last, data)
                 end = {
                     "status": "finished",
@@ -309,15 +309,15 @@ class McapRecorder:
         layout = self._require_started()
         if isinstance(item, SampleBlock):
             group = layout.group(item.group)
-            t = codec.sample_time(item, group)
-            self._add(raw_topic(item.group), t, codec.encode_samples(item, group))
+            t = stream_codec.sample_time(item, group)
+            self._add(raw_topic(item.group), t, stream_codec.encode_samples(item, group))
         elif isinstance(item, EdgeBlock):
             t = float(item.times_s[0]) if len(item.times_s) else self._t_last
-            self._add(edge_topic(item.channel), t, codec.encode_edges(item, t))
+            self._add(edge_topic(item.channel), t, stream_codec.encode_edges(item, t))
         elif isinstance(item, SourceEvent):
             self._last_source_event = item
             t = self._t_last if item.time_s is None else item.time_s
-            self._add(TOPIC_EVENTS, t, codec.encode_event(item, "source", t))
+            self._add(TOPIC_EVENTS, t, stream_codec.encode_event(item, "source", t))
         else:
             raise TypeError(f"not a stream item: {type(item).__name__}")
 
@@ -328,23 +328,23 @@ class McapRecorder:
             return
         self._require_started()
         t = self._t_last if event.time_s is None else event.time_s
-        self._add(TOPIC_EVENTS, t, codec.encode_event(event, "dsp", t))
+        self._add(TOPIC_EVENTS, t, stream_codec.encode_event(event, "dsp", t))
 
     def on_frame(self, frame: Any, outcome: Any) -> None:
         self._require_started()
-        self._add(TOPIC_ORDERS, frame.time_s, codec.encode_frame(frame))
-        self._add(TOPIC_GATING, outcome.time_s, codec.encode_outcome(outcome))
+        self._add(TOPIC_ORDERS, frame.time_s, results_codec.encode_frame(frame))
+        self._add(TOPIC_GATING, outcome.time_s, results_codec.encode_outcome(outcome))
 
     def on_estimate(self, update: EstimateUpdate) -> None:
         self._require_started()
-        data = codec.encode_estimate(update.time_s, update.rpm, update.estimate)
+        data = results_codec.encode_estimate(update.time_s, update.rpm, update.estimate)
         self._add(TOPIC_ESTIMATE, update.time_s, data)
 
     def on_backlog(self, seconds: float) -> None:
         """Not recorded: the backlog says how the live run kept up, not what it measured."""
 
     def on_can_frames(self, frames: Any) -> None:
-        """A batch of raw CAN frames (``acquisition.can.codec.RawFrame``) as received.
+        """A batch of raw CAN frames (``acquisition.can.frames.RawFrame``) as received.
 
         Pass this method as the CAN source's ``frame_listener``: it is called on
         the acquisition thread, and it is safe to.
@@ -353,7 +353,7 @@ class McapRecorder:
             return
         t = self._t_last  # frames carry host/log clock times; stream time is what we know
         # a late batch after close (the acquisition thread stops last) is dropped, not an error
-        self._add(TOPIC_CAN, t, codec.encode_can(frames, t), late_ok=True)
+        self._add(TOPIC_CAN, t, stream_codec.encode_can(frames, t), late_ok=True)
 
     # -- internals ------------------------------------------------------------------------
     def _require_started(self) -> StreamLayout:

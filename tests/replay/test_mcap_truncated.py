@@ -30,7 +30,7 @@ from support.mcap_logs import (
 
 from acquisition.stream import SampleBlock, SourceError, StreamItem
 from ptinertia.errors import user_error_types
-from replay import codec
+from replay import stream_codec
 from replay.errors import LogError
 from replay.reader import find_logs, open_log
 from replay.recorder import McapRecorder, RecordingInfo, record_source
@@ -260,10 +260,10 @@ def test_missing_raw_topic_is_an_error(tmp_path: Path) -> None:
     mcap = Handmade(
         path,
         {"/raw/acc": "SampleBlock", "/raw/edges/tacho": "EdgeBlock", "/events": "SourceEvent"},
-        _run_metadata(codec.layout_to_json(layout)),
+        _run_metadata(stream_codec.layout_to_json(layout)),
     )
     block = SampleBlock("acc", 0, np.zeros((4, 3)))
-    mcap.add("/raw/acc", 1, codec.encode_samples(block, layout.groups[0]))
+    mcap.add("/raw/acc", 1, stream_codec.encode_samples(block, layout.groups[0]))
     mcap.finish()
     with pytest.raises(LogError, match=r"missing /raw/slow") as info:
         open_log(path)
@@ -282,14 +282,14 @@ def test_unknown_topics_and_bad_messages_are_skipped_and_reported(tmp_path: Path
         "/camera": "json",
         "/estimate": "OrderFrame",  # right topic, wrong schema
     }
-    mcap = Handmade(path, topics, _run_metadata(codec.layout_to_json(layout)))
+    mcap = Handmade(path, topics, _run_metadata(stream_codec.layout_to_json(layout)))
     good = [SampleBlock("acc", 0, np.ones((2, 5))), SampleBlock("acc", 5, 2 * np.ones((2, 5)))]
     bad = wire_class("SampleBlock")(group="acc", channels=["s0", "s1"], n_samples=9, data=b"\0" * 8)
-    mcap.add("/raw/acc", 1, codec.encode_samples(good[0], acc))
+    mcap.add("/raw/acc", 1, stream_codec.encode_samples(good[0], acc))
     mcap.add("/camera", 2, b"{}")
     mcap.add("/raw/acc", 3, bad.SerializeToString())
     mcap.add("/estimate", 3, b"")
-    mcap.add("/raw/acc", 4, codec.encode_samples(good[1], acc))
+    mcap.add("/raw/acc", 4, stream_codec.encode_samples(good[1], acc))
     mcap.finish()
     log = open_log(path)
     assert_same_items(list(log.items()), good)
