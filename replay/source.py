@@ -26,7 +26,8 @@ from acquisition.stream import (
     check_channels,
 )
 from replay.errors import LogError
-from replay.reader import ReadReport, RecordedLog, open_log
+from replay.reader import open_log
+from replay.recorded_log import ReadReport, RecordedLog
 
 
 def item_end_time(item: StreamItem, layout: StreamLayout) -> float | None:
