@@ -43,7 +43,8 @@ from acquisition.stream import (  # noqa: E402
     StreamLayout,
 )
 from replay.reader import open_log  # noqa: E402
-from replay.recorder import McapRecorder, RecordingInfo  # noqa: E402
+from replay.recorder import McapRecorder  # noqa: E402
+from replay.recording_head import RecordingInfo  # noqa: E402
 from replay.schemas import PARAMETERS  # noqa: E402
 from replay.source import McapSource  # noqa: E402
 

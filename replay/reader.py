@@ -85,7 +85,7 @@ def open_log(path: str | Path) -> RecordedLog:
     Parameters
     ----------
     path : an ``.mcap`` file written by :class:`replay.recorder.McapRecorder`
-        (or ``record_source``), finished or cut short.
+        (or :func:`replay.raw_writer.record_source`), finished or cut short.
     """
     path = Path(path)
     if not path.exists():

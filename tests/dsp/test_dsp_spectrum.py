@@ -33,7 +33,8 @@ from dsp.tacho import TachoConfig
 from replay import results_codec as codec
 from replay import wire
 from replay.reader import open_log
-from replay.recorder import McapRecorder, RecordingInfo
+from replay.recorder import McapRecorder
+from replay.recording_head import RecordingInfo
 from replay.schemas import message_class
 
 TDC = 84.0

@@ -81,7 +81,7 @@ def test_simulated_sweep_written_as_mcap_replays_like_the_source(tmp_path: Path)
     """``simulate --out x.mcap``: the file writer interface, bench text and truth included."""
     from ptinertia.config import load_bench
     from ptinertia.sources import open_source
-    from replay.recorder import McapFileWriter
+    from replay.raw_writer import McapFileWriter
 
     bench_path = ROOT / "examples" / "i3-bench.toml"
     text = bench_path.read_text()
