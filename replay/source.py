@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from acquisition.stream import (
@@ -47,14 +47,30 @@ class McapSource(Source):
     ----------
     log : a path or an already opened :class:`RecordedLog`.
     speed : None for as fast as possible, else the pace relative to real time (1.0: real time).
+    monotonic : callable returning seconds
+        The clock the pacing follows (``time.monotonic``; a test's fake clock).
+    sleep : callable taking seconds, or None
+        How to wait for the next item's time. None (the default) waits on the
+        source's stop event, a ``time.sleep`` that :meth:`close` cuts short; a
+        test passes its fake clock's. After an injected sleep the replay stops
+        if the source was closed meanwhile.
     """
 
-    def __init__(self, log: RecordedLog | str | Path, speed: float | None = None) -> None:
+    def __init__(
+        self,
+        log: RecordedLog | str | Path,
+        speed: float | None = None,
+        *,
+        monotonic: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], object] | None = None,
+    ) -> None:
         super().__init__()
         if speed is not None and not (speed > 0 and math.isfinite(speed)):
             raise LogError(f"speed: expected a positive factor of real time, got {speed}")
         self.log = log if isinstance(log, RecordedLog) else open_log(log)
         self.speed = speed
+        self._monotonic = monotonic
+        self._sleep = sleep
         self._stop = threading.Event()
 
     @property
@@ -75,13 +91,20 @@ class McapSource(Source):
                 t = item_end_time(item, layout)
                 if t is not None:
                     if wall0 is None:
-                        wall0, t_first = time.monotonic(), t
-                    delay = wall0 + (t - t_first) / self.speed - time.monotonic()
-                    if delay > 0 and self._stop.wait(delay):
+                        wall0, t_first = self._monotonic(), t
+                    delay = wall0 + (t - t_first) / self.speed - self._monotonic()
+                    if delay > 0 and self._wait(delay):
                         return
             if self._stop.is_set():
                 return
             yield item
+
+    def _wait(self, seconds: float) -> bool:
+        """Wait ``seconds``; True when the source was closed meanwhile."""
+        if self._sleep is None:
+            return self._stop.wait(seconds)
+        self._sleep(seconds)
+        return self._stop.is_set()
 
     def __enter__(self) -> McapSource:
         return self
