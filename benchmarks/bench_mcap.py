@@ -43,7 +43,8 @@ from acquisition.stream import (  # noqa: E402
     StreamLayout,
 )
 from replay.reader import open_log  # noqa: E402
-from replay.recorder import McapRecorder, RecordingInfo  # noqa: E402
+from replay.recorder import McapRecorder  # noqa: E402
+from replay.recording_head import RecordingInfo  # noqa: E402
 from replay.schemas import PARAMETERS  # noqa: E402
 from replay.source import McapSource  # noqa: E402
 
@@ -57,9 +58,8 @@ TEETH = 60
 def make_stream(seconds: float) -> tuple[StreamLayout, list[Any]]:
     """Raw items plus ``("frame", frame, outcome)`` and ``("estimate", update)`` markers, in time order."""
     from dsp.frames import OrderFrame
-    from estimator.result import Estimate
+    from estimator.result import Estimate, EstimateUpdate
     from estimator.streaming import FrameOutcome
-    from ptinertia.sinks import EstimateUpdate
 
     rng = np.random.default_rng(1)
     acc = SampleGroup(

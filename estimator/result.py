@@ -228,6 +228,19 @@ class Estimate:
         return doc
 
 
+@dataclass(frozen=True)
+class EstimateUpdate:
+    """The running estimate after a used frame: time (s) and rpm of that frame, and the estimate.
+
+    The pipeline publishes it to its sinks; a recording stores it on ``/estimate``
+    and gives it back (``replay``). It lives with :class:`Estimate`, below both.
+    """
+
+    time_s: float
+    rpm: float
+    estimate: Estimate
+
+
 def capped_ratio(ratio: float | None) -> float | None:
     """A residual ratio for the result JSON, which allows no infinities: capped at 1e12.
 

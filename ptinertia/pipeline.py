@@ -24,9 +24,9 @@ from typing import Any, Protocol
 import numpy as np
 
 from acquisition.stream import SampleBlock, Source, SourceEvent, StreamItem
-from estimator.result import Estimate
+from estimator.result import Estimate, EstimateUpdate
 from estimator.streaming import InertiaEstimator
-from ptinertia.sinks import EstimateUpdate, RunContext, Sink
+from ptinertia.sinks import RunContext, Sink
 
 _END = object()
 

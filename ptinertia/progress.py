@@ -13,9 +13,9 @@ import time
 from typing import TextIO
 
 from acquisition.stream import SourceEvent
-from estimator.result import Z95, Estimate
+from estimator.result import Z95, Estimate, EstimateUpdate
 from estimator.streaming import FrameOutcome
-from ptinertia.sinks import EstimateUpdate, RunContext, Sink
+from ptinertia.sinks import RunContext, Sink
 
 
 class ProgressLine(Sink):

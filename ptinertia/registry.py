@@ -39,7 +39,7 @@ FILE_KINDS: dict[str, str] = {
 WRITERS: dict[str, tuple[str, str]] = {
     ".csv": ("acquisition.files.csvwriter", "CsvWriter"),
     ".mf4": ("acquisition.files.mdf", "MdfWriter"),
-    ".mcap": ("replay.recorder", "McapFileWriter"),
+    ".mcap": ("replay.raw_writer", "McapFileWriter"),
 }
 
 

@@ -1,19 +1,28 @@
 """What the pipeline tells its sinks (recorder, viewer, progress line).
 
-A sink subclasses :class:`Sink` and overrides what it needs. Every call runs
-on the processing thread, in stream order; a sink must not block for long
-(the viewer and the recorder buffer internally). The pipeline calls
-``start`` once, then any mix of the ``on_*`` methods, then ``close`` exactly
-once, also after an error or Ctrl-C, so a recording is always finished.
+:class:`Sink` is a :class:`typing.Protocol`: the app defines it, and a sink
+from a lower layer (``replay.recorder.McapRecorder``) satisfies it by shape,
+without importing the app. The app's own sinks subclass it and inherit its
+no-op hooks, overriding what they need. The data a sink is handed lives below
+the app: stream items in :mod:`acquisition.stream`, order frames in
+:mod:`dsp.frames`, frame outcomes in :mod:`estimator.streaming`, and the
+estimate and its updates (:class:`estimator.result.EstimateUpdate`) in
+:mod:`estimator.result`, so replay reads and writes them without the app;
+only :class:`RunContext`, which carries the validated ``Bench``, is the app's.
+
+Every call runs on the processing thread, in stream order; a sink must not
+block for long (the viewer and the recorder buffer internally). The pipeline
+calls ``start`` once, then any mix of the ``on_*`` methods, then ``close``
+exactly once, also after an error or Ctrl-C, so a recording is always finished.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 from acquisition.stream import SourceEvent, StreamItem, StreamLayout
-from estimator.result import Estimate
+from estimator.result import Estimate, EstimateUpdate
 from estimator.setup import EstimatorSetup
 from estimator.streaming import FrameOutcome
 
@@ -44,35 +53,37 @@ class RunContext:
     attachments: dict[str, bytes] = field(default_factory=dict)
 
 
-@dataclass(frozen=True)
-class EstimateUpdate:
-    """The estimate after a used frame: time and rpm of that frame, and the estimate."""
+class Sink(Protocol):
+    """What the pipeline calls; as a base class every hook is a no-op.
 
-    time_s: float
-    rpm: float
-    estimate: Estimate
-
-
-class Sink:
-    """Base sink: every hook is a no-op."""
+    The hooks ``return None`` explicitly: a protocol method with an empty body is
+    abstract to mypy, and a subclass must be free to override only what it needs.
+    """
 
     def start(self, context: RunContext) -> None:
         """Called once before the first item."""
+        return None
 
     def on_item(self, item: StreamItem) -> None:
         """A raw source item exactly as the dsp stage receives it (samples, edges, events)."""
+        return None
 
     def on_frame(self, frame: Any, outcome: FrameOutcome) -> None:
         """An order frame (``dsp.frames.OrderFrame``) and what the estimator did with it."""
+        return None
 
     def on_estimate(self, update: EstimateUpdate) -> None:
         """The running estimate after a used frame."""
+        return None
 
     def on_event(self, event: SourceEvent) -> None:
         """A reportable event from the source or the dsp stage (gap, re-sync, bus-off)."""
+        return None
 
     def on_backlog(self, seconds: float) -> None:
         """Processing is ``seconds`` behind acquisition (reported when it grows)."""
+        return None
 
     def close(self, final: Estimate | None) -> None:
         """Called exactly once at the end (normal end, error or Ctrl-C)."""
+        return None

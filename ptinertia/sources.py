@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from acquisition.sim.sweep import RpmProfile
-from acquisition.stream import Source, SourceError, StreamLayout
+from acquisition.stream import Source, SourceError, check_channels
 from ptinertia.config import Bench, Simulation, Tacho, parse_bench
 from ptinertia.registry import file_kind, source_backend
 
@@ -157,13 +157,16 @@ def open_file(path: str | Path, bench: Bench, **overrides: Any) -> Source:
     kind = file_kind(path.suffix)
     if kind == "mf4" and _is_can_log(path):
         kind = "can-log"
-    if kind in ("can-log", "mcap"):
+    if kind == "can-log":
         opened: Source = source_backend(kind)(path, bench, **overrides)
         return opened
+    if kind == "mcap":
+        replayed: Source = source_backend(kind)(path, required_channels(bench), **overrides)
+        return replayed
     _unknown(overrides, FILE_OPTIONS, f"source 'file:{path}'")
     source: Source = source_backend(kind)(path, **overrides)
     try:
-        check_channels(source.layout, bench, str(path))
+        check_channels(source.layout, required_channels(bench), str(path))
     except BaseException:
         source.close()
         raise
@@ -199,30 +202,3 @@ def required_channels(bench: Bench) -> list[tuple[str, str, str]]:
     if t.phase_reference == "pressure":
         need.append((t.pressure_channel, "sampled", "cylinder-pressure phase reference"))
     return need
-
-
-def check_channels(layout: StreamLayout, bench: Bench, where: str) -> None:
-    """Raise :class:`SourceError` naming the first channel ``bench`` needs that ``layout`` lacks."""
-    sampled = set(layout.channel_names)
-    edges = set(layout.edge_channels)
-    for name, kind, why in required_channels(bench):
-        if kind == "edges" and name not in edges:
-            hint = (
-                " (it is a sampled channel there: set [tacho] delivery = 'sampled')"
-                if name in sampled
-                else ""
-            )
-            raise SourceError(
-                f"{where}: edge channel {name!r} ({why}) not found{hint}; edge channels: "
-                f"{', '.join(sorted(edges)) or 'none'}"
-            )
-        if kind == "sampled" and name not in sampled:
-            hint = (
-                " (it is an edge channel there: set [tacho] delivery = 'edges')"
-                if name in edges
-                else ""
-            )
-            raise SourceError(
-                f"{where}: channel {name!r} ({why}) not found{hint}; "
-                f"channels: {', '.join(layout.channel_names)}"
-            )

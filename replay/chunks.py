@@ -23,6 +23,7 @@ from io import BytesIO
 from pathlib import Path
 from typing import IO
 
+import lz4.frame
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
@@ -110,8 +111,6 @@ def chunk_payload(content: bytes) -> bytes:
     if compression == "zstd":
         return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
     if compression == "lz4":
-        import lz4.frame
-
         return bytes(lz4.frame.decompress(data))
     if compression == "":
         return bytes(data)

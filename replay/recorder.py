@@ -17,7 +17,7 @@ message was written.
 
 Crash safety. The file is written in place from the start: header,
 metadata (layout, settings, truth, version, source) and attachments (bench
-file, DBC) first, then ZSTD-compressed chunks. A chunk is closed as soon as
+file, DBC) first (:mod:`replay.recording_head`), then ZSTD-compressed chunks. A chunk is closed as soon as
 it spans ``chunk_s`` (0.5 s) of stream time or of wall time, whichever comes
 first, and is in the file, flushed to the OS, a few milliseconds later, so a
 process killed with SIGKILL loses at most the open chunk: 0.5 s of data plus
@@ -33,6 +33,9 @@ the protobuf classes (:mod:`replay.wire`): the hooks take about 0.16 s of
 the caller's CPU per minute of a 10-channel 25.6 kHz stream with one order
 frame per revolution at 3000 rpm (``benchmarks/bench_mcap.py``), a third of
 what they took with ``mcap.writer.Writer`` inline.
+
+A source's raw stream alone (``ptinertia simulate --out x.mcap``) is written
+through the same recorder by :mod:`replay.raw_writer`.
 """
 
 from __future__ import annotations
@@ -42,53 +45,34 @@ import math
 import threading
 import time
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any
 
-from mcap.well_known import MessageEncoding, SchemaEncoding
-
+from acquisition.can.frames import RawFrame
 from acquisition.stream import EdgeBlock, SampleBlock, SourceEvent, StreamItem, StreamLayout
-from ptinertia.sinks import EstimateUpdate, Sink
-from replay import codec
+from dsp.frames import OrderFrame
+from estimator.result import Estimate, EstimateUpdate
+from estimator.streaming import FrameOutcome
+from replay import results_codec, stream_codec
 from replay.errors import LogError
 from replay.mcapwriter import ThreadedWriter
+from replay.recording_head import check_topics, ptinertia_version, write_head
 from replay.schemas import (
-    BENCH_ATTACHMENT,
-    FORMAT,
     META_END,
-    META_RUN,
-    SCHEMA_VERSION,
     TOPIC_CAN,
     TOPIC_ESTIMATE,
     TOPIC_EVENTS,
     TOPIC_GATING,
     TOPIC_ORDERS,
     edge_topic,
-    full_name,
     raw_topic,
-    schema_data,
 )
 
 CHUNK_S = 0.5
 CHUNK_BYTES = 8 * 1024 * 1024  # a size bound too, for very wide streams
-
-
-@dataclass(frozen=True)
-class RecordingInfo:
-    """What a recording keeps besides the stream (the fields of ``RunContext`` it reads).
-
-    A ``ptinertia.sinks.RunContext`` works in its place.
-    """
-
-    layout: StreamLayout
-    bench_text: str = ""
-    truth: dict[str, Any] | None = None
-    settings: dict[str, Any] = field(default_factory=dict)
-    source: str = ""
-    attachments: dict[str, bytes] = field(default_factory=dict)
 
 
 @dataclass
@@ -100,25 +84,6 @@ class RecorderStats:
     chunks: int = 0
 
 
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("ptinertia")
-    except PackageNotFoundError:
-        return "unknown"
-
-
-def _media_type(name: str) -> str:
-    suffix = Path(name).suffix.lower()
-    return {
-        ".toml": "application/toml",
-        ".json": "application/json",
-        ".dbc": "text/x-dbc",
-        ".txt": "text/plain",
-    }.get(suffix, "application/octet-stream")
-
-
 def _discard(fh: IO[bytes]) -> None:
     """Close a file after a failure, which is what gets reported (a full disk fails again here)."""
     try:
@@ -127,19 +92,12 @@ def _discard(fh: IO[bytes]) -> None:
         pass
 
 
-def _check_topics(layout: StreamLayout) -> None:
-    """One topic per group and edge channel, none taking a fixed topic (a group named ``can``)."""
-    seen = {TOPIC_EVENTS, TOPIC_ORDERS, TOPIC_GATING, TOPIC_ESTIMATE, TOPIC_CAN}
-    for topic in [raw_topic(g.name) for g in layout.groups] + [
-        edge_topic(c) for c in layout.edge_channels
-    ]:
-        if topic in seen:
-            raise LogError(f"cannot record: two streams would share the topic {topic}; rename one")
-        seen.add(topic)
+class McapRecorder:
+    """A sink of the pipeline writing everything it is told to an MCAP file.
 
-
-class McapRecorder(Sink):
-    """A :class:`ptinertia.sinks.Sink` writing everything it is told to an MCAP file.
+    It has every hook of the app's ``Sink`` protocol (``start``, ``on_item``,
+    ``on_frame``, ``on_estimate``, ``on_event``, ``on_backlog``, ``close``),
+    so the app takes it as one; replay does not import the app.
 
     Parameters
     ----------
@@ -152,6 +110,8 @@ class McapRecorder(Sink):
     time_origin_ns : int or None
         Log time of stream time 0, ns since the Unix epoch; None: the wall clock at ``start``.
     compression : ``"zstd"``, ``"lz4"`` or ``"none"``.
+    monotonic : callable returning seconds
+        The clock of the wall-time bound on a chunk (``time.monotonic``; a test's fake clock).
     """
 
     def __init__(
@@ -161,6 +121,7 @@ class McapRecorder(Sink):
         chunk_bytes: int = CHUNK_BYTES,
         time_origin_ns: int | None = None,
         compression: str = "zstd",
+        monotonic: Callable[[], float] = time.monotonic,
     ) -> None:
         if not (chunk_s > 0 and math.isfinite(chunk_s)):
             raise LogError(f"chunk_s: expected a positive time in s, got {chunk_s}")
@@ -172,6 +133,7 @@ class McapRecorder(Sink):
         self.chunk_bytes = int(chunk_bytes)
         self.time_origin_ns = time_origin_ns
         self.compression = kinds[compression]
+        self._monotonic = monotonic
         self.stats = RecorderStats()
         self._file: IO[bytes] | None = None
         self._writer: ThreadedWriter | None = None
@@ -192,7 +154,7 @@ class McapRecorder(Sink):
         """Open the file; write header, metadata, attachments and the channels."""
         layout: StreamLayout = context.layout
         self._layout = layout
-        _check_topics(layout)
+        check_topics(layout)
         try:
             self._file = open(self.path, "wb")  # closed in close()
         except OSError as err:
@@ -205,8 +167,8 @@ class McapRecorder(Sink):
         )
         self._writer = writer
         try:
-            writer.start(profile="", library=f"ptinertia {_version()}")
-            self._write_head(context, layout, writer)
+            writer.start(profile="", library=f"ptinertia {ptinertia_version()}")
+            self._channels = write_head(writer, context, self._origin_ns)
             writer.sync()  # header, metadata and attachments are in the file
         except BaseException as err:
             writer.stop()
@@ -216,61 +178,12 @@ class McapRecorder(Sink):
                 raise self._write_error(err) from err
             raise
 
-    def _write_head(self, context: Any, layout: StreamLayout, writer: ThreadedWriter) -> None:
-        writer.add_metadata(META_RUN, self._run_metadata(context, layout))
-        now = time.time_ns()
-        bench_text = getattr(context, "bench_text", "") or ""
-        if bench_text:
-            writer.add_attachment(
-                now, now, BENCH_ATTACHMENT, "application/toml", bench_text.encode()
-            )
-        for name, data in (getattr(context, "attachments", None) or {}).items():
-            writer.add_attachment(now, now, name, _media_type(name), bytes(data))
-        schema_ids: dict[str, int] = {}
-
-        def channel(topic: str, kind: str) -> None:
-            if kind not in schema_ids:
-                schema_ids[kind] = writer.register_schema(
-                    name=full_name(kind), encoding=SchemaEncoding.Protobuf, data=schema_data()
-                )
-            self._channels[topic] = writer.register_channel(
-                topic=topic, message_encoding=MessageEncoding.Protobuf, schema_id=schema_ids[kind]
-            )
-
-        for group in layout.groups:
-            channel(raw_topic(group.name), "SampleBlock")
-        for name in layout.edge_channels:
-            channel(edge_topic(name), "EdgeBlock")
-        channel(TOPIC_EVENTS, "SourceEvent")
-        channel(TOPIC_ORDERS, "OrderFrame")
-        channel(TOPIC_GATING, "Gating")
-        channel(TOPIC_ESTIMATE, "Estimate")
-        channel(TOPIC_CAN, "CanFrames")  # always registered: a reader finds every topic up front
-
-    def _run_metadata(self, context: Any, layout: StreamLayout) -> dict[str, str]:
-        from acquisition.files.csvwriter import json_default
-
-        truth = getattr(context, "truth", None)
-        if truth is None:
-            truth = layout.metadata.get("truth")
-        return {
-            "format": FORMAT,
-            "schema_version": str(SCHEMA_VERSION),
-            "ptinertia_version": _version(),
-            "source": str(getattr(context, "source", "") or ""),
-            "layout": codec.layout_to_json(layout),
-            "settings": json.dumps(getattr(context, "settings", None) or {}, default=json_default),
-            "truth": json.dumps(truth, default=json_default),
-            "time_origin_ns": str(self._origin_ns),
-            "started_utc": datetime.now(UTC).isoformat(timespec="seconds"),
-        }
-
-    def close(self, final: Any = None) -> None:
+    def close(self, final: Estimate | None = None) -> None:
         """Write the final estimate, the end metadata and the summary; close the file. Idempotent."""
         with self._lock:
             self._close(final)
 
-    def _close(self, final: Any) -> None:
+    def _close(self, final: Estimate | None) -> None:
         if self._closed or self._writer is None or self._file is None:
             self._closed = True
             return
@@ -278,7 +191,7 @@ class McapRecorder(Sink):
             try:
                 if final is not None:
                     # the final estimate also counts the frames rejected after the last used one
-                    data = codec.encode_estimate(self._t_last, math.nan, final, final=True)
+                    data = results_codec.encode_estimate(self._t_last, math.nan, final, final=True)
                     self._add_locked(TOPIC_ESTIMATE, self._t_last, data)
                 end = {
                     "status": "finished",
@@ -305,15 +218,15 @@ class McapRecorder(Sink):
         layout = self._require_started()
         if isinstance(item, SampleBlock):
             group = layout.group(item.group)
-            t = codec.sample_time(item, group)
-            self._add(raw_topic(item.group), t, codec.encode_samples(item, group))
+            t = stream_codec.sample_time(item, group)
+            self._add(raw_topic(item.group), t, stream_codec.encode_samples(item, group))
         elif isinstance(item, EdgeBlock):
             t = float(item.times_s[0]) if len(item.times_s) else self._t_last
-            self._add(edge_topic(item.channel), t, codec.encode_edges(item, t))
+            self._add(edge_topic(item.channel), t, stream_codec.encode_edges(item, t))
         elif isinstance(item, SourceEvent):
             self._last_source_event = item
             t = self._t_last if item.time_s is None else item.time_s
-            self._add(TOPIC_EVENTS, t, codec.encode_event(item, "source", t))
+            self._add(TOPIC_EVENTS, t, stream_codec.encode_event(item, "source", t))
         else:
             raise TypeError(f"not a stream item: {type(item).__name__}")
 
@@ -324,20 +237,23 @@ class McapRecorder(Sink):
             return
         self._require_started()
         t = self._t_last if event.time_s is None else event.time_s
-        self._add(TOPIC_EVENTS, t, codec.encode_event(event, "dsp", t))
+        self._add(TOPIC_EVENTS, t, stream_codec.encode_event(event, "dsp", t))
 
-    def on_frame(self, frame: Any, outcome: Any) -> None:
+    def on_frame(self, frame: OrderFrame, outcome: FrameOutcome) -> None:
         self._require_started()
-        self._add(TOPIC_ORDERS, frame.time_s, codec.encode_frame(frame))
-        self._add(TOPIC_GATING, outcome.time_s, codec.encode_outcome(outcome))
+        self._add(TOPIC_ORDERS, frame.time_s, results_codec.encode_frame(frame))
+        self._add(TOPIC_GATING, outcome.time_s, results_codec.encode_outcome(outcome))
 
     def on_estimate(self, update: EstimateUpdate) -> None:
         self._require_started()
-        data = codec.encode_estimate(update.time_s, update.rpm, update.estimate)
+        data = results_codec.encode_estimate(update.time_s, update.rpm, update.estimate)
         self._add(TOPIC_ESTIMATE, update.time_s, data)
 
-    def on_can_frames(self, frames: Any) -> None:
-        """A batch of raw CAN frames (``acquisition.can.codec.RawFrame``) as received.
+    def on_backlog(self, seconds: float) -> None:
+        """Not recorded: the backlog says how the live run kept up, not what it measured."""
+
+    def on_can_frames(self, frames: Sequence[RawFrame]) -> None:
+        """A batch of raw CAN frames (``acquisition.can.frames.RawFrame``) as received.
 
         Pass this method as the CAN source's ``frame_listener``: it is called on
         the acquisition thread, and it is safe to.
@@ -346,7 +262,7 @@ class McapRecorder(Sink):
             return
         t = self._t_last  # frames carry host/log clock times; stream time is what we know
         # a late batch after close (the acquisition thread stops last) is dropped, not an error
-        self._add(TOPIC_CAN, t, codec.encode_can(frames, t), late_ok=True)
+        self._add(TOPIC_CAN, t, stream_codec.encode_can(frames, t), late_ok=True)
 
     # -- internals ------------------------------------------------------------------------
     def _require_started(self) -> StreamLayout:
@@ -373,7 +289,7 @@ class McapRecorder(Sink):
         self._writer.add_message(self._channels[topic], log_time, data, time.time_ns())
         self.stats.messages[topic] += 1
         self.stats.payload_bytes[topic] += len(data)
-        wall = time.monotonic()
+        wall = self._monotonic()
         if self._chunk_wall is None:
             self._chunk_wall, self._chunk_t0 = wall, t
         elif wall - self._chunk_wall >= self.chunk_s or t - self._chunk_t0 >= self.chunk_s:
@@ -407,98 +323,3 @@ class McapRecorder(Sink):
 
     def __exit__(self, *exc: object) -> None:
         self.close(None)
-
-
-def record_source(
-    source: Iterable[StreamItem],
-    path: str | Path,
-    *,
-    layout: StreamLayout | None = None,
-    bench_text: str | None = None,
-    truth: dict[str, Any] | None = None,
-    settings: dict[str, Any] | None = None,
-    source_spec: str = "sim",
-    attachments: dict[str, bytes] | None = None,
-    chunk_s: float = CHUNK_S,
-    time_origin_ns: int | None = None,
-) -> RecorderStats:
-    """Record a source's raw stream (no dsp, no estimate) as a replayable log.
-
-    This is ``ptinertia simulate --out x.mcap``: the log has the same format
-    as a recorded run without its ``/orders``, ``/gating`` and ``/estimate``
-    messages, and replays the same way.
-
-    Parameters
-    ----------
-    source : an ``acquisition.stream.Source`` (or any iterable of items, with ``layout``).
-    path : output file.
-    layout : defaults to ``source.layout``.
-    bench_text : the bench file text; defaults to ``layout.metadata["bench_text"]``.
-    truth : the simulated truth; defaults to ``layout.metadata["truth"]``.
-    settings, source_spec, attachments : stored as in a recorded run.
-
-    Returns
-    -------
-    RecorderStats : messages and payload bytes per topic.
-    """
-    if layout is None:
-        layout = source.layout  # type: ignore[attr-defined]
-    assert layout is not None
-    info = RecordingInfo(
-        layout=layout,
-        bench_text=bench_text
-        if bench_text is not None
-        else str(layout.metadata.get("bench_text", "")),
-        truth=truth if truth is not None else layout.metadata.get("truth"),
-        settings=settings or {},
-        source=source_spec,
-        attachments=dict(attachments or {}),
-    )
-    recorder = McapRecorder(path, chunk_s=chunk_s, time_origin_ns=time_origin_ns)
-    recorder.start(info)
-    try:
-        for item in source:
-            recorder.on_item(item)
-    finally:
-        recorder.close(None)
-    return recorder.stats
-
-
-class McapFileWriter:
-    """The stream writer interface of ``ptinertia.registry.WRITERS`` for ``.mcap``.
-
-    Lifecycle ``start(layout)``, ``write(item)`` for every item, ``finish()``
-    (or a context manager), like ``CsvWriter``: ``ptinertia simulate --out x.mcap``
-    then needs only the registry line ``".mcap": ("replay.recorder", "McapFileWriter")``.
-    The bench text and the truth come from ``layout.metadata`` (``bench_text``,
-    ``truth``), where the simulated source puts them.
-    """
-
-    def __init__(self, path: str | Path, source_spec: str = "sim") -> None:
-        self.path = Path(path)
-        self.source_spec = source_spec
-        self.paths: list[Path] = []
-        self.recorder = McapRecorder(self.path)
-
-    def start(self, layout: StreamLayout) -> None:
-        self.recorder.start(
-            RecordingInfo(
-                layout=layout,
-                bench_text=str(layout.metadata.get("bench_text", "")),
-                truth=layout.metadata.get("truth"),
-                source=self.source_spec,
-            )
-        )
-        self.paths = [self.path]
-
-    def write(self, item: StreamItem) -> None:
-        self.recorder.on_item(item)
-
-    def finish(self) -> None:
-        self.recorder.close(None)
-
-    def __enter__(self) -> McapFileWriter:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.finish()

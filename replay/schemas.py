@@ -28,6 +28,8 @@ from google.protobuf import descriptor_pb2
 from google.protobuf.descriptor_pool import DescriptorPool
 from google.protobuf.message_factory import GetMessageClass
 
+from acquisition.stream import StreamLayout
+
 PACKAGE = "ptinertia.log"
 FILE_NAME = "ptinertia/log.proto"
 SCHEMA_VERSION = 1
@@ -285,3 +287,11 @@ def raw_topic(group: str) -> str:
 def edge_topic(channel: str) -> str:
     """Topic of an edge channel's blocks."""
     return f"{EDGE_PREFIX}{channel}"
+
+
+def stream_topics(layout: StreamLayout) -> dict[str, str]:
+    """Topic -> message type of the raw stream of ``layout``: its groups, edge channels, events."""
+    topics = {raw_topic(g.name): "SampleBlock" for g in layout.groups}
+    topics.update({edge_topic(c): "EdgeBlock" for c in layout.edge_channels})
+    topics[TOPIC_EVENTS] = "SourceEvent"
+    return topics

@@ -13,13 +13,21 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import Any
 
-from acquisition.stream import EdgeBlock, SampleBlock, Source, StreamItem, StreamLayout
+from acquisition.stream import (
+    ChannelNeed,
+    EdgeBlock,
+    SampleBlock,
+    Source,
+    StreamItem,
+    StreamLayout,
+    check_channels,
+)
 from replay.errors import LogError
-from replay.reader import ReadReport, RecordedLog, open_log
+from replay.reader import open_log
+from replay.recorded_log import ReadReport, RecordedLog
 
 
 def item_end_time(item: StreamItem, layout: StreamLayout) -> float | None:
@@ -39,14 +47,30 @@ class McapSource(Source):
     ----------
     log : a path or an already opened :class:`RecordedLog`.
     speed : None for as fast as possible, else the pace relative to real time (1.0: real time).
+    monotonic : callable returning seconds
+        The clock the pacing follows (``time.monotonic``; a test's fake clock).
+    sleep : callable taking seconds, or None
+        How to wait for the next item's time. None (the default) waits on the
+        source's stop event, a ``time.sleep`` that :meth:`close` cuts short; a
+        test passes its fake clock's. After an injected sleep the replay stops
+        if the source was closed meanwhile.
     """
 
-    def __init__(self, log: RecordedLog | str | Path, speed: float | None = None) -> None:
+    def __init__(
+        self,
+        log: RecordedLog | str | Path,
+        speed: float | None = None,
+        *,
+        monotonic: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], object] | None = None,
+    ) -> None:
         super().__init__()
         if speed is not None and not (speed > 0 and math.isfinite(speed)):
             raise LogError(f"speed: expected a positive factor of real time, got {speed}")
         self.log = log if isinstance(log, RecordedLog) else open_log(log)
         self.speed = speed
+        self._monotonic = monotonic
+        self._sleep = sleep
         self._stop = threading.Event()
 
     @property
@@ -67,13 +91,20 @@ class McapSource(Source):
                 t = item_end_time(item, layout)
                 if t is not None:
                     if wall0 is None:
-                        wall0, t_first = time.monotonic(), t
-                    delay = wall0 + (t - t_first) / self.speed - time.monotonic()
-                    if delay > 0 and self._stop.wait(delay):
+                        wall0, t_first = self._monotonic(), t
+                    delay = wall0 + (t - t_first) / self.speed - self._monotonic()
+                    if delay > 0 and self._wait(delay):
                         return
             if self._stop.is_set():
                 return
             yield item
+
+    def _wait(self, seconds: float) -> bool:
+        """Wait ``seconds``; True when the source was closed meanwhile."""
+        if self._sleep is None:
+            return self._stop.wait(seconds)
+        self._sleep(seconds)
+        return self._stop.is_set()
 
     def __enter__(self) -> McapSource:
         return self
@@ -84,19 +115,26 @@ class McapSource(Source):
         self._stop.set()
 
 
-def open_replay(path: str | Path, bench: Any = None, speed: float | None = None) -> McapSource:
-    """A :class:`McapSource`, checked against the channels ``bench`` needs (if given).
+def open_replay(
+    path: str | Path, required: Iterable[ChannelNeed] = (), speed: float | None = None
+) -> McapSource:
+    """A :class:`McapSource`, checked against the channels a consumer needs.
+
+    Parameters
+    ----------
+    path : the recording.
+    required : the channels the estimate needs (the app's
+        ``ptinertia.sources.required_channels`` of the bench, e.g. a ``--bench``
+        override); empty: no check.
+    speed : as for :class:`McapSource`.
 
     Raises
     ------
     LogError
         The file is not a replayable recording.
     SourceError
-        ``bench`` (e.g. a ``--bench`` override) needs a channel the recording lacks.
+        A required channel is missing from the recording.
     """
     source = McapSource(path, speed=speed)
-    if bench is not None:
-        from ptinertia.sources import check_channels
-
-        check_channels(source.layout, bench, str(path))
+    check_channels(source.layout, required, str(path))
     return source

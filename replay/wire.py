@@ -11,7 +11,7 @@ one numpy assignment each (about 10 us).
 
 Every field is written, zeros and ``false`` included (the protobuf library
 leaves proto3 defaults out): that keeps the layout fixed, and a parser reads
-the same message either way. ``codec.encode_frame_reference`` builds the
+the same message either way. ``results_codec.encode_frame_reference`` builds the
 message through the protobuf classes; a test checks that both parse to
 messages that serialise identically.
 

@@ -16,6 +16,7 @@ from typing import Any
 
 from acquisition.can.codec import load_plan
 from acquisition.can.source import CanFrameSource
+from acquisition.stream import check_channels
 from ptinertia.commands.run import (
     CORRECTIONS,
     add_mount_scale_flag,
@@ -28,7 +29,7 @@ from ptinertia.commands.run import (
 from ptinertia.config import load_bench, loads_bench
 from ptinertia.errors import UsageError
 from ptinertia.runner import RunOptions, print_table, run_source, write_json
-from ptinertia.sources import check_channels
+from ptinertia.sources import required_channels
 from replay.reader import find_logs, open_log
 from replay.schemas import TOPIC_CAN
 from replay.source import McapSource
@@ -87,7 +88,7 @@ def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None)
     source: Any = McapSource(log, speed=parse_speed(args.speed))
     if args.dbc:
         source = redecoded_can(log, bench, args.dbc, log_path)
-    check_channels(source.layout, bench, str(log_path))
+    check_channels(source.layout, required_channels(bench), str(log_path))
     sinks = recorder_sinks(args.record) + viewer_sinks(args.rerun, args.record)
     options = RunOptions(
         orders=parse_orders(args.orders),

@@ -23,12 +23,11 @@ from typing import Any
 
 import numpy as np
 
-from estimator.result import Estimate
+from estimator.result import Estimate, EstimateUpdate
 from ptinertia import config
 from ptinertia.errors import UsageError
 from ptinertia.reprocess import Reprocessed
 from ptinertia.runner import result_truth
-from ptinertia.sinks import EstimateUpdate
 from replay.reader import open_log
 
 # runs the chain over a recording: (log, bench, bench text, where) -> the processed run

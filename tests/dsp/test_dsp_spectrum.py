@@ -30,9 +30,11 @@ from dsp.frames import OrderFrame
 from dsp.orders import OrderTracker
 from dsp.synthetic import OrderContent, Ramp, SyntheticBench, random_content
 from dsp.tacho import TachoConfig
-from replay import codec
+from replay import results_codec as codec
+from replay import wire
 from replay.reader import open_log
-from replay.recorder import McapRecorder, RecordingInfo
+from replay.recorder import McapRecorder
+from replay.recording_head import RecordingInfo
 from replay.schemas import message_class
 
 TDC = 84.0
@@ -464,7 +466,7 @@ def test_a_spectrum_of_the_wrong_length_is_refused():
     f = _frames_to_record()[0]
     codec.encode_frame(f)
     with pytest.raises(ValueError, match="spectrum of shape"):
-        codec.wire.frame_wire(f.orders, f.channels, "p", N_SPEC).encode(
+        wire.frame_wire(f.orders, f.channels, "p", N_SPEC).encode(
             replace(f, spectrum=f.spectrum[:-1])
         )
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import math
-import time
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +19,7 @@ from support.mcap_logs import (
     BENCH_TEXT,
     DBC,
     TRUTH,
+    FakeClock,
     assert_same_items,
     make_frame,
     make_outcome,
@@ -38,11 +38,12 @@ from acquisition.stream import (
     StreamLayout,
 )
 from dsp.frames import OrderFrame
-from estimator.result import RATIO_CAP, Estimate
+from estimator.result import RATIO_CAP, Estimate, EstimateUpdate
 from estimator.streaming import FrameOutcome
-from ptinertia.sinks import EstimateUpdate
+from replay.raw_writer import record_source
 from replay.reader import open_log
-from replay.recorder import McapRecorder, RecordingInfo, record_source
+from replay.recorder import McapRecorder
+from replay.recording_head import RecordingInfo
 
 
 @pytest.fixture(scope="module")
@@ -229,14 +230,12 @@ def test_chunks_span_at_most_half_a_second_of_stream(tmp_path: Path) -> None:
 def test_chunks_close_on_wall_time_when_stream_time_crawls(tmp_path: Path) -> None:
     layout = synthetic_layout(n_ch=1, rate_hz=100000.0)
     path = tmp_path / "slow.mcap"
-    rec = McapRecorder(path, chunk_s=0.2)
+    clock = FakeClock()
+    rec = McapRecorder(path, chunk_s=0.2, monotonic=clock.monotonic)
     rec.start(RecordingInfo(layout=layout))
-    t_end = time.monotonic() + 1.0
-    k = 0
-    while time.monotonic() < t_end:  # 1 s of wall time, 1 ms of stream time
+    for k in range(100):  # 1 s of wall time, 1 ms of stream time
         rec.on_item(SampleBlock("acc", k, np.zeros((1, 1))))
-        k += 1
-        time.sleep(0.01)
+        clock.advance(0.01)
     rec.close(None)
     with open(path, "rb") as fh:
         summary = make_reader(fh).get_summary()

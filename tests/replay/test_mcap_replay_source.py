@@ -4,14 +4,20 @@ from __future__ import annotations
 
 import json
 import threading
-import time
 from pathlib import Path
 
 import pytest
-from support.mcap_logs import assert_same_items, record, synthetic_items, synthetic_layout
+from support.mcap_logs import (
+    FakeClock,
+    assert_same_items,
+    record,
+    synthetic_items,
+    synthetic_layout,
+)
 
 from acquisition.stream import SampleBlock, StreamItem
-from ptinertia.sinks import EstimateUpdate, Sink
+from estimator.result import EstimateUpdate
+from ptinertia.sinks import Sink
 from replay.errors import LogError
 from replay.recorder import McapRecorder
 from replay.source import McapSource, item_end_time
@@ -51,36 +57,59 @@ def test_source_yields_the_recorded_stream(
 
 def test_realtime_pacing_follows_stream_time(log_path: tuple[Path, list[StreamItem]]) -> None:
     path, items = log_path
-    source = McapSource(path, speed=4.0)
+    clock = FakeClock()
+    source = McapSource(path, speed=4.0, monotonic=clock.monotonic, sleep=clock.sleep)
     layout = source.layout
     times = [t for t in (item_end_time(i, layout) for i in items) if t is not None]
     span = max(times) - times[0]  # the first item is released at once
-    start = time.monotonic()
-    n = sum(1 for _ in source)
-    elapsed = time.monotonic() - start
-    assert n == len(items)
-    assert elapsed >= span / 4.0 - 0.01
-    assert elapsed < span / 4.0 + 2.0  # generous: a loaded CI machine is slow, never fast
+    start = clock.monotonic()
+    released = [(clock.monotonic(), item_end_time(item, layout)) for item in source]
+    elapsed = clock.monotonic() - start
+    assert len(released) == len(items)
+    assert elapsed == pytest.approx(span / 4.0, abs=1e-9)
+    # every item is released once its last sample's stream time has elapsed, at 4x
+    for wall, t in released:
+        if t is not None:
+            assert wall - start >= (t - times[0]) / 4.0 - 1e-9
+    assert all(s > 0 for s in clock.sleeps)
 
 
 def test_close_interrupts_a_paced_replay(log_path: tuple[Path, list[StreamItem]]) -> None:
     path, _ = log_path
-    source = McapSource(path, speed=0.01)  # would take minutes
+    clock = FakeClock()  # stands still: the next item is minutes away, whatever the machine
+    source = McapSource(path, speed=0.01, monotonic=clock.monotonic)
     got: list[StreamItem] = []
-    reader = threading.Thread(target=lambda: got.extend(source))
+    first = threading.Event()
+
+    def read() -> None:
+        for item in source:
+            got.append(item)
+            first.set()
+
+    reader = threading.Thread(target=read)
     reader.start()
-    time.sleep(0.3)
-    source.close()
-    reader.join(timeout=2.0)
+    assert first.wait(timeout=30.0)  # a guard against a hang, not a measurement
+    source.close()  # from another thread, while the reader waits for the next item
+    reader.join(timeout=30.0)
     assert not reader.is_alive()
     assert 1 <= len(got) < 5
+
+
+def test_closing_during_an_injected_sleep_ends_the_replay(
+    log_path: tuple[Path, list[StreamItem]],
+) -> None:
+    path, items = log_path
+    clock = FakeClock()
+    source = McapSource(path, speed=1.0, monotonic=clock.monotonic, sleep=lambda s: source.close())
+    got = list(source)
+    assert 1 <= len(got) < len(items)
 
 
 def test_simulated_sweep_written_as_mcap_replays_like_the_source(tmp_path: Path) -> None:
     """``simulate --out x.mcap``: the file writer interface, bench text and truth included."""
     from ptinertia.config import load_bench
     from ptinertia.sources import open_source
-    from replay.recorder import McapFileWriter
+    from replay.raw_writer import McapFileWriter
 
     bench_path = ROOT / "examples" / "i3-bench.toml"
     text = bench_path.read_text()

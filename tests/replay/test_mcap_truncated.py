@@ -13,7 +13,6 @@ import signal
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 from types import ModuleType
 
@@ -30,25 +29,27 @@ from support.mcap_logs import (
 
 from acquisition.stream import SampleBlock, SourceError, StreamItem
 from ptinertia.errors import user_error_types
-from replay import codec
+from replay import stream_codec
 from replay.errors import LogError
+from replay.raw_writer import record_source
 from replay.reader import find_logs, open_log
-from replay.recorder import McapRecorder, RecordingInfo, record_source
+from replay.recorder import McapRecorder
+from replay.recording_head import RecordingInfo
 from replay.schemas import FORMAT, META_RUN, SCHEMA_VERSION, full_name, schema_data, wire_class
 
 ROOT = Path(__file__).resolve().parents[2]
 
 PACED_RECORDER = textwrap.dedent(
     '''
-    """Record a paced synthetic stream (0.1 s blocks released in real time) until killed."""
+    """Record a paced synthetic stream (0.1 s blocks) on a fake clock, then wait to be killed."""
     import sys
-    import time
 
     import numpy as np
 
     from acquisition.stream import ChannelSpec, EdgeBlock, SampleBlock, SampleGroup, StreamLayout
 
     RATE, N_CH, BLOCK = 5120.0, 10, 512  # 0.1 s blocks
+    ORIGIN_NS = 1_700_000_000_000_000_000
 
 
     def layout():
@@ -63,16 +64,20 @@ PACED_RECORDER = textwrap.dedent(
 
 
     if __name__ == "__main__":
-        from replay.recorder import McapRecorder, RecordingInfo
+        from replay.recorder import McapRecorder
+        from replay.recording_head import RecordingInfo
 
-        rec = McapRecorder(sys.argv[1], time_origin_ns=time.time_ns())
+        now = [0.0]  # the recorder's monotonic clock: a paced source's, without sleeping
+        rec = McapRecorder(sys.argv[1], time_origin_ns=ORIGIN_NS, monotonic=lambda: now[0])
         rec.start(RecordingInfo(layout=layout(), bench_text="[paced]\\n"))
-        t0 = time.monotonic()
-        print("recording", flush=True)
-        for k, item in enumerate(items(600)):  # 60 s at most
-            due = t0 + (k // 2 + 1) * 0.1  # block k // 2 is complete at its end time
-            time.sleep(max(0.0, due - time.monotonic()))
+        for k, item in enumerate(items(int(sys.argv[2]))):
+            now[0] = (k // 2 + 1) * 0.1  # block k // 2 is released at its end time
             rec.on_item(item)
+        # what a few ms of wall time do after a chunk is closed: the writer thread has
+        # written it (the open chunk stays open, as at any moment of a live run)
+        rec._writer.sync()
+        print("recording", flush=True)
+        sys.stdin.readline()  # until killed
         rec.close(None)
     '''
 )
@@ -90,20 +95,26 @@ def test_sigkill_mid_run_loses_at_most_the_last_second(tmp_path: Path) -> None:
     script = tmp_path / "paced_recorder.py"
     script.write_text(PACED_RECORDER)
     out = tmp_path / "killed.mcap"
+    n_blocks = 25  # killed at 2.5 s of stream, late in a 0.5 s chunk: near the worst case
     proc = subprocess.Popen(
-        [sys.executable, str(script), str(out)], cwd=ROOT, stdout=subprocess.PIPE, text=True
+        [sys.executable, str(script), str(out), str(n_blocks)],
+        cwd=ROOT,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
     )
     try:
         assert proc.stdout is not None
         assert proc.stdout.readline().strip() == "recording"
-        time.sleep(2.45)  # late in a 0.5 s chunk: near the worst case
         # a file still being written opens too
         origin = open_log(out).time_origin_ns if out.stat().st_size else None
-        kill_ns = time.time_ns()
         os.kill(proc.pid, signal.SIGKILL)
     finally:
         proc.kill()
         proc.wait(timeout=10)
+        for pipe in (proc.stdin, proc.stdout):
+            if pipe is not None:
+                pipe.close()
     assert proc.returncode == -signal.SIGKILL
 
     log = open_log(out)
@@ -113,7 +124,7 @@ def test_sigkill_mid_run_loses_at_most_the_last_second(tmp_path: Path) -> None:
     got = list(log.items())
     blocks = [i for i in got if isinstance(i, SampleBlock)]
     recovered_until = (blocks[-1].first_index + blocks[-1].n_samples) / 5120.0
-    killed_at = (kill_ns - log.time_origin_ns) / 1e9
+    killed_at = n_blocks * 0.1  # the stream time the paced source had reached
     assert killed_at > 2.0
     assert killed_at - recovered_until <= 1.0, (killed_at, recovered_until)
 
@@ -260,10 +271,10 @@ def test_missing_raw_topic_is_an_error(tmp_path: Path) -> None:
     mcap = Handmade(
         path,
         {"/raw/acc": "SampleBlock", "/raw/edges/tacho": "EdgeBlock", "/events": "SourceEvent"},
-        _run_metadata(codec.layout_to_json(layout)),
+        _run_metadata(stream_codec.layout_to_json(layout)),
     )
     block = SampleBlock("acc", 0, np.zeros((4, 3)))
-    mcap.add("/raw/acc", 1, codec.encode_samples(block, layout.groups[0]))
+    mcap.add("/raw/acc", 1, stream_codec.encode_samples(block, layout.groups[0]))
     mcap.finish()
     with pytest.raises(LogError, match=r"missing /raw/slow") as info:
         open_log(path)
@@ -282,14 +293,14 @@ def test_unknown_topics_and_bad_messages_are_skipped_and_reported(tmp_path: Path
         "/camera": "json",
         "/estimate": "OrderFrame",  # right topic, wrong schema
     }
-    mcap = Handmade(path, topics, _run_metadata(codec.layout_to_json(layout)))
+    mcap = Handmade(path, topics, _run_metadata(stream_codec.layout_to_json(layout)))
     good = [SampleBlock("acc", 0, np.ones((2, 5))), SampleBlock("acc", 5, 2 * np.ones((2, 5)))]
     bad = wire_class("SampleBlock")(group="acc", channels=["s0", "s1"], n_samples=9, data=b"\0" * 8)
-    mcap.add("/raw/acc", 1, codec.encode_samples(good[0], acc))
+    mcap.add("/raw/acc", 1, stream_codec.encode_samples(good[0], acc))
     mcap.add("/camera", 2, b"{}")
     mcap.add("/raw/acc", 3, bad.SerializeToString())
     mcap.add("/estimate", 3, b"")
-    mcap.add("/raw/acc", 4, codec.encode_samples(good[1], acc))
+    mcap.add("/raw/acc", 4, stream_codec.encode_samples(good[1], acc))
     mcap.finish()
     log = open_log(path)
     assert_same_items(list(log.items()), good)
@@ -304,6 +315,7 @@ def test_unknown_topics_and_bad_messages_are_skipped_and_reported(tmp_path: Path
 
 def test_bench_that_no_longer_matches_the_channels(tmp_path: Path) -> None:
     from ptinertia.config import load_bench
+    from ptinertia.sources import required_channels
     from replay.source import open_replay
 
     layout = synthetic_layout()
@@ -311,7 +323,7 @@ def test_bench_that_no_longer_matches_the_channels(tmp_path: Path) -> None:
     record_source(synthetic_items(layout, 0.2), path, layout=layout)
     bench = load_bench(ROOT / "examples" / "i3-bench.toml")
     with pytest.raises(SourceError, match="not found") as info:
-        open_replay(path, bench=bench)
+        open_replay(path, required_channels(bench))
     assert "\n" not in str(info.value) and str(path) in str(info.value)
 
 

@@ -1,7 +1,8 @@
 """The hand-laid protobuf bytes of order frames and sample blocks against the protobuf classes.
 
 ``replay.wire`` writes the two most frequent messages without the protobuf
-library; ``codec.encode_*_reference`` build them through it. A third-party
+library; ``stream_codec.encode_samples_reference`` and
+``results_codec.encode_frame_reference`` build them through it. A third-party
 reader (the public classes of ``replay.schemas``) must read the same message
 from both, bit for bit.
 """
@@ -16,7 +17,7 @@ from support.mcap_logs import make_frame
 
 from acquisition.stream import ChannelSpec, SampleBlock, SampleGroup
 from dsp.frames import OrderFrame
-from replay import codec
+from replay import results_codec, stream_codec
 from replay.schemas import message_class, wire_class
 
 
@@ -64,10 +65,10 @@ def corner_frames() -> list[OrderFrame]:
 @pytest.mark.parametrize("k", range(len(corner_frames())))
 def test_order_frame_reads_as_the_protobuf_built_one(k: int) -> None:
     f = corner_frames()[k]
-    fast, reference = codec.encode_frame(f), codec.encode_frame_reference(f)
+    fast, reference = results_codec.encode_frame(f), results_codec.encode_frame_reference(f)
     cls = message_class("OrderFrame")
     assert cls.FromString(fast).SerializeToString() == reference
-    back = codec.decode_frame(fast)
+    back = results_codec.decode_frame(fast)
     assert back.amplitudes.tobytes() == np.asarray(f.amplitudes, complex).tobytes()
     assert back.leakage.tobytes() == np.asarray(f.leakage, float).tobytes()
     np.testing.assert_array_equal(back.channel_ok, f.channel_ok)
@@ -78,10 +79,10 @@ def test_order_frame_reads_as_the_protobuf_built_one(k: int) -> None:
 
 def test_order_frame_of_the_wrong_shape_is_refused() -> None:
     f = make_frame(0.1, np.random.default_rng(0))
-    codec.encode_frame(f)  # caches the layout of 3 orders x 4 channels
+    results_codec.encode_frame(f)  # caches the layout of 3 orders x 4 channels
     bad = frame(f.orders, f.channels, np.ones((3, 3), complex))
     with pytest.raises(ValueError, match=r"expected amplitudes of shape \(3, 4\)"):
-        codec.encode_frame(bad)
+        results_codec.encode_frame(bad)
 
 
 @pytest.mark.parametrize(
@@ -96,8 +97,8 @@ def test_sample_block_is_the_protobuf_libraries_bytes(
     if data.size:
         data.flat[0] = np.nan
     block = SampleBlock("acc", first_index, data)
-    fast = codec.encode_samples(block, group)
-    assert fast == codec.encode_samples_reference(block, group)
+    fast = stream_codec.encode_samples(block, group)
+    assert fast == stream_codec.encode_samples_reference(block, group)
     public = message_class("SampleBlock").FromString(fast)
     assert np.array(public.data, np.float32).tobytes() == data.astype("<f4").tobytes()
     assert wire_class("SampleBlock").FromString(fast).first_index == first_index

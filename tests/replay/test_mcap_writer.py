@@ -25,7 +25,8 @@ from acquisition.stream import SampleBlock
 from replay.errors import LogError
 from replay.mcapwriter import ThreadedWriter
 from replay.reader import open_log
-from replay.recorder import McapRecorder, RecordingInfo
+from replay.recorder import McapRecorder
+from replay.recording_head import RecordingInfo
 
 COMPRESSIONS = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "": CompressionType.NONE}
 

@@ -1,4 +1,8 @@
-"""Synthetic streams, frames and outcomes recorded to MCAP, shared by the replay and dsp tests."""
+"""Synthetic streams, frames and outcomes recorded to MCAP, shared by the replay and dsp tests.
+
+:class:`FakeClock` stands in for ``time.monotonic`` and ``time.sleep`` where the
+recorder and the paced replay source take a clock: the tests never sleep.
+"""
 
 from __future__ import annotations
 
@@ -19,7 +23,8 @@ from acquisition.stream import (
 )
 from dsp.frames import OrderFrame
 from estimator.streaming import FrameOutcome
-from replay.recorder import McapRecorder, RecordingInfo
+from replay.recorder import McapRecorder
+from replay.recording_head import RecordingInfo
 
 BENCH_TEXT = '[powertrain]\nname = "synthetic"\n'
 
@@ -28,6 +33,24 @@ DBC = b'VERSION ""\nBO_ 256 ACC: 64 Vector__XXX\n'
 
 
 TRUTH = {"inertia_kgm2": {"Ixx": 12.5, "Iyy": 20.25}, "cog_m": [0.1, -0.02, 0.3], "mass_kg": 150.0}
+
+
+class FakeClock:
+    """A monotonic clock that moves only when slept on or advanced; it remembers the sleeps."""
+
+    def __init__(self, start_s: float = 1000.0) -> None:
+        self.now_s = start_s
+        self.sleeps: list[float] = []
+
+    def monotonic(self) -> float:
+        return self.now_s
+
+    def sleep(self, seconds: float) -> None:
+        self.sleeps.append(seconds)
+        self.now_s += seconds
+
+    def advance(self, seconds: float) -> None:
+        self.now_s += seconds
 
 
 def synthetic_layout(n_ch: int = 4, rate_hz: float = 2560.0) -> StreamLayout:

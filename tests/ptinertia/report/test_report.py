@@ -124,8 +124,8 @@ def test_raw_only_log_is_estimated_by_the_report(
     tmp_path_factory: pytest.TempPathFactory, tmp_path: Path
 ) -> None:
     """A raw-only copy of the run's recording gives the run's own estimate, bit for bit."""
+    from replay.raw_writer import record_source
     from replay.reader import open_log
-    from replay.recorder import record_source
     from replay.source import McapSource
 
     log, _ = realistic_log(tmp_path_factory)

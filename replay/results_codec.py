@@ -1,12 +1,12 @@
-"""Encode and decode one message of each topic (symmetric pairs, no file I/O).
+"""Encode and decode what the live run computed: order frames, gating, estimates (no file I/O).
 
-Every ``encode_*`` returns the serialised protobuf bytes of a
-:mod:`replay.schemas` message; the matching ``decode_*`` gives back the
-object the pipeline handed to the recorder. Raw samples travel as float32
-(the pipeline has already rounded them, see ``ptinertia.pipeline.as_recorded``)
-and everything else as float64, so a decoded item equals the original bit for
-bit. A message that does not fit the recorded layout raises
-:class:`BadMessage`; the reader skips it and reports it.
+Symmetric pairs, as in :mod:`replay.stream_codec`: every ``encode_*`` returns
+the serialised protobuf bytes of a :mod:`replay.schemas` message (``/orders``,
+``/gating``, ``/estimate``), the matching ``decode_*`` gives back the object
+the pipeline handed to the recorder. Every number travels as float64, so a
+decoded frame or estimate equals the original bit for bit. A message that does
+not fit raises :class:`replay.errors.BadMessage`; the reader skips it and
+reports it.
 """
 
 from __future__ import annotations
@@ -17,158 +17,15 @@ from typing import Any
 
 import numpy as np
 
-from acquisition.stream import EdgeBlock, SampleBlock, SampleGroup, SourceEvent, StreamLayout
+from dsp.frames import OrderFrame
+from estimator.result import Estimate
+from estimator.streaming import FrameOutcome
 from replay import wire
+from replay.errors import BadMessage
 from replay.schemas import PARAMETERS, wire_class
 
 
-class BadMessage(Exception):
-    """One message cannot be decoded against the layout (the reader skips it)."""
-
-
-# -- raw items ---------------------------------------------------------------------------------
-
-
-def sample_time(block: SampleBlock, group: SampleGroup) -> float:
-    """Time of the block's first sample, s."""
-    return group.t0_s + block.first_index / group.rate_hz
-
-
-def encode_samples(block: SampleBlock, group: SampleGroup) -> bytes:
-    """``/raw/<group>``: the block as float32, channel-major."""
-    data = np.ascontiguousarray(block.data, dtype="<f4")
-    if data.shape != (len(group.channels), block.n_samples):
-        raise ValueError(
-            f"sample block of group {group.name!r}: expected {len(group.channels)} channels, "
-            f"got data of shape {block.data.shape}"
-        )
-    return wire.sample_block(
-        sample_time(block, group),
-        group.name,
-        int(block.first_index),
-        group.rate_hz,
-        group.t0_s,
-        [c.name for c in group.channels],
-        block.n_samples,
-        data.tobytes(),
-    )
-
-
-def encode_samples_reference(block: SampleBlock, group: SampleGroup) -> bytes:
-    """:func:`encode_samples` through the protobuf class, for the tests to compare with."""
-    data = np.ascontiguousarray(block.data, dtype="<f4")
-    msg = wire_class("SampleBlock")(
-        time_s=sample_time(block, group),
-        group=group.name,
-        first_index=int(block.first_index),
-        rate_hz=group.rate_hz,
-        t0_s=group.t0_s,
-        channels=[c.name for c in group.channels],
-        n_samples=block.n_samples,
-        data=data.tobytes(),
-    )
-    return bytes(msg.SerializeToString())
-
-
-def decode_samples(data: bytes, layout: StreamLayout) -> SampleBlock:
-    """A :class:`SampleBlock` with float64 data holding the recorded float32 values."""
-    msg = wire_class("SampleBlock").FromString(data)
-    try:
-        group = layout.group(msg.group)
-    except KeyError:
-        raise BadMessage(f"sample group {msg.group!r} is not in the recorded layout") from None
-    names = tuple(c.name for c in group.channels)
-    if tuple(msg.channels) != names:
-        raise BadMessage(
-            f"group {msg.group!r}: channels {list(msg.channels)} differ from the layout's {list(names)}"
-        )
-    n_ch, n = len(names), int(msg.n_samples)
-    if len(msg.data) != 4 * n_ch * n:
-        raise BadMessage(
-            f"group {msg.group!r}: {len(msg.data)} data bytes, expected {4 * n_ch * n} "
-            f"({n_ch} channels x {n} samples x 4)"
-        )
-    values = np.frombuffer(msg.data, dtype="<f4").reshape(n_ch, n).astype(np.float64)
-    return SampleBlock(group.name, int(msg.first_index), values)
-
-
-def encode_edges(block: EdgeBlock, time_s: float) -> bytes:
-    """``/raw/edges/<channel>``: edge times as float64."""
-    times = np.ascontiguousarray(block.times_s, dtype="<f8")
-    msg = wire_class("EdgeBlock")(time_s=time_s, channel=block.channel, times_s=times.tobytes())
-    return bytes(msg.SerializeToString())
-
-
-def decode_edges(data: bytes, layout: StreamLayout) -> EdgeBlock:
-    msg = wire_class("EdgeBlock").FromString(data)
-    if msg.channel not in layout.edge_channels:
-        raise BadMessage(f"edge channel {msg.channel!r} is not in the recorded layout")
-    if len(msg.times_s) % 8:
-        raise BadMessage(f"edge channel {msg.channel!r}: {len(msg.times_s)} bytes is not n x 8")
-    return EdgeBlock(msg.channel, np.frombuffer(msg.times_s, dtype="<f8").copy())
-
-
-def encode_event(event: SourceEvent, origin: str, time_s: float) -> bytes:
-    """``/events``: origin ``"source"`` (a raw stream item) or ``"dsp"``."""
-    msg = wire_class("SourceEvent")(
-        time_s=event.time_s if event.time_s is not None else time_s,
-        kind=event.kind,
-        message=event.message,
-        has_time=event.time_s is not None,
-        count=int(event.count),
-        origin=origin,
-    )
-    return bytes(msg.SerializeToString())
-
-
-def decode_event(data: bytes) -> tuple[str, SourceEvent]:
-    """``(origin, event)``."""
-    msg = wire_class("SourceEvent").FromString(data)
-    event = SourceEvent(msg.kind, msg.message, msg.time_s if msg.has_time else None, int(msg.count))
-    return msg.origin, event
-
-
-def encode_can(frames: Any, time_s: float) -> bytes:
-    """``/raw/can``: a batch of ``acquisition.can.codec.RawFrame`` as columns."""
-    msg = wire_class("CanFrames")(
-        time_s=time_s,
-        timestamp_ns=[int(f.timestamp_ns) for f in frames],
-        arbitration_id=[int(f.arbitration_id) for f in frames],
-        flags=[(1 if f.is_extended_id else 0) | (2 if f.is_fd else 0) for f in frames],
-        length=[len(f.data) for f in frames],
-        data=b"".join(bytes(f.data) for f in frames),
-    )
-    return bytes(msg.SerializeToString())
-
-
-def decode_can(data: bytes) -> list[Any]:
-    """The batch of ``RawFrame`` as received."""
-    from acquisition.can.codec import RawFrame
-
-    msg = wire_class("CanFrames").FromString(data)
-    n = len(msg.timestamp_ns)
-    if not (len(msg.arbitration_id) == len(msg.flags) == len(msg.length) == n):
-        raise BadMessage(f"CAN batch at {msg.time_s:.3f} s: columns of different lengths")
-    if sum(msg.length) != len(msg.data):
-        raise BadMessage(
-            f"CAN batch at {msg.time_s:.3f} s: {len(msg.data)} data bytes, lengths say {sum(msg.length)}"
-        )
-    frames, pos = [], 0
-    payload = bytes(msg.data)
-    for t, can_id, flags, size in zip(
-        msg.timestamp_ns, msg.arbitration_id, msg.flags, msg.length, strict=True
-    ):
-        frames.append(
-            RawFrame(t, can_id, bool(flags & 1), payload[pos : pos + size], bool(flags & 2))
-        )
-        pos += size
-    return frames
-
-
-# -- processing results ------------------------------------------------------------------------
-
-
-def encode_frame(frame: Any) -> bytes:
+def encode_frame(frame: OrderFrame) -> bytes:
     """``/orders``: a ``dsp.frames.OrderFrame`` (from a byte template, see :mod:`replay.wire`)."""
     spectrum = getattr(frame, "spectrum", None)
     if spectrum is None:
@@ -179,7 +36,7 @@ def encode_frame(frame: Any) -> bytes:
     return layout.encode(frame)
 
 
-def encode_frame_reference(frame: Any) -> bytes:
+def encode_frame_reference(frame: OrderFrame) -> bytes:
     """:func:`encode_frame` through the protobuf classes: slower, for the tests to compare with."""
     amp = np.asarray(frame.amplitudes, dtype=complex)
     ok = np.asarray(frame.channel_ok, dtype=bool)
@@ -216,10 +73,8 @@ def encode_frame_reference(frame: Any) -> bytes:
     return bytes(msg.SerializeToString())
 
 
-def decode_frame(data: bytes) -> Any:
+def decode_frame(data: bytes) -> OrderFrame:
     """The ``dsp.frames.OrderFrame``, amplitudes exact."""
-    from dsp.frames import OrderFrame
-
     msg = wire_class("OrderFrame").FromString(data)
     n_o, n_ch = len(msg.orders), len(msg.channels)
     re = np.array(msg.amplitude_re, dtype=float)
@@ -259,7 +114,7 @@ def decode_frame(data: bytes) -> Any:
     )
 
 
-def encode_outcome(outcome: Any) -> bytes:
+def encode_outcome(outcome: FrameOutcome) -> bytes:
     """``/gating``: an ``estimator.streaming.FrameOutcome`` (without the fitted motion)."""
     msg = wire_class("Gating")(
         time_s=outcome.time_s,
@@ -282,10 +137,8 @@ def encode_outcome(outcome: Any) -> bytes:
     return bytes(msg.SerializeToString())
 
 
-def decode_outcome(data: bytes) -> Any:
+def decode_outcome(data: bytes) -> FrameOutcome:
     """The ``estimator.streaming.FrameOutcome`` (``motion`` is None: it is not recorded)."""
-    from estimator.streaming import FrameOutcome
-
     msg = wire_class("Gating").FromString(data)
     return FrameOutcome(
         time_s=msg.time_s,
@@ -297,7 +150,7 @@ def decode_outcome(data: bytes) -> Any:
     )
 
 
-def encode_estimate(time_s: float, rpm: float, estimate: Any, final: bool = False) -> bytes:
+def encode_estimate(time_s: float, rpm: float, estimate: Estimate, final: bool = False) -> bytes:
     """``/estimate``: an ``estimator.result.Estimate`` in full (covariances included).
 
     ``cov`` is left empty when it is exactly ``cov_random + cov_systematic``
@@ -344,10 +197,8 @@ def encode_estimate(time_s: float, rpm: float, estimate: Any, final: bool = Fals
     return bytes(msg.SerializeToString())
 
 
-def decode_estimate(data: bytes) -> tuple[float, float, Any, bool]:
+def decode_estimate(data: bytes) -> tuple[float, float, Estimate, bool]:
     """``(time_s, rpm, estimator.result.Estimate, final)``, every number as recorded."""
-    from estimator.result import Estimate
-
     msg = wire_class("Estimate").FromString(data)
     n = len(msg.names)
 
@@ -383,44 +234,3 @@ def decode_estimate(data: bytes) -> tuple[float, float, Any, bool]:
         variance_factor=msg.variance_factor,
     )
     return msg.time_s, msg.rpm, estimate, msg.final
-
-
-# -- layout ------------------------------------------------------------------------------------
-
-
-def layout_to_json(layout: StreamLayout) -> str:
-    """The layout (groups, edge channels, metadata) as JSON; floats round-trip exactly."""
-    from acquisition.files.csvwriter import json_default
-
-    doc = {
-        "groups": [
-            {
-                "name": g.name,
-                "rate_hz": g.rate_hz,
-                "t0_s": g.t0_s,
-                "channels": [{"name": c.name, "unit": c.unit} for c in g.channels],
-            }
-            for g in layout.groups
-        ],
-        "edge_channels": list(layout.edge_channels),
-        "metadata": layout.metadata,
-    }
-    return json.dumps(doc, default=json_default)
-
-
-def layout_from_json(text: str) -> StreamLayout:
-    from acquisition.stream import ChannelSpec
-
-    doc = json.loads(text)
-    groups = tuple(
-        SampleGroup(
-            name=str(g["name"]),
-            rate_hz=float(g["rate_hz"]),
-            channels=tuple(ChannelSpec(str(c["name"]), str(c["unit"])) for c in g["channels"]),
-            t0_s=float(g.get("t0_s", 0.0)),
-        )
-        for g in doc["groups"]
-    )
-    return StreamLayout(
-        groups, tuple(doc.get("edge_channels", ())), dict(doc.get("metadata") or {})
-    )

@@ -1,0 +1,212 @@
+"""The file side of :class:`replay.mcapwriter.ThreadedWriter`: records, chunks, summary, footer.
+
+Everything here runs on the writer thread, one job at a time, in the order
+the caller submitted them: the magic and the header, metadata and
+attachment records, each closed chunk (its records joined, CRC'd,
+compressed) followed by its message indexes, and at the end the data end
+record, the summary section, the footer and the magic again, as
+``mcap.writer.Writer`` (1.6, default options) writes them. :class:`McapOutput`
+keeps the indexes and statistics the summary needs.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from collections.abc import Callable
+from itertools import chain
+from typing import IO, Any
+
+import lz4.frame
+import zstandard
+from mcap.data_stream import RecordBuilder
+from mcap.opcode import Opcode
+from mcap.records import (
+    Attachment,
+    AttachmentIndex,
+    Channel,
+    ChunkIndex,
+    DataEnd,
+    Footer,
+    Header,
+    Metadata,
+    MetadataIndex,
+    Schema,
+    Statistics,
+    SummaryOffset,
+)
+
+from replay.chunks import MAGIC
+
+COMPRESSIONS = ("zstd", "lz4", "")
+OP_MESSAGE = int(Opcode.MESSAGE)
+# opcode, record length, channel id, sequence, log time, publish time
+MESSAGE_HEADER = struct.Struct("<BQHIQQ")
+_MESSAGE_KEY = struct.Struct("<HIQ")  # channel id, sequence, log time (at byte 9 of the header)
+# opcode, record length, start time, end time, uncompressed size, crc, compression name length
+_CHUNK = struct.Struct("<BQQQQII")
+
+# (record header, data) pairs of the open chunk: a message is its header and
+# payload, a schema or channel record is its bytes and b""
+Records = list[tuple[bytes, bytes]]
+
+
+class McapOutput:
+    """The file side: what the writer thread does, and the indexes it keeps."""
+
+    def __init__(self, stream: IO[bytes], compression: str) -> None:
+        self.stream = stream
+        self.compression = compression
+        self.pos = 0
+        self.chunk_indexes: list[ChunkIndex] = []
+        self.attachment_indexes: list[AttachmentIndex] = []
+        self.metadata_indexes: list[MetadataIndex] = []
+        self.message_counts: dict[int, int] = {}  # per channel, in order of first message
+        self.message_count = 0
+        self.start_time = 0
+        self.end_time = 0
+        self._compress: Callable[[bytes], bytes] | None = None
+
+    def write(self, data: bytes | bytearray | memoryview) -> None:
+        self.stream.write(data)
+        self.pos += len(data)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+    def header(self, profile: str, library: str) -> None:
+        self.pos = self.stream.tell()
+        self.write(MAGIC)
+        self._record(Header(profile, library))
+        self.flush()
+
+    def metadata(self, name: str, data: dict[str, str]) -> None:
+        offset = self.pos
+        length = self._record(Metadata(name=name, metadata=data))
+        self.metadata_indexes.append(MetadataIndex(offset=offset, length=length, name=name))
+
+    def attachment(
+        self, create_time: int, log_time: int, name: str, media_type: str, data: bytes
+    ) -> None:
+        offset = self.pos
+        record = Attachment(create_time, log_time, name, media_type, data)
+        length = self._record(record)
+        self.attachment_indexes.append(
+            AttachmentIndex(offset, length, log_time, create_time, len(data), name, media_type)
+        )
+
+    def chunk(self, records: Records) -> None:
+        """Write one chunk record and its message indexes; flush the stream."""
+        index: dict[int, list[int]] = {}  # channel id -> [log time, offset, ...]
+        counts = self.message_counts
+        start, end = None, 0
+        offset = 0
+        for head, data in records:
+            if head[0] == OP_MESSAGE:
+                channel_id, _, log_time = _MESSAGE_KEY.unpack_from(head, 9)
+                index.setdefault(channel_id, []).extend((log_time, offset))
+                counts[channel_id] = counts.get(channel_id, 0) + 1
+                start = log_time if start is None else min(start, log_time)
+                end = max(end, log_time)
+            offset += len(head) + len(data)
+        assert start is not None, "a chunk without messages"
+        self.start_time = start if not self.message_count else min(self.start_time, start)
+        self.end_time = max(self.end_time, end)
+        self.message_count += sum(len(v) for v in index.values()) // 2
+
+        payload = b"".join(chain.from_iterable(records))
+        crc = zlib.crc32(payload)
+        data = self._compressed(payload)
+        name = self.compression.encode()
+        length = 8 + 8 + 8 + 4 + 4 + len(name) + 8 + len(data)
+        head = _CHUNK.pack(int(Opcode.CHUNK), length, start, end, len(payload), crc, len(name))
+        chunk_offset = self.pos
+        index_start = pos = chunk_offset + 9 + length
+        offsets: dict[int, int] = {}
+        parts = [head, name, struct.pack("<Q", len(data)), data]
+        for channel_id, entries in index.items():
+            offsets[channel_id] = pos
+            n = len(entries)
+            parts.append(
+                struct.pack(
+                    f"<BQHI{n}Q", int(Opcode.MESSAGE_INDEX), 6 + 8 * n, channel_id, 8 * n, *entries
+                )
+            )
+            pos += len(parts[-1])
+        # one write, one system call: each call that releases the GIL costs the caller's
+        # thread a GIL hand-over when it takes it back (the copy of ~0.5 MB costs less)
+        self.write(b"".join(parts))
+        self.flush()
+        self.chunk_indexes.append(
+            ChunkIndex(
+                message_start_time=start,
+                message_end_time=end,
+                chunk_start_offset=chunk_offset,
+                chunk_length=9 + length,
+                message_index_offsets=offsets,
+                message_index_length=pos - index_start,
+                compression=self.compression,
+                compressed_size=len(data),
+                uncompressed_size=len(payload),
+            )
+        )
+
+    def summary(self, schemas: list[Schema], channels: list[Channel]) -> None:
+        """Data end, the summary section (as ``mcap.writer.Writer.finish``), footer, magic."""
+        self._record(DataEnd(0))
+        summary_start = self.pos
+        builder = RecordBuilder()
+        offsets: list[SummaryOffset] = []
+
+        def group(opcode: Opcode, records: list[Any]) -> None:
+            begin = builder.count
+            for record in records:
+                record.write(builder)
+            offsets.append(SummaryOffset(opcode, summary_start + begin, builder.count - begin))
+
+        statistics = Statistics(
+            attachment_count=len(self.attachment_indexes),
+            channel_count=len(channels),
+            channel_message_counts=self.message_counts,
+            chunk_count=len(self.chunk_indexes),
+            message_count=self.message_count,
+            message_end_time=self.end_time,
+            message_start_time=self.start_time,
+            metadata_count=len(self.metadata_indexes),
+            schema_count=len(schemas),
+        )
+        group(Opcode.SCHEMA, schemas)
+        group(Opcode.CHANNEL, channels)
+        group(Opcode.STATISTICS, [statistics])
+        group(Opcode.CHUNK_INDEX, self.chunk_indexes)
+        group(Opcode.ATTACHMENT_INDEX, self.attachment_indexes)
+        group(Opcode.METADATA_INDEX, self.metadata_indexes)
+        offset_start = summary_start + builder.count
+        for offset in offsets:
+            offset.write(builder)
+        summary = builder.end()
+        footer_start = summary_start if summary else 0
+        footer_head = struct.pack("<BQQQ", Opcode.FOOTER, 20, footer_start, offset_start)
+        crc = zlib.crc32(footer_head, zlib.crc32(summary))
+        self.write(summary)
+        self._record(Footer(footer_start, offset_start, crc))
+        self.write(MAGIC)
+        self.flush()
+
+    def _record(self, record: Any) -> int:
+        builder = RecordBuilder()
+        record.write(builder)
+        data = builder.end()
+        self.write(data)
+        return len(data)
+
+    def _compressed(self, payload: bytes) -> bytes:
+        if self._compress is None:
+            if self.compression == "zstd":
+                # level 3 is zstandard.compress's (and so mcap's) default
+                self._compress = zstandard.ZstdCompressor(level=3).compress
+            elif self.compression == "lz4":
+                self._compress = lz4.frame.compress
+            else:
+                self._compress = bytes
+        return self._compress(payload)

@@ -1,0 +1,225 @@
+"""A recording opened for reading: what it holds, and its messages decoded.
+
+:func:`replay.reader.open_log` scans the file once and returns a
+:class:`RecordedLog` (bench, layout, settings, truth, the topics found) with a
+:class:`ReadReport` of what was recovered and skipped. Its iterators then walk
+the messages in file order, which for the raw topics is the order the live dsp
+stage saw them, and stop cleanly at the truncation point of an unfinished log.
+A message that does not fit (wrong schema, a block that disagrees with the
+recorded layout) is skipped and counted in the report.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from mcap.reader import NonSeekingReader, SeekingReader
+
+from acquisition.can.frames import RawFrame
+from acquisition.stream import SourceEvent, StreamItem, StreamLayout
+from dsp.frames import OrderFrame
+from estimator.result import Estimate, EstimateUpdate
+from estimator.streaming import FrameOutcome
+from replay import results_codec, stream_codec
+from replay.chunks import READ_ERRORS, walk_messages
+from replay.errors import BadMessage, LogError, describe
+from replay.schemas import (
+    TOPIC_CAN,
+    TOPIC_ESTIMATE,
+    TOPIC_EVENTS,
+    TOPIC_GATING,
+    TOPIC_ORDERS,
+    full_name,
+    stream_topics,
+)
+
+
+@dataclass
+class ReadReport:
+    """What was recovered and what was skipped.
+
+    Attributes
+    ----------
+    finished : the writer finished the file (footer present).
+    file_bytes : size of the file.
+    readable_bytes : bytes up to the end of the last complete record.
+    chunks : complete chunks found.
+    recorded_until_s : stream time of the last message of the last complete chunk.
+    skipped : messages skipped per topic (unknown topic, wrong schema, bad content).
+    notes : one line per problem, for the user.
+    """
+
+    finished: bool
+    file_bytes: int
+    readable_bytes: int
+    chunks: int = 0
+    recorded_until_s: float | None = None
+    skipped: Counter[str] = field(default_factory=Counter)
+    notes: list[str] = field(default_factory=list)
+
+    def note(self, line: str) -> None:
+        if line not in self.notes:
+            self.notes.append(line)
+
+    def lines(self) -> list[str]:
+        """Everything the user should hear about, one line each."""
+        out = list(self.notes)
+        for topic, n in sorted(self.skipped.items()):
+            out.append(f"skipped {n} message(s) on {topic}")
+        return out
+
+
+@dataclass(frozen=True)
+class RecordedLog:
+    """A recording opened for reading.
+
+    Attributes
+    ----------
+    path : the file.
+    bench_text : the bench file as recorded (None if the log has none).
+    attachments : every attachment, name -> bytes (``bench.toml``, a DBC ...).
+    metadata : every metadata record, name -> {key: value}.
+    truth : the simulated truth, or None for real data.
+    settings : the dsp/estimator settings of the live run (empty for a raw-only log).
+    layout : the recorded source's channels and rates.
+    source : the source spec of the live run.
+    time_origin_ns : log time of stream time 0.
+    result : the final result document of the live run (finished logs of a run only).
+    topics : topic -> schema name, as found.
+    message_counts : topic -> messages (finished logs only; None otherwise).
+    report : what was recovered and skipped (updated while iterating).
+    """
+
+    path: Path
+    bench_text: str | None
+    attachments: dict[str, bytes]
+    metadata: dict[str, dict[str, str]]
+    truth: Any
+    settings: dict[str, Any]
+    layout: StreamLayout
+    source: str
+    time_origin_ns: int
+    result: dict[str, Any] | None
+    topics: dict[str, str]
+    message_counts: dict[str, int] | None
+    report: ReadReport
+
+    @property
+    def finished(self) -> bool:
+        return self.report.finished
+
+    @property
+    def raw_topics(self) -> dict[str, str]:
+        """Raw topic -> message type, from the layout."""
+        return stream_topics(self.layout)
+
+    # -- iteration ------------------------------------------------------------------------
+    def messages(
+        self, topics: Iterable[str], reference: bool = False
+    ) -> Iterator[tuple[str, str, int, bytes]]:
+        """``(topic, schema name, log_time ns, data)`` of ``topics``, in file order.
+
+        Stops cleanly at the truncation point of an unfinished log (already
+        noted in :attr:`report` by :func:`replay.reader.open_log`); a finished log that
+        fails to read raises :class:`LogError`. ``reference=True`` reads with
+        the mcap library's own readers (seeking for a finished log,
+        non-seeking for an unfinished one) instead of :mod:`replay.chunks`:
+        slower, same messages.
+        """
+        wanted = {t for t in topics if t in self.topics}
+
+        def stop(err: BaseException) -> None:
+            if self.report.finished:
+                raise LogError(f"{self.path}: damaged recording ({describe(err)})")
+            # the unfinished chunk of a killed writer: expected
+
+        source = (
+            self._reference(wanted, stop) if reference else walk_messages(self.path, wanted, stop)
+        )
+        for topic, name, log_time, data in source:
+            if name != self.topics.get(topic):
+                self.report.skipped[topic] += 1
+                continue
+            yield topic, name, log_time, data
+
+    def _reference(self, wanted: set[str], stop: Any) -> Iterator[tuple[str, str, int, bytes]]:
+        with open(self.path, "rb") as fh:
+            reader: Any = SeekingReader(fh) if self.report.finished else NonSeekingReader(fh)
+            it = reader.iter_messages(topics=sorted(wanted), log_time_order=False)
+            while True:
+                try:
+                    schema, channel, message = next(it)
+                except StopIteration:
+                    return
+                except READ_ERRORS as err:
+                    stop(err)
+                    return
+                name = schema.name if schema is not None else ""
+                yield channel.topic, name, message.log_time, message.data
+
+    def items(self) -> Iterator[StreamItem]:
+        """The raw stream (sample blocks, edge blocks, source events) in its original order."""
+        kinds = self.raw_topics
+        for topic, name, _, data in self.messages(kinds):
+            try:
+                if name == full_name("SampleBlock"):
+                    yield stream_codec.decode_samples(data, self.layout)
+                elif name == full_name("EdgeBlock"):
+                    yield stream_codec.decode_edges(data, self.layout)
+                else:
+                    origin, event = stream_codec.decode_event(data)
+                    if origin != "dsp":
+                        yield event
+            except (BadMessage, ValueError) as err:
+                self.report.skipped[topic] += 1
+                self.report.note(f"{topic}: {err}")
+
+    def frames(self) -> Iterator[OrderFrame]:
+        """The recorded order frames (``dsp.frames.OrderFrame``)."""
+        yield from self._decoded(TOPIC_ORDERS, results_codec.decode_frame)
+
+    def outcomes(self) -> Iterator[FrameOutcome]:
+        """The recorded gating decisions (``estimator.streaming.FrameOutcome``, no motion)."""
+        yield from self._decoded(TOPIC_GATING, results_codec.decode_outcome)
+
+    def estimates(self) -> Iterator[EstimateUpdate]:
+        """The estimate after each used frame, as :class:`estimator.result.EstimateUpdate`."""
+        for time_s, rpm, estimate, final in self._decoded(
+            TOPIC_ESTIMATE, results_codec.decode_estimate
+        ):
+            if not final:
+                yield EstimateUpdate(time_s, rpm, estimate)
+
+    def can_frames(self) -> Iterator[list[RawFrame]]:
+        """The raw CAN frames as received, in batches of ``acquisition.can.frames.RawFrame``.
+
+        Empty unless the source was a CAN bus. ``CanFrameSource(plan, log.can_frames())``
+        decodes them again (with the recorded DBC, ``attachments``, or a new one).
+        """
+        yield from self._decoded(TOPIC_CAN, stream_codec.decode_can)
+
+    def events(self) -> Iterator[tuple[str, SourceEvent]]:
+        """Every recorded event as ``(origin, SourceEvent)``; origin ``source`` or ``dsp``."""
+        yield from self._decoded(TOPIC_EVENTS, stream_codec.decode_event)
+
+    def _decoded(self, topic: str, decode: Callable[[bytes], Any]) -> Iterator[Any]:
+        for _, _, _, data in self.messages([topic]):
+            try:
+                yield decode(data)
+            except (BadMessage, ValueError) as err:
+                self.report.skipped[topic] += 1
+                self.report.note(f"{topic}: {err}")
+
+    def final_estimate(self) -> Estimate | None:
+        """The run's final ``estimator.result.Estimate`` (None if the run was cut short or had none).
+
+        It differs from the last update when frames were rejected after the last used one.
+        """
+        for _, _, estimate, final in self._decoded(TOPIC_ESTIMATE, results_codec.decode_estimate):
+            if final:
+                return estimate
+        return None

@@ -1,0 +1,207 @@
+"""Encode and decode the raw stream's messages and the recorded layout (no file I/O).
+
+Symmetric pairs: every ``encode_*`` returns the serialised protobuf bytes of a
+:mod:`replay.schemas` message (``/raw/<group>``, ``/raw/edges/<channel>``,
+``/events``, ``/raw/can``), the matching ``decode_*`` gives back the item the
+source handed to the pipeline. Raw samples travel as float32 (the pipeline has
+already rounded them, see ``ptinertia.pipeline.as_recorded``) and edge times as
+float64, so a decoded item equals the original bit for bit. A message that does
+not fit the recorded layout raises :class:`replay.errors.BadMessage`; the reader
+skips it and reports it. What the live run computed (order frames, gating,
+estimates) is :mod:`replay.results_codec`.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+
+import numpy as np
+
+from acquisition.can.frames import RawFrame
+from acquisition.files.csvwriter import json_default
+from acquisition.stream import (
+    ChannelSpec,
+    EdgeBlock,
+    SampleBlock,
+    SampleGroup,
+    SourceEvent,
+    StreamLayout,
+)
+from replay import wire
+from replay.errors import BadMessage
+from replay.schemas import wire_class
+
+# -- raw items ---------------------------------------------------------------------------------
+
+
+def sample_time(block: SampleBlock, group: SampleGroup) -> float:
+    """Time of the block's first sample, s."""
+    return group.t0_s + block.first_index / group.rate_hz
+
+
+def encode_samples(block: SampleBlock, group: SampleGroup) -> bytes:
+    """``/raw/<group>``: the block as float32, channel-major."""
+    data = np.ascontiguousarray(block.data, dtype="<f4")
+    if data.shape != (len(group.channels), block.n_samples):
+        raise ValueError(
+            f"sample block of group {group.name!r}: expected {len(group.channels)} channels, "
+            f"got data of shape {block.data.shape}"
+        )
+    return wire.sample_block(
+        sample_time(block, group),
+        group.name,
+        int(block.first_index),
+        group.rate_hz,
+        group.t0_s,
+        [c.name for c in group.channels],
+        block.n_samples,
+        data.tobytes(),
+    )
+
+
+def encode_samples_reference(block: SampleBlock, group: SampleGroup) -> bytes:
+    """:func:`encode_samples` through the protobuf class, for the tests to compare with."""
+    data = np.ascontiguousarray(block.data, dtype="<f4")
+    msg = wire_class("SampleBlock")(
+        time_s=sample_time(block, group),
+        group=group.name,
+        first_index=int(block.first_index),
+        rate_hz=group.rate_hz,
+        t0_s=group.t0_s,
+        channels=[c.name for c in group.channels],
+        n_samples=block.n_samples,
+        data=data.tobytes(),
+    )
+    return bytes(msg.SerializeToString())
+
+
+def decode_samples(data: bytes, layout: StreamLayout) -> SampleBlock:
+    """A :class:`SampleBlock` with float64 data holding the recorded float32 values."""
+    msg = wire_class("SampleBlock").FromString(data)
+    try:
+        group = layout.group(msg.group)
+    except KeyError:
+        raise BadMessage(f"sample group {msg.group!r} is not in the recorded layout") from None
+    names = tuple(c.name for c in group.channels)
+    if tuple(msg.channels) != names:
+        raise BadMessage(
+            f"group {msg.group!r}: channels {list(msg.channels)} differ from the layout's {list(names)}"
+        )
+    n_ch, n = len(names), int(msg.n_samples)
+    if len(msg.data) != 4 * n_ch * n:
+        raise BadMessage(
+            f"group {msg.group!r}: {len(msg.data)} data bytes, expected {4 * n_ch * n} "
+            f"({n_ch} channels x {n} samples x 4)"
+        )
+    values = np.frombuffer(msg.data, dtype="<f4").reshape(n_ch, n).astype(np.float64)
+    return SampleBlock(group.name, int(msg.first_index), values)
+
+
+def encode_edges(block: EdgeBlock, time_s: float) -> bytes:
+    """``/raw/edges/<channel>``: edge times as float64."""
+    times = np.ascontiguousarray(block.times_s, dtype="<f8")
+    msg = wire_class("EdgeBlock")(time_s=time_s, channel=block.channel, times_s=times.tobytes())
+    return bytes(msg.SerializeToString())
+
+
+def decode_edges(data: bytes, layout: StreamLayout) -> EdgeBlock:
+    msg = wire_class("EdgeBlock").FromString(data)
+    if msg.channel not in layout.edge_channels:
+        raise BadMessage(f"edge channel {msg.channel!r} is not in the recorded layout")
+    if len(msg.times_s) % 8:
+        raise BadMessage(f"edge channel {msg.channel!r}: {len(msg.times_s)} bytes is not n x 8")
+    return EdgeBlock(msg.channel, np.frombuffer(msg.times_s, dtype="<f8").copy())
+
+
+def encode_event(event: SourceEvent, origin: str, time_s: float) -> bytes:
+    """``/events``: origin ``"source"`` (a raw stream item) or ``"dsp"``."""
+    msg = wire_class("SourceEvent")(
+        time_s=event.time_s if event.time_s is not None else time_s,
+        kind=event.kind,
+        message=event.message,
+        has_time=event.time_s is not None,
+        count=int(event.count),
+        origin=origin,
+    )
+    return bytes(msg.SerializeToString())
+
+
+def decode_event(data: bytes) -> tuple[str, SourceEvent]:
+    """``(origin, event)``."""
+    msg = wire_class("SourceEvent").FromString(data)
+    event = SourceEvent(msg.kind, msg.message, msg.time_s if msg.has_time else None, int(msg.count))
+    return msg.origin, event
+
+
+def encode_can(frames: Sequence[RawFrame], time_s: float) -> bytes:
+    """``/raw/can``: a batch of :class:`acquisition.can.frames.RawFrame` as columns."""
+    msg = wire_class("CanFrames")(
+        time_s=time_s,
+        timestamp_ns=[int(f.timestamp_ns) for f in frames],
+        arbitration_id=[int(f.arbitration_id) for f in frames],
+        flags=[(1 if f.is_extended_id else 0) | (2 if f.is_fd else 0) for f in frames],
+        length=[len(f.data) for f in frames],
+        data=b"".join(bytes(f.data) for f in frames),
+    )
+    return bytes(msg.SerializeToString())
+
+
+def decode_can(data: bytes) -> list[RawFrame]:
+    """The batch of ``RawFrame`` as received."""
+    msg = wire_class("CanFrames").FromString(data)
+    n = len(msg.timestamp_ns)
+    if not (len(msg.arbitration_id) == len(msg.flags) == len(msg.length) == n):
+        raise BadMessage(f"CAN batch at {msg.time_s:.3f} s: columns of different lengths")
+    if sum(msg.length) != len(msg.data):
+        raise BadMessage(
+            f"CAN batch at {msg.time_s:.3f} s: {len(msg.data)} data bytes, lengths say {sum(msg.length)}"
+        )
+    frames, pos = [], 0
+    payload = bytes(msg.data)
+    for t, can_id, flags, size in zip(
+        msg.timestamp_ns, msg.arbitration_id, msg.flags, msg.length, strict=True
+    ):
+        frames.append(
+            RawFrame(t, can_id, bool(flags & 1), payload[pos : pos + size], bool(flags & 2))
+        )
+        pos += size
+    return frames
+
+
+# -- layout ------------------------------------------------------------------------------------
+
+
+def layout_to_json(layout: StreamLayout) -> str:
+    """The layout (groups, edge channels, metadata) as JSON; floats round-trip exactly."""
+    doc = {
+        "groups": [
+            {
+                "name": g.name,
+                "rate_hz": g.rate_hz,
+                "t0_s": g.t0_s,
+                "channels": [{"name": c.name, "unit": c.unit} for c in g.channels],
+            }
+            for g in layout.groups
+        ],
+        "edge_channels": list(layout.edge_channels),
+        "metadata": layout.metadata,
+    }
+    return json.dumps(doc, default=json_default)
+
+
+def layout_from_json(text: str) -> StreamLayout:
+    """The layout :func:`layout_to_json` wrote."""
+    doc = json.loads(text)
+    groups = tuple(
+        SampleGroup(
+            name=str(g["name"]),
+            rate_hz=float(g["rate_hz"]),
+            channels=tuple(ChannelSpec(str(c["name"]), str(c["unit"])) for c in g["channels"]),
+            t0_s=float(g.get("t0_s", 0.0)),
+        )
+        for g in doc["groups"]
+    )
+    return StreamLayout(
+        groups, tuple(doc.get("edge_channels", ())), dict(doc.get("metadata") or {})
+    )
