@@ -24,13 +24,14 @@ from __future__ import annotations
 import itertools
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from estimator.channel_noise import ChannelNoise
-from estimator.equations import Linearisation, ParameterLayout, frame_rows, linearisation_at
+from estimator.elastic_tail import ELASTIC_TERMS, effective_state, with_tail
+from estimator.equations import Linearisation, ParameterLayout, linearisation_at
 from estimator.gating import (
     FrameLike,
     OrderGates,
@@ -39,13 +40,21 @@ from estimator.gating import (
     overlaps_previous,
     revolution,
 )
-from estimator.hypotheses import DECIDE_AFTER_FRAMES, DECIDE_RATIO, Accumulator, better_sign
+from estimator.hypotheses import (
+    DECIDE_AFTER_FRAMES,
+    DECIDE_RATIO,
+    Accumulator,
+    add_frame,
+    better_sign,
+)
 from estimator.kinematics import KinematicsError, RigidFit, RigidMotion
 from estimator.partial_pairs import PartialPairs
+from estimator.pending_rows import PendingFrame, RowAssembler
 from estimator.redundancy import calibrated_names, redundancy_rows
-from estimator.rls import RlsSolution, RlsState, rls_solve, rls_update
+from estimator.result import Estimate, EstimatorStats, build_estimate
+from estimator.rls import RlsSolution, RlsState, rls_solve
 from estimator.setup import EstimatorSetup
-from estimator.systematic import motion_sensitivity, systematic_names, systematic_stds
+from estimator.systematic import systematic_names, systematic_stds
 
 # The linearised terms (G x F_unb, row weighting) move slowly once a few frames are in:
 # refresh them every few used frames rather than solving after every frame, more
@@ -65,19 +74,6 @@ def relinearise_due(used: int) -> bool:
 # each change re-decomposes the fit geometry.
 WEIGHT_CHANGE = 0.1
 
-# Elastic-mode tail. Below an elastic mode its response grows like (f / f_e)^2, and the
-# part of its shape that looks rigid at the sensors biases the fit long before the
-# rigidity residual sees the mode. Once the residual gate has confirmed a mode
-# (estimator.gating: ELASTIC_CONFIRM of the last ELASTIC_WINDOW gated frames of one order non_rigid),
-# the inertia and cog are fitted as theta + (f / ELASTIC_F_REF_HZ)^2 a and theta, the
-# rigid value extrapolated to f = 0, is reported (as the mass line's residual
-# stiffness term does for a modal test). The f^2 columns are accumulated from the
-# first frame on, so the frames added before the detection are corrected too;
-# without a detection they are not used. Measured on the simulated i3 with a 140 Hz
-# mode, 6 seeds of the realistic errors: largest cog error 1.0-4.7 mm -> 1.7-2.8 mm.
-ELASTIC_F_REF_HZ = 100.0
-ELASTIC_TERMS = 9  # the six inertia terms and G, the first nine entries of theta
-
 # Frames that see only two sensors are used once that has lasted this many gated frames
 # in a row (a sensor dead or unplugged: see estimator/partial.py). Sporadic losses (a
 # lost CAN frame takes a sensor out of one window) are rejected as "sensor_geometry":
@@ -87,27 +83,6 @@ UNSEEN_AFTER_FRAMES = 8
 
 # Frame flags (dsp.frames.FLAGS) that make the crank angle, and so every phase, untrustworthy.
 # "nan", "clipped" and "missing_channel" only drop the affected channels (channel_ok).
-
-
-@dataclass(frozen=True)
-class _Pending:
-    """A used frame waiting for its rows: its fitted motion and what the rows need, per order."""
-
-    gamma_o: np.ndarray  # (k, 3) complex
-    omega_dot: np.ndarray  # (k, 3) complex
-    origin: np.ndarray  # (3,)
-    cov_unit: np.ndarray  # (6, 6)
-    orders: np.ndarray  # (k,)
-    rpm: float
-    force: np.ndarray  # (k, 3) complex
-    moment: np.ndarray  # (k, 3) complex
-    var: np.ndarray  # (k,)
-    fit: RigidFit  # the channel geometry of the fit
-    amplitudes: np.ndarray  # (k, u) complex, the fitted readings
-    half: np.ndarray  # (k,) bool: a half order of a frame with an unknown 720 deg cycle
-    measured_moment: np.ndarray | None  # (k, 3) complex: the part of moment measured (gas)
-    # self-calibration: the pairs' redundancy rows before whitening, (k, 2r, n_sys) and (k, 2r)
-    redundancy: tuple[np.ndarray, np.ndarray] | None = None
 
 
 @dataclass(frozen=True)
@@ -121,19 +96,6 @@ class FrameOutcome:
     reason: str | None  # why the whole frame was rejected, None when used
     relative_residual: dict[float, float]
     motion: RigidMotion | None = None  # the fitted rigid motion (for viewers)
-
-
-@dataclass
-class EstimatorStats:
-    used: int = 0
-    rejected: Counter[str] = field(default_factory=Counter)
-    orders_rejected: Counter[str] = field(default_factory=Counter)
-    rpm_lo: float = float("inf")
-    rpm_hi: float = float("-inf")
-    ambiguous_frames: int = 0
-    skipped: int = (
-        0  # overlapping frames left out (not rejected: their data are in their neighbours)
-    )
 
 
 class InertiaEstimator:
@@ -163,7 +125,7 @@ class InertiaEstimator:
         self.sys_std = systematic_stds(setup)
         n, n_sys = self.layout.size, len(self.sys_names)
         # one accumulator per half-order sign hypothesis (+1 as measured, -1 flipped)
-        # (over theta and the elastic-tail terms: see ELASTIC_TERMS)
+        # (over theta and the elastic-tail terms: see estimator.elastic_tail)
         n_all = n + ELASTIC_TERMS
         self.acc = {1: Accumulator.empty(n_all, n_sys), -1: Accumulator.empty(n_all, n_sys)}
         # The declared tolerances are the calibrated parameters' priors (mean 0): the
@@ -172,7 +134,8 @@ class InertiaEstimator:
             acc.state.info[self._cal_cols, self._cal_cols] += 1.0 / self.sys_std[self._cal] ** 2
         self.gates = OrderGates(setup)
         self.stats = EstimatorStats()
-        self._pending: list[_Pending] = []  # used frames whose rows are not assembled yet
+        self.rows = RowAssembler(setup, self.layout, self._cal, self._cal_cols)
+        self._pending: list[PendingFrame] = []  # used frames whose rows are not assembled yet
         self._hypotheses_equal = True  # acc[-1] not kept up to date until it can differ
         self.decided_sign: int | None = None  # half-order sign, once the residuals decided it
         self.decision: dict[str, Any] | None = None
@@ -191,7 +154,7 @@ class InertiaEstimator:
         self.weights = setup.channel_weights
         self._measure_weights = corr.channel_weights and setup.channel_weights is None
         # frames whose channels leave one rigid-body motion unseen (two sensors left)
-        self.partial = PartialPairs(self)
+        self.partial = PartialPairs(self, self.rows, self.scale, n_sys)
         self._unseen_run = 0  # consecutive gated frames fitted with a rotation unseen
 
     @property
@@ -477,7 +440,7 @@ class InertiaEstimator:
         var = np.maximum(var, dsp_var[ks])
         h = orders[ks]
         self._pending.append(
-            _Pending(
+            PendingFrame(
                 gamma_o=motion.gamma_o[ks],
                 omega_dot=motion.omega_dot[ks],
                 origin=motion.origin,
@@ -500,80 +463,6 @@ class InertiaEstimator:
         that matters: not when the gas moment is measured in the same angle (it flips too)."""
         return "cycle_ambiguous" in frame.flags and self.setup.gas_moment is None
 
-    def _sensitivity(
-        self, batch: list[_Pending], motion: tuple[np.ndarray, np.ndarray] | None = None
-    ) -> np.ndarray:
-        """(P, 12, n_sys): d motion / d systematic parameters of every pair of ``batch``
-        (at the pairs' motions, or at ``motion``: (P, 3) gamma_O and Omega' in pair order)."""
-        if motion is None:
-            motion = (
-                np.concatenate([p.gamma_o for p in batch]),
-                np.concatenate([p.omega_dot for p in batch]),
-            )
-        bounds = np.cumsum([0] + [len(p.orders) for p in batch])
-        out = []
-        start = 0
-        for end in range(1, len(batch) + 1):
-            if end == len(batch) or batch[end].fit is not batch[start].fit:
-                run = batch[start:end]
-                a, b = bounds[start], bounds[end]
-                out.append(
-                    motion_sensitivity(
-                        self.setup,
-                        run[0].fit,
-                        np.concatenate([p.amplitudes for p in run]),
-                        motion[0][a:b],
-                        motion[1][a:b],
-                    )
-                )
-                start = end
-        return np.concatenate(out)
-
-    def _rows(
-        self,
-        batch: list[_Pending],
-        sign: np.ndarray,
-        sel: np.ndarray,
-        dm_real: np.ndarray,
-        lin: Linearisation | None = None,
-        motion: tuple[np.ndarray, np.ndarray] | None = None,
-        calibrate: bool = True,
-    ) -> tuple[np.ndarray, ...]:
-        """Whitened rows (k, 12, n), (k, 12) and sensitivities (k, 12, n_sys) of the
-        selected (frame, order) pairs of ``batch``, motions multiplied by ``sign``
-        (the pairs' own motions, or ``motion``: (P, 3) gamma_O and Omega' in pair
-        order; linearised at ``self.lin`` or at ``lin``). ``calibrate=False``: the
-        self-calibrated sensor errors stay systematic errors in these rows."""
-        cat = lambda name: np.concatenate([getattr(p, name) for p in batch])[sel]  # noqa: E731
-        gamma_o, omega_dot = (cat("gamma_o"), cat("omega_dot")) if motion is None else motion
-        counts = [len(p.orders) for p in batch]
-
-        def rep(name):
-            return np.repeat(np.array([getattr(p, name) for p in batch]), counts, axis=0)[sel]
-
-        sg = sign[sel]
-        r = frame_rows(
-            self.setup,
-            self.layout,
-            self.lin if lin is None else lin,
-            sg[:, None] * gamma_o,
-            sg[:, None] * omega_dot,
-            rep("origin"),
-            rep("cov_unit"),
-            cat("orders"),
-            rep("rpm"),
-            cat("force"),
-            cat("moment"),
-            cat("var"),
-            measured_moment=None if batch[0].measured_moment is None else cat("measured_moment"),
-        )
-        dr = r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[sel])
-        if self._cal and calibrate:
-            # self-calibration: what was a systematic error becomes an unknown
-            r.H[:, :, self._cal_cols] = dr[:, :, self._cal]
-            dr[:, :, self._cal] = 0.0
-        return r.H, r.y, dr
-
     def _flush(self) -> None:
         """Assemble the queued frames' rows and add them, frame by frame, to both hypotheses.
 
@@ -590,71 +479,42 @@ class InertiaEstimator:
         if unseen:
             self.partial.take(unseen)
 
-    def _flush_measured(self, batch: list[_Pending]) -> None:
+    def _flush_measured(self, batch: list[PendingFrame]) -> None:
         """:meth:`_flush` for the frames whose motion is fully measured."""
         half = np.concatenate([p.half for p in batch])
         flip = np.where(half, -1.0, 1.0)
         everything = np.ones(len(half), dtype=bool)
-        dm = self._sensitivity(batch)
+        dm = self.rows.sensitivity(batch)
         if self.decided_sign is not None:
             sign = flip if self.decided_sign < 0 else np.ones(len(half))
-            hyp = {self.decided_sign: self._rows(batch, sign, everything, dm)}
+            hyp = {self.decided_sign: self.rows.rows(batch, sign, everything, dm, self.lin)}
         elif self.stats.ambiguous_frames == 0:
             # No frame without a 720 deg reference yet: both hypotheses are the same
             # sums; keep one, and copy it when the first ambiguous frame arrives.
-            hyp = {1: self._rows(batch, np.ones(len(half)), everything, dm)}
+            hyp = {1: self.rows.rows(batch, np.ones(len(half)), everything, dm, self.lin)}
             self._hypotheses_equal = True
         else:
             if self._hypotheses_equal:
                 self.acc[-1] = Accumulator(state=self.acc[1].state, sens=self.acc[1].sens)
                 self._hypotheses_equal = False
-            H, y, dr = self._rows(batch, np.ones(len(half)), everything, dm)
+            H, y, dr = self.rows.rows(batch, np.ones(len(half)), everything, dm, self.lin)
             hyp = {1: (H, y, dr), -1: (H, y, dr)}
             if np.any(half):
                 Hf, yf, drf = H.copy(), y.copy(), dr.copy()
-                Hf[half], yf[half], drf[half] = self._rows(batch, flip, half, dm)
+                Hf[half], yf[half], drf[half] = self.rows.rows(batch, flip, half, dm, self.lin)
                 hyp[-1] = (Hf, yf, drf)
-        n = self.layout.size + ELASTIC_TERMS
         bounds = np.cumsum([0] + [len(p.orders) for p in batch])
-        kin = self._redundancy(batch) if self._cal else None
-        # the elastic-tail columns: the inertia and cog columns times (f / f_ref)^2
+        kin = self.rows.redundancy(batch) if self._cal else None
         f_hz = np.concatenate([p.orders * p.rpm / 60.0 for p in batch])
-        phi = ((f_hz / ELASTIC_F_REF_HZ) ** 2)[:, None, None]
         for sign_, (Hs, ys, drs) in hyp.items():
-            acc = self.acc[sign_]
-            Ha = np.concatenate([Hs, Hs[:, :, :ELASTIC_TERMS] * phi], axis=2)
+            Ha = with_tail(Hs, f_hz)
             # one update per frame, in stream order: the same sums whatever the batch
             for a, b in itertools.pairwise(bounds):
-                acc.state = rls_update(
-                    acc.state, Ha[a:b].reshape(-1, n), ys[a:b].reshape(-1), None, self.forgetting
+                # the frame's redundancy rows (already discounted with the frame's own)
+                own = None if kin is None else (kin[0][a:b], kin[1][a:b], kin[2][a:b])
+                self.acc[sign_] = add_frame(
+                    self.acc[sign_], Ha[a:b], ys[a:b], drs[a:b], self.forgetting, own
                 )
-                acc.sens = self.forgetting * acc.sens + np.einsum("kip,kis->ps", Ha[a:b], drs[a:b])
-                if kin is not None:  # the frame's redundancy rows (already discounted above)
-                    Hk, yk, drk = kin[0][a:b], kin[1][a:b], kin[2][a:b]
-                    acc.state = rls_update(acc.state, Hk.reshape(-1, n), yk.reshape(-1))
-                    acc.sens = acc.sens + np.einsum("kip,kis->ps", Hk, drk)
-
-    def _redundancy(self, batch: list[_Pending]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Self-calibration rows from the rigid fits' redundancy (:mod:`estimator.redundancy`)
-        of every pair of ``batch``: H (P, 2k, n_all) on the calibration columns, y (P, 2k),
-        and the sensitivities to the other systematic errors (P, 2k, n_sys).
-
-        The same under both half-order signs: a flipped motion flips the residual and
-        its sensitivity alike. (Frames that see only two sensors have no redundancy
-        to speak of and give none.)"""
-        rows, ys, drs = [], [], []
-        for p in batch:
-            assert p.redundancy is not None
-            # whitened with the variance the frame's rows got
-            s = 1.0 / np.sqrt(p.var)
-            dr, y = p.redundancy[0] * s[:, None, None], p.redundancy[1] * s[:, None]
-            H = np.zeros((*dr.shape[:2], self.layout.size + ELASTIC_TERMS))
-            H[:, :, self._cal_cols] = dr[:, :, self._cal]
-            dr[:, :, self._cal] = 0.0
-            rows.append(H)
-            ys.append(y)
-            drs.append(dr)
-        return np.concatenate(rows), np.concatenate(ys), np.concatenate(drs)
 
     def _decide_half_order_sign(self) -> None:
         """Stop carrying the losing sign hypothesis once the residuals leave no doubt."""
@@ -679,13 +539,10 @@ class InertiaEstimator:
             self._cal_hat = sol.theta[self._cal_cols]
 
     def _effective(self, sign: int) -> Accumulator:
-        """A sign hypothesis's state of theta: with a confirmed elastic mode, the tail
-        terms fitted alongside; otherwise left out."""
-        n = self.layout.size
-        if self.elastic is None:
-            return self.acc[sign].leading(n)
-        scale = np.concatenate([self.scale, self.scale[:ELASTIC_TERMS]])
-        return self.acc[sign].marginal(n, scale)
+        """A sign hypothesis's state of theta (:func:`estimator.elastic_tail.effective_state`)."""
+        return effective_state(
+            self.acc[sign], self.layout.size, self.scale, self.elastic is not None
+        )
 
     def solve(self, state: RlsState) -> RlsSolution:
         """The estimate of a state of theta: rank decisions on the parameter scale,
@@ -738,12 +595,22 @@ class InertiaEstimator:
             "frames": self.stats.ambiguous_frames,
         }
 
-    def estimate(self, final: bool = True) -> Any:
+    def estimate(self, final: bool = True) -> Estimate:
         """The current estimate. ``final=False`` (a live update) skips the full re-solve
         of frames with an unseen motion that the final estimate makes."""
-        from estimator.result import build_estimate
-
         if final:
             self._flush()
             self.partial.solve()
-        return build_estimate(self)
+        acc = self.best_state()
+        return build_estimate(
+            acc,
+            self.solve(acc.state),
+            self.sys_std,
+            self.layout.names,
+            self.setup,
+            self.stats,
+            half_order=self.half_order_resolution(),
+            elastic_mode=None if self.elastic is None else dict(self.elastic),
+            unseen_motion=self.partial.report(),
+            channel_weights=self.measured_weights(),
+        )
