@@ -19,7 +19,8 @@ import numpy as np
 
 from estimator.elastic_tail import ELASTIC_TERMS
 from estimator.equations import Linearisation, ParameterLayout, frame_rows
-from estimator.kinematics import RigidFit
+from estimator.kinematics import RigidFit, RigidMotion
+from estimator.redundancy import redundancy_rows
 from estimator.setup import EstimatorSetup
 from estimator.systematic import motion_sensitivity
 
@@ -43,6 +44,119 @@ class PendingFrame:
     measured_moment: np.ndarray | None  # (k, 3) complex: the part of moment measured (gas)
     # self-calibration: the pairs' redundancy rows before whitening, (k, 2r, n_sys) and (k, 2r)
     redundancy: tuple[np.ndarray, np.ndarray] | None = None
+
+
+class FrameQueue:
+    """Used frames queued for their rows, and the per-order channel noise variance
+    their rows are whitened with.
+
+    Parameters
+    ----------
+    setup : the bench as the estimator sees it.
+    cal : the self-calibrated sensor errors, as indices into the systematic parameters.
+    """
+
+    def __init__(self, setup: EstimatorSetup, cal: Sequence[int]) -> None:
+        self.setup = setup
+        self.cal = list(cal)
+        self.frames: list[PendingFrame] = []
+        self.noise_var: dict[float, float] = {}  # smoothed channel noise variance per order
+        self.cal_hat: np.ndarray | None = None  # the calibration at the last relinearisation
+
+    def take(self) -> list[PendingFrame]:
+        """The queued frames, in stream order; the queue is left empty."""
+        frames, self.frames = self.frames, []
+        return frames
+
+    def add(
+        self,
+        rpm: float,
+        cycle_unknown: bool,
+        fit: RigidFit,
+        motion: RigidMotion,
+        ks: np.ndarray,
+        orders: np.ndarray,
+        readings: np.ndarray,
+        power: np.ndarray,
+        force: np.ndarray,
+        moment: np.ndarray,
+        dsp_var: np.ndarray,
+        gas: np.ndarray | None,
+    ) -> None:
+        """Queue the used orders ``ks`` of a frame; their rows are assembled a batch at a time.
+
+        ``cycle_unknown``: the frame's half orders have an unknown sign. ``readings``
+        (k, u) are the fitted channels' amplitudes, ``power`` (k,) their mean square
+        per order, ``dsp_var`` (k,) a floor for the channel noise variance (what the
+        dsp errs by near modes), ``gas`` the measured gas moment in ``moment``.
+        """
+        floor = max(1e-16 * float(np.mean(power)), 1e-30)
+        redundancy = self._redundancy_raw(fit, motion, readings, ks)
+        var = self._noise_var(self._raw_noise_var(motion, ks, redundancy), ks, orders, floor)
+        var = np.maximum(var, dsp_var[ks])
+        h = orders[ks]
+        self.frames.append(
+            PendingFrame(
+                gamma_o=motion.gamma_o[ks],
+                omega_dot=motion.omega_dot[ks],
+                origin=motion.origin,
+                cov_unit=motion.cov_unit,
+                orders=h,
+                rpm=float(rpm),
+                force=force[ks],
+                moment=moment[ks],
+                var=var,
+                fit=fit,
+                amplitudes=readings[ks],
+                half=((2 * h) % 2 == 1) & cycle_unknown,
+                measured_moment=None if gas is None else gas[ks],
+                redundancy=redundancy,
+            )
+        )
+
+    def _redundancy_raw(
+        self, fit: RigidFit, motion: RigidMotion, readings: np.ndarray, ks: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The redundancy rows of the orders ``ks`` of a fitted frame, not whitened (None
+        without self-calibration, or when two sensors leave no redundancy)."""
+        if not self.cal or fit.null is not None:
+            return None
+        return redundancy_rows(
+            self.setup,
+            fit,
+            readings[ks],
+            motion.gamma_o[ks],
+            motion.omega_dot[ks],
+            np.ones(len(ks)),
+        )
+
+    def _raw_noise_var(
+        self, motion: RigidMotion, ks: np.ndarray, rows: tuple[np.ndarray, np.ndarray] | None
+    ) -> np.ndarray:
+        """Per-order channel noise variance of one frame: what the rigid fit leaves, less
+        what the calibrated sensor errors explain once they are estimated (``rows``: the
+        orders ``ks``'s redundancy rows)."""
+        if rows is None or self.cal_hat is None:
+            return motion.noise_var
+        H, y = rows
+        resid = y - H[:, :, self.cal] @ self.cal_hat
+        raw = motion.noise_var.copy()
+        raw[ks] = np.sum(resid**2, axis=1) / resid.shape[1]
+        return raw
+
+    def _noise_var(
+        self, raw_var: np.ndarray, ks: np.ndarray, orders: np.ndarray, floor: float
+    ) -> np.ndarray:
+        """Per-order channel noise variance, smoothed over frames (3 dof per frame is noisy),
+        floored so noise-free data keep finite weights."""
+        out = []
+        for k in ks:
+            h = float(orders[k])
+            raw = float(raw_var[k])
+            var = 0.8 * self.noise_var[h] + 0.2 * raw if h in self.noise_var else raw
+            self.noise_var[h] = var
+            out.append(max(var, floor))
+        return np.array(out)
 
 
 class RowAssembler:
