@@ -68,13 +68,9 @@ def _swings(test: Any) -> list[Any]:
 def compute(path: str) -> dict[str, Any]:
     """The result document of a pendulum test file."""
     from acquisition.classical.pendulum_file import load_pendulum_test
-    from estimator.classical.pendulum import (
-        BEST_CONDITION,
-        CONDITION_WARN,
-        Plate,
-        cog_from_lines,
-        inertia_from_swings,
-    )
+    from estimator.classical.pendulum import Plate, inertia_from_swings
+    from estimator.classical.pendulum_axes import BEST_CONDITION, CONDITION_WARN
+    from estimator.classical.plumb_lines import cog_from_lines
     from ptinertia.commands.compare import estimate_document
 
     test = load_pendulum_test(path)

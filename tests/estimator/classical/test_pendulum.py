@@ -15,16 +15,14 @@ from acquisition.classical.pendulum_file import (
     parse_pendulum_test,
 )
 from acquisition.stream import SourceError
-from estimator.classical.pendulum import (
+from estimator.classical.pendulum import Plate, Swing, inertia_from_swings
+from estimator.classical.pendulum_axes import (
     BEST_CONDITION,
     PendulumError,
-    Plate,
-    Swing,
     axis_set_condition,
     check_axis_set,
-    cog_from_lines,
-    inertia_from_swings,
 )
+from estimator.classical.plumb_lines import cog_from_lines
 from powertrain.rigidbody import RigidBody, inertia_terms, rotation_matrix
 from ptinertia.cli import main
 from ptinertia.commands.pendulum import compute
