@@ -75,6 +75,28 @@ class ParameterLayout:
         return self.names.index(name)
 
 
+def parameter_scale(
+    layout: ParameterLayout, inertia_nominal: np.ndarray, mass_nominal: float
+) -> np.ndarray:
+    """(n,) the size each parameter is expected to have (rank decisions, convergence)."""
+    scale = []
+    inertia = float(np.trace(inertia_nominal) / 3)
+    for name in layout.names:
+        if name.startswith("I"):
+            scale.append(inertia)
+        elif name.startswith("G"):
+            scale.append(0.1)
+        elif name.startswith("unb"):
+            scale.append(1e-3 / (mass_nominal if layout.mass else 1.0))
+        elif name == "inv_mass":
+            scale.append(1.0 / mass_nominal)
+        elif name.startswith("kscale:"):
+            scale.append(1.0)
+        else:
+            scale.append(0.01)
+    return np.array(scale)
+
+
 @dataclass(frozen=True)
 class Linearisation:
     """Current estimates used in the linearised terms and the row weighting."""

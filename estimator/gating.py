@@ -22,7 +22,7 @@ TACHO_FLAGS = frozenset({"no_tacho", "tacho_resync", "angle_ambiguous", "angle_r
 
 # An elastic mode is confirmed when ELASTIC_CONFIRM of the last ELASTIC_WINDOW gated
 # frames of one order were non-rigid (what the estimator then does: see
-# estimator.streaming, ELASTIC_TERMS).
+# estimator.elastic_tail).
 ELASTIC_WINDOW = 5
 ELASTIC_CONFIRM = 3
 
@@ -69,6 +69,70 @@ class OrderGates:
         self.motion_history: dict[
             tuple[tuple[float, ...], bytes | None], tuple[int, int, tuple[np.ndarray, np.ndarray]]
         ] = {}
+
+    def judge_orders(
+        self,
+        rpm: float,
+        orders: np.ndarray,
+        motion: RigidMotion,
+        force: np.ndarray,
+        moment: np.ndarray,
+        curvature: np.ndarray,
+        power: np.ndarray,
+    ) -> tuple[dict[float, str], dict[float, float], list[int], np.ndarray]:
+        """The order gates of one fitted frame.
+
+        Parameters
+        ----------
+        rpm : the frame's crank speed.
+        orders : (k,) its orders.
+        motion : its fitted rigid motion.
+        force, moment : (k, 3) complex, the excitation per order (N, N m).
+        curvature : (k,) the mass-line curvature (:meth:`curvature`).
+        power : (k,) the fitted channels' mean square readings per order, (m/s^2)^2.
+
+        Returns
+        -------
+        rejected : why each rejected order was rejected.
+        residuals : every order's relative rigidity residual.
+        used : the indices of the orders that passed.
+        floor : (k,) the channel variance the dsp errs by near a mode, (m/s^2)^2.
+        """
+        # Excitation level per order (force times a typical 0.3 m arm, plus moment):
+        # an order the engine does not excite carries no information, only noise.
+        level = 0.3 * np.sqrt(np.sum(np.abs(force) ** 2, axis=1)) + np.sqrt(
+            np.sum(np.abs(moment) ** 2, axis=1)
+        )
+        excited = level > 1e-6 * max(float(level.max()), 1e-300)
+        max_curvature = self.setup.gates.max_curvature
+        off_line = curvature > max_curvature
+        leak_var = neighbour_leakage(orders, curvature, power)
+        leaking = leak_var > max_curvature**2 * power
+        rejected: dict[float, str] = {}
+        residuals: dict[float, float] = {}
+        used: list[int] = []
+        for k, h in enumerate(orders.tolist()):
+            residuals[h] = float(motion.relative_residual[k])
+            why = (
+                "no_excitation"
+                if not excited[k]
+                else "near_rigid_modes"
+                if self.near_modes(h, rpm)
+                else "off_mass_line"
+                if off_line[k]
+                else "neighbour_leakage"
+                if leaking[k]
+                else self.residual(h, rpm, motion, k)
+            )
+            if why:
+                rejected[h] = why
+            else:
+                used.append(k)
+        # Near a mode the dsp errs by about the bend of the motion across its window,
+        # and by what a bending neighbour leaks in: error floors of the readings, so
+        # the intervals carry them.
+        floor = curvature**2 * power + leak_var
+        return rejected, residuals, used, floor
 
     def curvature(
         self,

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.rls import RlsState, rank_decision, rls_init
+from estimator.rls import RlsState, rank_decision, rls_init, rls_update
 
 # The half-order sign is decided when, after this many ambiguous frames, the wrong
 # hypothesis leaves this many times the weighted residual of the right one.
@@ -59,6 +59,38 @@ class Accumulator:
             ),
             self.sens[:n] - gain @ self.sens[n:],
         )
+
+
+def add_frame(
+    acc: Accumulator,
+    H: np.ndarray,
+    y: np.ndarray,
+    dr: np.ndarray,
+    forgetting: float = 1.0,
+    redundancy: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> Accumulator:
+    """One frame's rows added to a sign hypothesis's state: the pure-function twin of
+    the streaming estimator's per-frame update.
+
+    Parameters
+    ----------
+    acc : the state before the frame.
+    H : (k, 12, n) whitened rows of the frame's k used orders.
+    y : (k, 12) whitened observations.
+    dr : (k, 12, n_sys) the rows' sensitivity to the systematic sensor errors.
+    forgetting : the RLS forgetting factor, applied to the past once per frame.
+    redundancy : the frame's self-calibration rows (H (k, 2r, n), y (k, 2r), dr
+        (k, 2r, n_sys)), added after the discount.
+    """
+    n = H.shape[-1]
+    # Lambda <- lam Lambda + H^T H ;  S <- lam S + H^T dr  (rows already whitened)
+    state = rls_update(acc.state, H.reshape(-1, n), y.reshape(-1), None, forgetting)
+    sens = forgetting * acc.sens + np.einsum("kip,kis->ps", H, dr)
+    if redundancy is not None:
+        Hk, yk, drk = redundancy
+        state = rls_update(state, Hk.reshape(-1, n), yk.reshape(-1))
+        sens = sens + np.einsum("kip,kis->ps", Hk, drk)
+    return Accumulator(state, sens)
 
 
 def better_sign(rss: dict[int, float]) -> tuple[int, float]:

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import functools
 from dataclasses import replace
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
-from estimator.equations import INERTIA_TERMS, linearisation_at
+from estimator.equations import INERTIA_TERMS, Linearisation, linearisation_at
 from estimator.hypotheses import DECIDE_RATIO, Accumulator, better_sign
 from estimator.partial import (
     MAX_PAIRS,
@@ -25,22 +25,49 @@ from estimator.partial import (
     PartialSolution,
     solve_partial,
 )
+from estimator.pending_rows import PendingFrame, RowAssembler
 from estimator.result import capped_ratio
+from estimator.rls import RlsSolution, RlsState
 from powertrain.rigidbody import inertia_terms
-
-if TYPE_CHECKING:
-    from estimator.streaming import InertiaEstimator, _Pending
 
 FIRST_SOLVE_PAIRS = 48
 
 
-class PartialPairs:
-    """The (frame, order) pairs of an unseen motion and their share of the estimate."""
+class MeasuredFrames(Protocol):
+    """What the pairs need of the estimator of the fully measured frames."""
 
-    def __init__(self, est: InertiaEstimator) -> None:
+    decided_sign: int | None  # their half-order sign, once their residuals decided it
+    lin: Linearisation  # their current linearisation point
+
+    def measured_state(self, sign: int | None = None) -> Accumulator:
+        """Their state of theta (``sign``: that half-order hypothesis, else the better)."""
+        ...
+
+    def solve(self, state: RlsState) -> RlsSolution:
+        """The estimate of a state of theta."""
+        ...
+
+
+class PartialPairs:
+    """The (frame, order) pairs of an unseen motion and their share of the estimate.
+
+    Parameters
+    ----------
+    est : the fully measured frames' estimator, which the pairs are solved jointly with.
+    assembler : builds the pairs' rows (its layout and setup are the estimator's).
+    scale : (n,) the parameters' scale (convergence of the joint solve).
+    n_sys : the number of systematic sensor errors.
+    """
+
+    def __init__(
+        self, est: MeasuredFrames, assembler: RowAssembler, scale: np.ndarray, n_sys: int
+    ) -> None:
         self.est = est
-        n, n_sys = est.layout.size, len(est.sys_names)
-        self.stored: list[_Pending] = []
+        self.assembler = assembler
+        self.layout = assembler.layout
+        self.scale = scale
+        n = self.layout.size
+        self.stored: list[PendingFrame] = []
         self.n_stored = 0  # pairs (frame, order) in ``stored``
         self.solved = Contribution.empty(n, n_sys)  # of the pairs of the last solve
         self.since = Contribution.empty(n, n_sys)  # stored pairs added since, linearised once
@@ -62,7 +89,7 @@ class PartialPairs:
     def pairs(self) -> int:
         return self.n_stored + self.n_unstored
 
-    def take(self, batch: list[_Pending]) -> None:
+    def take(self, batch: list[PendingFrame]) -> None:
         """Add the used orders of frames fitted with a motion unseen."""
         # The unseen direction is projected out with each pair's w; give it a finite
         # variance in the row weighting (any value gives the same projected rows) so
@@ -112,7 +139,7 @@ class PartialPairs:
                 lambda t, w: self.rows(self.stored, t, w),
                 theta0,
                 w0,
-                self.est.scale,
+                self.scale,
                 self.est.solve,
             )
             rss[sign] = self.est.solve(solutions[sign].contribution.added_to(bases[sign])).rss
@@ -154,12 +181,12 @@ class PartialPairs:
 
     def nominal_theta(self) -> np.ndarray:
         """theta at the bench's nominal values (unbalance, offset and calibration 0)."""
-        est, setup = self.est, self.est.setup
-        theta = np.zeros(est.layout.size)
+        setup = self.assembler.setup
+        theta = np.zeros(self.layout.size)
         terms = inertia_terms(setup.inertia_nominal)
         theta[:6] = [terms[k] for k in INERTIA_TERMS]
         theta[6:9] = setup.cog_nominal
-        names = est.layout.names
+        names = self.layout.names
         if "inv_mass" in names:
             theta[names.index("inv_mass")] = 1.0 / setup.mass_nominal
         for k, name in enumerate(names):
@@ -168,12 +195,11 @@ class PartialPairs:
         return theta
 
     def rows(
-        self, batch: list[_Pending], theta: np.ndarray, w: np.ndarray | None = None
+        self, batch: list[PendingFrame], theta: np.ndarray, w: np.ndarray | None = None
     ) -> PartialRows:
         """The pairs' rows at ``theta``; ``dr`` at the motions completed by ``w`` (P, 2)."""
-        est = self.est
         # theta is determined everywhere (theta_now and the solves fill in the nominal values)
-        lin = linearisation_at(est.layout, theta, np.ones(theta.size, bool), est.lin.mass)
+        lin = linearisation_at(self.layout, theta, np.ones(theta.size, bool), self.est.lin.mass)
         counts = [len(p.orders) for p in batch]
         e = np.repeat(np.array([p.fit.null for p in batch]), counts, axis=0).astype(complex)
         g0 = np.concatenate([p.gamma_o for p in batch])
@@ -183,12 +209,12 @@ class PartialPairs:
         every = np.ones(len(sign), dtype=bool)
         wc = np.zeros(len(sign), complex) if w is None else w[:, 0] + 1j * w[:, 1]
         done = (g0 + wc[:, None] * e[:, :3], o0 + wc[:, None] * e[:, 3:])
-        dm = est._sensitivity(batch, motion=done)
+        dm = self.assembler.sensitivity(batch, motion=done)
         # Two sensors leave no redundancy to calibrate them by (estimator.redundancy):
         # the equations of motion alone would let the calibration follow the noise
         # (sensor C dead, 6 realistic seeds: Iyz -25 %, cog 8 mm, outside the intervals).
         # Here the sensor errors stay type-B errors.
-        rows = functools.partial(est._rows, batch, sign, every, dm, lin=lin, calibrate=False)
+        rows = functools.partial(self.assembler.rows, batch, sign, every, dm, lin, calibrate=False)
         h0, y0, dr = rows(motion=(g0, o0))
         h1, y1, _ = rows(motion=(g0 + e[:, :3], o0 + e[:, 3:]))
         h2, y2, _ = rows(motion=(g0 + 1j * e[:, :3], o0 + 1j * e[:, 3:]))
@@ -222,7 +248,7 @@ class PartialPairs:
         }
 
 
-def _unseen_variance(pair: _Pending) -> np.ndarray:
+def _unseen_variance(pair: PendingFrame) -> np.ndarray:
     """(6, 6) a finite variance along the pair's unseen motion (see :meth:`PartialPairs.take`)."""
     assert pair.fit.null is not None
     return np.trace(pair.cov_unit) / 5 * np.outer(pair.fit.null, pair.fit.null)

@@ -14,15 +14,16 @@ Covariance = random part + systematic part:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from estimator.equations import INERTIA_TERMS
-
-if TYPE_CHECKING:
-    from estimator.streaming import InertiaEstimator
+from estimator.hypotheses import Accumulator
+from estimator.rls import RlsSolution
+from estimator.setup import EstimatorSetup
 
 Z95 = 1.959963984540054
 RATIO_CAP = 1e12  # what the result JSON writes for an infinite residual ratio
@@ -65,6 +66,21 @@ def enforce_physical(inertia: np.ndarray) -> tuple[np.ndarray, list[str]]:
 
 def _vs(value: float, std: float) -> dict[str, Any]:
     return {"value": float(value), "std": float(std) if math.isfinite(std) else None}
+
+
+@dataclass
+class EstimatorStats:
+    """The streaming estimator's frame bookkeeping, as the estimate reports it."""
+
+    used: int = 0
+    rejected: Counter[str] = field(default_factory=Counter)
+    orders_rejected: Counter[str] = field(default_factory=Counter)
+    rpm_lo: float = float("inf")
+    rpm_hi: float = float("-inf")
+    ambiguous_frames: int = 0
+    skipped: int = (
+        0  # overlapping frames left out (not rejected: their data are in their neighbours)
+    )
 
 
 @dataclass(frozen=True)
@@ -254,10 +270,22 @@ def _finite(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-def build_estimate(est: InertiaEstimator) -> Estimate:
-    acc = est.best_state()
-    sol = est.solve(acc.state)
-    n = est.layout.size
+def build_estimate(
+    acc: Accumulator,
+    sol: RlsSolution,
+    sys_std: np.ndarray,
+    names: tuple[str, ...],
+    setup: EstimatorSetup,
+    stats: EstimatorStats,
+    half_order: dict[str, Any] | None = None,
+    elastic_mode: dict[str, float] | None = None,
+    unseen_motion: dict[str, Any] | None = None,
+    channel_weights: dict[str, float] | None = None,
+) -> Estimate:
+    """The estimate of a solved state: ``acc`` the state (its ``sens`` the systematic
+    sensitivity ``S``), ``sol`` its solution, ``sys_std`` (n_sys,) the declared
+    tolerances; the rest is reported as given."""
+    n = len(names)
     obs = sol.observable
     cov_rand = sol.cov.copy()
     factor = max(1.0, sol.rss / sol.dof) if sol.dof > 0 else 1.0
@@ -266,26 +294,25 @@ def build_estimate(est: InertiaEstimator) -> Estimate:
     if np.any(obs):
         inv = sol.cov[np.ix_(obs, obs)]
         dtheta = -inv @ acc.sens[obs]  # (n_obs, n_sys): d theta / d p
-        cov_sys[np.ix_(obs, obs)] = (dtheta * est.sys_std**2) @ dtheta.T
-    stats = est.stats
+        cov_sys[np.ix_(obs, obs)] = (dtheta * sys_std**2) @ dtheta.T
     return Estimate(
-        names=est.layout.names,
+        names=names,
         theta=sol.theta,
         cov=cov_rand + cov_sys,
         cov_random=cov_rand,
         cov_systematic=cov_sys,
         observable=obs,
-        mass_known=est.setup.mass_known,
-        mass_nominal=est.setup.mass_nominal,
-        unbalance_point=np.asarray(est.setup.unbalance_point, float),
+        mass_known=setup.mass_known,
+        mass_nominal=setup.mass_nominal,
+        unbalance_point=np.asarray(setup.unbalance_point, float),
         frames_used=stats.used,
         frames_skipped=stats.skipped,
         frames_rejected=dict(stats.rejected),
         orders_rejected=dict(stats.orders_rejected),
         rpm_range=(stats.rpm_lo, stats.rpm_hi) if stats.used else None,
-        half_order=est.half_order_resolution(),
+        half_order=half_order,
         variance_factor=factor,
-        elastic_mode=None if est.elastic is None else dict(est.elastic),
-        unseen_motion=est.partial.report(),
-        channel_weights=est.measured_weights(),
+        elastic_mode=elastic_mode,
+        unseen_motion=unseen_motion,
+        channel_weights=channel_weights,
     )

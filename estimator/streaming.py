@@ -24,28 +24,41 @@ from __future__ import annotations
 import itertools
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from estimator.channel_noise import ChannelNoise
-from estimator.equations import Linearisation, ParameterLayout, frame_rows, linearisation_at
+from acquisition.stream import SourceEvent
+from estimator.channel_fits import ChannelFits
+from estimator.elastic_tail import ELASTIC_TERMS, effective_state, elastic_mode_event, with_tail
+from estimator.equations import (
+    Linearisation,
+    ParameterLayout,
+    linearisation_at,
+    parameter_scale,
+)
 from estimator.gating import (
     FrameLike,
     OrderGates,
     frame_gate,
-    neighbour_leakage,
     overlaps_previous,
-    revolution,
 )
-from estimator.hypotheses import DECIDE_AFTER_FRAMES, DECIDE_RATIO, Accumulator, better_sign
-from estimator.kinematics import KinematicsError, RigidFit, RigidMotion
+from estimator.hypotheses import (
+    DECIDE_AFTER_FRAMES,
+    DECIDE_RATIO,
+    Accumulator,
+    add_frame,
+    better_sign,
+)
+from estimator.kinematics import RigidFit, RigidMotion
 from estimator.partial_pairs import PartialPairs
-from estimator.redundancy import calibrated_names, redundancy_rows
-from estimator.rls import RlsSolution, RlsState, rls_solve, rls_update
+from estimator.pending_rows import FrameQueue, PendingFrame, RowAssembler
+from estimator.redundancy import calibrated_names
+from estimator.result import Estimate, EstimatorStats, build_estimate
+from estimator.rls import RlsSolution, RlsState, rls_solve
 from estimator.setup import EstimatorSetup
-from estimator.systematic import motion_sensitivity, systematic_names, systematic_stds
+from estimator.systematic import systematic_names, systematic_stds
 
 # The linearised terms (G x F_unb, row weighting) move slowly once a few frames are in:
 # refresh them every few used frames rather than solving after every frame, more
@@ -61,53 +74,8 @@ def relinearise_due(used: int) -> bool:
     return used % every == 1
 
 
-# Measured channel weights are taken up when one moved by more than this (log ratio):
-# each change re-decomposes the fit geometry.
-WEIGHT_CHANGE = 0.1
-
-# Elastic-mode tail. Below an elastic mode its response grows like (f / f_e)^2, and the
-# part of its shape that looks rigid at the sensors biases the fit long before the
-# rigidity residual sees the mode. Once the residual gate has confirmed a mode
-# (estimator.gating: ELASTIC_CONFIRM of the last ELASTIC_WINDOW gated frames of one order non_rigid),
-# the inertia and cog are fitted as theta + (f / ELASTIC_F_REF_HZ)^2 a and theta, the
-# rigid value extrapolated to f = 0, is reported (as the mass line's residual
-# stiffness term does for a modal test). The f^2 columns are accumulated from the
-# first frame on, so the frames added before the detection are corrected too;
-# without a detection they are not used. Measured on the simulated i3 with a 140 Hz
-# mode, 6 seeds of the realistic errors: largest cog error 1.0-4.7 mm -> 1.7-2.8 mm.
-ELASTIC_F_REF_HZ = 100.0
-ELASTIC_TERMS = 9  # the six inertia terms and G, the first nine entries of theta
-
-# Frames that see only two sensors are used once that has lasted this many gated frames
-# in a row (a sensor dead or unplugged: see estimator/partial.py). Sporadic losses (a
-# lost CAN frame takes a sensor out of one window) are rejected as "sensor_geometry":
-# their neighbours carry the same information, and on the simulated CAN bus with 1 %
-# lost frames and the realistic sensor errors, using them biased Izz by 6 %.
-UNSEEN_AFTER_FRAMES = 8
-
 # Frame flags (dsp.frames.FLAGS) that make the crank angle, and so every phase, untrustworthy.
 # "nan", "clipped" and "missing_channel" only drop the affected channels (channel_ok).
-
-
-@dataclass(frozen=True)
-class _Pending:
-    """A used frame waiting for its rows: its fitted motion and what the rows need, per order."""
-
-    gamma_o: np.ndarray  # (k, 3) complex
-    omega_dot: np.ndarray  # (k, 3) complex
-    origin: np.ndarray  # (3,)
-    cov_unit: np.ndarray  # (6, 6)
-    orders: np.ndarray  # (k,)
-    rpm: float
-    force: np.ndarray  # (k, 3) complex
-    moment: np.ndarray  # (k, 3) complex
-    var: np.ndarray  # (k,)
-    fit: RigidFit  # the channel geometry of the fit
-    amplitudes: np.ndarray  # (k, u) complex, the fitted readings
-    half: np.ndarray  # (k,) bool: a half order of a frame with an unknown 720 deg cycle
-    measured_moment: np.ndarray | None  # (k, 3) complex: the part of moment measured (gas)
-    # self-calibration: the pairs' redundancy rows before whitening, (k, 2r, n_sys) and (k, 2r)
-    redundancy: tuple[np.ndarray, np.ndarray] | None = None
 
 
 @dataclass(frozen=True)
@@ -121,19 +89,6 @@ class FrameOutcome:
     reason: str | None  # why the whole frame was rejected, None when used
     relative_residual: dict[float, float]
     motion: RigidMotion | None = None  # the fitted rigid motion (for viewers)
-
-
-@dataclass
-class EstimatorStats:
-    used: int = 0
-    rejected: Counter[str] = field(default_factory=Counter)
-    orders_rejected: Counter[str] = field(default_factory=Counter)
-    rpm_lo: float = float("inf")
-    rpm_hi: float = float("-inf")
-    ambiguous_frames: int = 0
-    skipped: int = (
-        0  # overlapping frames left out (not rejected: their data are in their neighbours)
-    )
 
 
 class InertiaEstimator:
@@ -159,11 +114,10 @@ class InertiaEstimator:
         self.sys_names = systematic_names(setup)
         self._cal = [self.sys_names.index(n) for n in self.layout.calibrate]
         self._cal_cols = [self.layout.index(f"cal:{n}") for n in self.layout.calibrate]
-        self._cal_hat: np.ndarray | None = None  # the calibration at the last relinearisation
         self.sys_std = systematic_stds(setup)
         n, n_sys = self.layout.size, len(self.sys_names)
         # one accumulator per half-order sign hypothesis (+1 as measured, -1 flipped)
-        # (over theta and the elastic-tail terms: see ELASTIC_TERMS)
+        # (over theta and the elastic-tail terms: see estimator.elastic_tail)
         n_all = n + ELASTIC_TERMS
         self.acc = {1: Accumulator.empty(n_all, n_sys), -1: Accumulator.empty(n_all, n_sys)}
         # The declared tolerances are the calibrated parameters' priors (mean 0): the
@@ -172,102 +126,26 @@ class InertiaEstimator:
             acc.state.info[self._cal_cols, self._cal_cols] += 1.0 / self.sys_std[self._cal] ** 2
         self.gates = OrderGates(setup)
         self.stats = EstimatorStats()
-        self._pending: list[_Pending] = []  # used frames whose rows are not assembled yet
+        self.rows = RowAssembler(setup, self.layout, self._cal, self._cal_cols)
+        self.queue = FrameQueue(setup, self._cal)  # used frames whose rows are not assembled yet
         self._hypotheses_equal = True  # acc[-1] not kept up to date until it can differ
         self.decided_sign: int | None = None  # half-order sign, once the residuals decided it
         self.decision: dict[str, Any] | None = None
-        self.noise_var: dict[float, float] = {}  # smoothed channel noise variance per order
         self.lin = Linearisation(
             cog=np.asarray(setup.cog_nominal, float),
             inertia=np.asarray(setup.inertia_nominal, float),
             mass=float(setup.mass_nominal),
         )
-        self.scale = self._parameter_scale()
-        self._columns: dict[tuple[str, ...], np.ndarray] = {}  # frame channels -> setup columns
-        self._fitters: dict[bytes, RigidFit | None] = {}  # channel mask -> geometry
-        # the channels' weights in the rigid fit: declared, measured along the sweep
-        # (refreshed at each relinearisation), or equal
-        self.channel_noise = ChannelNoise(len(setup.channels))
-        self.weights = setup.channel_weights
-        self._measure_weights = corr.channel_weights and setup.channel_weights is None
+        self.scale = parameter_scale(self.layout, setup.inertia_nominal, setup.mass_nominal)
+        self.channels = ChannelFits(setup)  # the used channels and their fits' geometry
         # frames whose channels leave one rigid-body motion unseen (two sensors left)
-        self.partial = PartialPairs(self)
-        self._unseen_run = 0  # consecutive gated frames fitted with a rotation unseen
+        self.partial = PartialPairs(self, self.rows, self.scale, n_sys)
+        self._events: list[SourceEvent] = []  # reportable events not taken yet
 
     @property
     def elastic(self) -> dict[str, float] | None:
         """The elastic mode the residual gate confirmed (order, frequency_hz), or None."""
         return self.gates.elastic
-
-    def _parameter_scale(self) -> np.ndarray:
-        scale = []
-        inertia = float(np.trace(self.setup.inertia_nominal) / 3)
-        for name in self.layout.names:
-            if name.startswith("I"):
-                scale.append(inertia)
-            elif name.startswith("G"):
-                scale.append(0.1)
-            elif name.startswith("unb"):
-                scale.append(1e-3 / (self.setup.mass_nominal if self.layout.mass else 1.0))
-            elif name == "inv_mass":
-                scale.append(1.0 / self.setup.mass_nominal)
-            elif name.startswith("kscale:"):
-                scale.append(1.0)
-            else:
-                scale.append(0.01)
-        return np.array(scale)
-
-    # -- gating -------------------------------------------------------------------------
-    def _channel_mask(self, frame: FrameLike) -> tuple[np.ndarray, np.ndarray]:
-        """Usable setup channels (bool) and, per setup channel, its column in the frame."""
-        cols = self._columns.get(frame.channels)
-        if cols is None:
-            index = {c: i for i, c in enumerate(frame.channels)}
-            cols = np.array([index.get(name, -1) for name in self.setup.channels])
-            self._columns[frame.channels] = cols
-        present = cols >= 0
-        at = np.where(present, cols, 0)
-        finite = np.isfinite(frame.amplitudes[:, at]).all(axis=0)
-        ok = present & np.asarray(frame.channel_ok, bool)[at] & finite
-        return ok, cols
-
-    def _fitter(self, used: np.ndarray) -> RigidFit | None:
-        """The geometry decomposition of these channels (None: degenerate), cached per mask."""
-        key = used.tobytes()
-        if key not in self._fitters:
-            setup = self.setup
-            weights = None if self.weights is None else self.weights[used]
-            try:
-                self._fitters[key] = RigidFit.of(
-                    setup.positions[used], setup.directions[used], weights, allow_null=True
-                ).on_channels(np.flatnonzero(used))
-            except KinematicsError:
-                self._fitters[key] = None
-        return self._fitters[key]
-
-    def _track_noise(self, frame: FrameLike, used: np.ndarray, cols: np.ndarray) -> None:
-        """Add a gated frame's amplitudes to the channel noise estimate (when measured)."""
-        if not self._measure_weights or (rev := revolution(frame)) is None:
-            return
-        x = np.where(used, frame.amplitudes[:, np.where(used, cols, 0)], np.nan)
-        self.channel_noise.add(rev, tuple(frame.orders), x)
-
-    def _refresh_weights(self) -> None:
-        """Weigh the channels by their measured noise from now on (new frames' fits)."""
-        if not self._measure_weights:
-            return
-        w = self.channel_noise.weights()
-        if w is None:
-            return
-        if self.weights is None or np.max(np.abs(np.log(w / self.weights))) > WEIGHT_CHANGE:
-            self.weights = w
-            self._fitters.clear()
-
-    def measured_weights(self) -> dict[str, float] | None:
-        """The channels' weights in the rigid fit when measured from their noise, by name."""
-        if not self._measure_weights or self.weights is None:
-            return None
-        return dict(zip(self.setup.channels, self.weights.tolist(), strict=True))
 
     # -- update -------------------------------------------------------------------------
     def update(self, frame: FrameLike) -> FrameOutcome:
@@ -282,6 +160,7 @@ class InertiaEstimator:
         (the per-call overhead of numpy dominates at one frame's size).
         """
         outcomes: list[FrameOutcome | None] = [None] * len(frames)
+        elastic_before = self.elastic
         todo: list[tuple[int, RigidFit, np.ndarray]] = []  # (index, geometry, readings)
         for i, frame in enumerate(frames):
             if self.setup.gates.independent_frames and overlaps_previous(frame):
@@ -289,25 +168,13 @@ class InertiaEstimator:
                 outcomes[i] = FrameOutcome(frame.time_s, frame.rpm, (), {}, "overlapping", {})
                 continue
             reason = frame_gate(frame, self.setup.gates)
-            fitter = None
             if reason is None:
-                used, cols = self._channel_mask(frame)
-                self._track_noise(frame, used, cols)
-                if used.sum() < 6:
-                    reason = "too_few_channels"
-                elif (fitter := self._fitter(used)) is None:
-                    reason = "sensor_geometry"
-                elif fitter.null is None:
-                    self._unseen_run = 0
-                else:
-                    self._unseen_run += 1
-                    if self._unseen_run < UNSEEN_AFTER_FRAMES:
-                        reason = "sensor_geometry"
+                reason, fitted = self.channels.select(frame)
             if reason is not None:
                 outcomes[i] = self._reject(frame, reason)
                 continue
-            assert fitter is not None
-            todo.append((i, fitter, frame.amplitudes[:, cols[used]]))
+            assert fitted is not None
+            todo.append((i, *fitted))
 
         # Fit runs of consecutive frames with the same channels and orders together.
         def same_fit(item: tuple[int, RigidFit, np.ndarray]) -> tuple[int, tuple[float, ...]]:
@@ -325,7 +192,14 @@ class InertiaEstimator:
                 outcomes[i] = self._use(
                     frames[i], fitter, motions[j], orders, r, powers[j], bends[j]
                 )
+        if elastic_before is None and self.elastic is not None and frames:
+            self._events.append(elastic_mode_event(self.elastic, frames[-1].time_s))
         return [o for o in outcomes if o is not None]
+
+    def take_events(self) -> list[SourceEvent]:
+        """What the estimator has to report since the last call (an elastic mode confirmed)."""
+        events, self._events = self._events, []
+        return events
 
     def _use(
         self,
@@ -347,45 +221,27 @@ class InertiaEstimator:
                 return self._reject(frame, "no_pressure")
             gas = setup.gas_moment(orders, spectrum)
             moment = moment + gas
-        # Excitation level per order (force times a typical 0.3 m arm, plus moment):
-        # an order the engine does not excite carries no information, only noise.
-        level = 0.3 * np.sqrt(np.sum(np.abs(force) ** 2, axis=1)) + np.sqrt(
-            np.sum(np.abs(moment) ** 2, axis=1)
+        rejected, residuals, ks, floor = self.gates.judge_orders(
+            frame.rpm, orders, motion, force, moment, curvature, power
         )
-        excited = level > 1e-6 * max(float(level.max()), 1e-300)
-        off_line = curvature > setup.gates.max_curvature
-        leak_var = neighbour_leakage(orders, curvature, power)
-        leaking = leak_var > setup.gates.max_curvature**2 * power
-        rejected: dict[float, str] = {}
-        residuals: dict[float, float] = {}
-        ks: list[int] = []
-        for k, h in enumerate(orders.tolist()):
-            residuals[h] = float(motion.relative_residual[k])
-            why = (
-                "no_excitation"
-                if not excited[k]
-                else "near_rigid_modes"
-                if self.gates.near_modes(h, frame.rpm)
-                else "off_mass_line"
-                if off_line[k]
-                else "neighbour_leakage"
-                if leaking[k]
-                else self.gates.residual(h, frame.rpm, motion, k)
-            )
-            if why:
-                rejected[h] = why
-                self.stats.orders_rejected[why] += 1
-            else:
-                ks.append(k)
+        for why in rejected.values():
+            self.stats.orders_rejected[why] += 1
         if not ks:
             counts = Counter(rejected.values())
             return self._reject(frame, counts.most_common(1)[0][0] if counts else "no_orders")
-        # Near a mode the dsp errs by about the bend of the motion across its window,
-        # and by what a bending neighbour leaks in: error floors of the readings, so
-        # the intervals carry them.
-        floor = curvature**2 * power + leak_var
-        self._add_orders(
-            frame, fitter, motion, np.array(ks), orders, readings, power, force, moment, floor, gas
+        self.queue.add(
+            frame.rpm,
+            self._cycle_unknown(frame),
+            fitter,
+            motion,
+            np.array(ks),
+            orders,
+            readings,
+            power,
+            force,
+            moment,
+            floor,
+            gas,
         )
         self.stats.used += 1
         # (the sign hypotheses of the fully measured frames: frames with an unseen
@@ -407,172 +263,10 @@ class InertiaEstimator:
         self.stats.rejected[reason] += 1
         return FrameOutcome(frame.time_s, frame.rpm, (), {}, reason, {})
 
-    def _redundancy_raw(
-        self, fit: RigidFit, motion: RigidMotion, readings: np.ndarray, ks: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray] | None:
-        """The redundancy rows of the orders ``ks`` of a fitted frame, not whitened (None
-        without self-calibration, or when two sensors leave no redundancy)."""
-        if not self._cal or fit.null is not None:
-            return None
-        return redundancy_rows(
-            self.setup,
-            fit,
-            readings[ks],
-            motion.gamma_o[ks],
-            motion.omega_dot[ks],
-            np.ones(len(ks)),
-        )
-
-    def _raw_noise_var(
-        self, motion: RigidMotion, ks: np.ndarray, rows: tuple[np.ndarray, np.ndarray] | None
-    ) -> np.ndarray:
-        """Per-order channel noise variance of one frame: what the rigid fit leaves, less
-        what the calibrated sensor errors explain once they are estimated (``rows``: the
-        orders ``ks``'s redundancy rows)."""
-        if rows is None or self._cal_hat is None:
-            return motion.noise_var
-        H, y = rows
-        resid = y - H[:, :, self._cal] @ self._cal_hat
-        raw = motion.noise_var.copy()
-        raw[ks] = np.sum(resid**2, axis=1) / resid.shape[1]
-        return raw
-
-    def _noise_var(
-        self, raw_var: np.ndarray, ks: np.ndarray, orders: np.ndarray, floor: float
-    ) -> np.ndarray:
-        """Per-order channel noise variance, smoothed over frames (3 dof per frame is noisy),
-        floored so noise-free data keep finite weights."""
-        out = []
-        for k in ks:
-            h = float(orders[k])
-            raw = float(raw_var[k])
-            var = 0.8 * self.noise_var[h] + 0.2 * raw if h in self.noise_var else raw
-            self.noise_var[h] = var
-            out.append(max(var, floor))
-        return np.array(out)
-
-    def _add_orders(
-        self,
-        frame: FrameLike,
-        fit: RigidFit,
-        motion: RigidMotion,
-        ks: np.ndarray,
-        orders: np.ndarray,
-        readings: np.ndarray,
-        power: np.ndarray,
-        force: np.ndarray,
-        moment: np.ndarray,
-        dsp_var: np.ndarray,
-        gas: np.ndarray | None,
-    ) -> None:
-        """Queue the used orders ``ks`` of a frame; their rows are assembled a batch at a time.
-
-        ``readings`` (k, u) are the fitted channels' amplitudes, ``power`` (k,) their
-        mean square per order, ``dsp_var`` (k,) a floor for the channel noise variance
-        (what the dsp errs by near modes), ``gas`` the measured gas moment in ``moment``.
-        """
-        floor = max(1e-16 * float(np.mean(power)), 1e-30)
-        redundancy = self._redundancy_raw(fit, motion, readings, ks)
-        var = self._noise_var(self._raw_noise_var(motion, ks, redundancy), ks, orders, floor)
-        var = np.maximum(var, dsp_var[ks])
-        h = orders[ks]
-        self._pending.append(
-            _Pending(
-                gamma_o=motion.gamma_o[ks],
-                omega_dot=motion.omega_dot[ks],
-                origin=motion.origin,
-                cov_unit=motion.cov_unit,
-                orders=h,
-                rpm=float(frame.rpm),
-                force=force[ks],
-                moment=moment[ks],
-                var=var,
-                fit=fit,
-                amplitudes=readings[ks],
-                half=((2 * h) % 2 == 1) & self._cycle_unknown(frame),
-                measured_moment=None if gas is None else gas[ks],
-                redundancy=redundancy,
-            )
-        )
-
     def _cycle_unknown(self, frame: FrameLike) -> bool:
         """Whether the frame's half orders may be seen through phi + 360 deg with a sign
         that matters: not when the gas moment is measured in the same angle (it flips too)."""
         return "cycle_ambiguous" in frame.flags and self.setup.gas_moment is None
-
-    def _sensitivity(
-        self, batch: list[_Pending], motion: tuple[np.ndarray, np.ndarray] | None = None
-    ) -> np.ndarray:
-        """(P, 12, n_sys): d motion / d systematic parameters of every pair of ``batch``
-        (at the pairs' motions, or at ``motion``: (P, 3) gamma_O and Omega' in pair order)."""
-        if motion is None:
-            motion = (
-                np.concatenate([p.gamma_o for p in batch]),
-                np.concatenate([p.omega_dot for p in batch]),
-            )
-        bounds = np.cumsum([0] + [len(p.orders) for p in batch])
-        out = []
-        start = 0
-        for end in range(1, len(batch) + 1):
-            if end == len(batch) or batch[end].fit is not batch[start].fit:
-                run = batch[start:end]
-                a, b = bounds[start], bounds[end]
-                out.append(
-                    motion_sensitivity(
-                        self.setup,
-                        run[0].fit,
-                        np.concatenate([p.amplitudes for p in run]),
-                        motion[0][a:b],
-                        motion[1][a:b],
-                    )
-                )
-                start = end
-        return np.concatenate(out)
-
-    def _rows(
-        self,
-        batch: list[_Pending],
-        sign: np.ndarray,
-        sel: np.ndarray,
-        dm_real: np.ndarray,
-        lin: Linearisation | None = None,
-        motion: tuple[np.ndarray, np.ndarray] | None = None,
-        calibrate: bool = True,
-    ) -> tuple[np.ndarray, ...]:
-        """Whitened rows (k, 12, n), (k, 12) and sensitivities (k, 12, n_sys) of the
-        selected (frame, order) pairs of ``batch``, motions multiplied by ``sign``
-        (the pairs' own motions, or ``motion``: (P, 3) gamma_O and Omega' in pair
-        order; linearised at ``self.lin`` or at ``lin``). ``calibrate=False``: the
-        self-calibrated sensor errors stay systematic errors in these rows."""
-        cat = lambda name: np.concatenate([getattr(p, name) for p in batch])[sel]  # noqa: E731
-        gamma_o, omega_dot = (cat("gamma_o"), cat("omega_dot")) if motion is None else motion
-        counts = [len(p.orders) for p in batch]
-
-        def rep(name):
-            return np.repeat(np.array([getattr(p, name) for p in batch]), counts, axis=0)[sel]
-
-        sg = sign[sel]
-        r = frame_rows(
-            self.setup,
-            self.layout,
-            self.lin if lin is None else lin,
-            sg[:, None] * gamma_o,
-            sg[:, None] * omega_dot,
-            rep("origin"),
-            rep("cov_unit"),
-            cat("orders"),
-            rep("rpm"),
-            cat("force"),
-            cat("moment"),
-            cat("var"),
-            measured_moment=None if batch[0].measured_moment is None else cat("measured_moment"),
-        )
-        dr = r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[sel])
-        if self._cal and calibrate:
-            # self-calibration: what was a systematic error becomes an unknown
-            r.H[:, :, self._cal_cols] = dr[:, :, self._cal]
-            dr[:, :, self._cal] = 0.0
-        return r.H, r.y, dr
 
     def _flush(self) -> None:
         """Assemble the queued frames' rows and add them, frame by frame, to both hypotheses.
@@ -582,7 +276,7 @@ class InertiaEstimator:
         sign): only those rows are computed twice, and only until the residuals have
         decided between the hypotheses.
         """
-        batch, self._pending = self._pending, []
+        batch = self.queue.take()
         unseen = [p for p in batch if p.fit.null is not None]
         batch = [p for p in batch if p.fit.null is None]
         if batch:
@@ -590,71 +284,42 @@ class InertiaEstimator:
         if unseen:
             self.partial.take(unseen)
 
-    def _flush_measured(self, batch: list[_Pending]) -> None:
+    def _flush_measured(self, batch: list[PendingFrame]) -> None:
         """:meth:`_flush` for the frames whose motion is fully measured."""
         half = np.concatenate([p.half for p in batch])
         flip = np.where(half, -1.0, 1.0)
         everything = np.ones(len(half), dtype=bool)
-        dm = self._sensitivity(batch)
+        dm = self.rows.sensitivity(batch)
         if self.decided_sign is not None:
             sign = flip if self.decided_sign < 0 else np.ones(len(half))
-            hyp = {self.decided_sign: self._rows(batch, sign, everything, dm)}
+            hyp = {self.decided_sign: self.rows.rows(batch, sign, everything, dm, self.lin)}
         elif self.stats.ambiguous_frames == 0:
             # No frame without a 720 deg reference yet: both hypotheses are the same
             # sums; keep one, and copy it when the first ambiguous frame arrives.
-            hyp = {1: self._rows(batch, np.ones(len(half)), everything, dm)}
+            hyp = {1: self.rows.rows(batch, np.ones(len(half)), everything, dm, self.lin)}
             self._hypotheses_equal = True
         else:
             if self._hypotheses_equal:
                 self.acc[-1] = Accumulator(state=self.acc[1].state, sens=self.acc[1].sens)
                 self._hypotheses_equal = False
-            H, y, dr = self._rows(batch, np.ones(len(half)), everything, dm)
+            H, y, dr = self.rows.rows(batch, np.ones(len(half)), everything, dm, self.lin)
             hyp = {1: (H, y, dr), -1: (H, y, dr)}
             if np.any(half):
                 Hf, yf, drf = H.copy(), y.copy(), dr.copy()
-                Hf[half], yf[half], drf[half] = self._rows(batch, flip, half, dm)
+                Hf[half], yf[half], drf[half] = self.rows.rows(batch, flip, half, dm, self.lin)
                 hyp[-1] = (Hf, yf, drf)
-        n = self.layout.size + ELASTIC_TERMS
         bounds = np.cumsum([0] + [len(p.orders) for p in batch])
-        kin = self._redundancy(batch) if self._cal else None
-        # the elastic-tail columns: the inertia and cog columns times (f / f_ref)^2
+        kin = self.rows.redundancy(batch) if self._cal else None
         f_hz = np.concatenate([p.orders * p.rpm / 60.0 for p in batch])
-        phi = ((f_hz / ELASTIC_F_REF_HZ) ** 2)[:, None, None]
         for sign_, (Hs, ys, drs) in hyp.items():
-            acc = self.acc[sign_]
-            Ha = np.concatenate([Hs, Hs[:, :, :ELASTIC_TERMS] * phi], axis=2)
+            Ha = with_tail(Hs, f_hz)
             # one update per frame, in stream order: the same sums whatever the batch
             for a, b in itertools.pairwise(bounds):
-                acc.state = rls_update(
-                    acc.state, Ha[a:b].reshape(-1, n), ys[a:b].reshape(-1), None, self.forgetting
+                # the frame's redundancy rows (already discounted with the frame's own)
+                own = None if kin is None else (kin[0][a:b], kin[1][a:b], kin[2][a:b])
+                self.acc[sign_] = add_frame(
+                    self.acc[sign_], Ha[a:b], ys[a:b], drs[a:b], self.forgetting, own
                 )
-                acc.sens = self.forgetting * acc.sens + np.einsum("kip,kis->ps", Ha[a:b], drs[a:b])
-                if kin is not None:  # the frame's redundancy rows (already discounted above)
-                    Hk, yk, drk = kin[0][a:b], kin[1][a:b], kin[2][a:b]
-                    acc.state = rls_update(acc.state, Hk.reshape(-1, n), yk.reshape(-1))
-                    acc.sens = acc.sens + np.einsum("kip,kis->ps", Hk, drk)
-
-    def _redundancy(self, batch: list[_Pending]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Self-calibration rows from the rigid fits' redundancy (:mod:`estimator.redundancy`)
-        of every pair of ``batch``: H (P, 2k, n_all) on the calibration columns, y (P, 2k),
-        and the sensitivities to the other systematic errors (P, 2k, n_sys).
-
-        The same under both half-order signs: a flipped motion flips the residual and
-        its sensitivity alike. (Frames that see only two sensors have no redundancy
-        to speak of and give none.)"""
-        rows, ys, drs = [], [], []
-        for p in batch:
-            assert p.redundancy is not None
-            # whitened with the variance the frame's rows got
-            s = 1.0 / np.sqrt(p.var)
-            dr, y = p.redundancy[0] * s[:, None, None], p.redundancy[1] * s[:, None]
-            H = np.zeros((*dr.shape[:2], self.layout.size + ELASTIC_TERMS))
-            H[:, :, self._cal_cols] = dr[:, :, self._cal]
-            dr[:, :, self._cal] = 0.0
-            rows.append(H)
-            ys.append(y)
-            drs.append(dr)
-        return np.concatenate(rows), np.concatenate(ys), np.concatenate(drs)
 
     def _decide_half_order_sign(self) -> None:
         """Stop carrying the losing sign hypothesis once the residuals leave no doubt."""
@@ -666,7 +331,7 @@ class InertiaEstimator:
             self.decision = {"ratio": ratio, "after_frames": self.stats.ambiguous_frames}
 
     def _relinearise(self) -> None:
-        self._refresh_weights()
+        self.channels.refresh_weights()
         self._decide_half_order_sign()
         sol = self.solve(self.best_state().state)
         if not np.all(sol.observable[:9]):
@@ -676,16 +341,13 @@ class InertiaEstimator:
             return
         self.lin = lin
         if self._cal:
-            self._cal_hat = sol.theta[self._cal_cols]
+            self.queue.cal_hat = sol.theta[self._cal_cols]
 
     def _effective(self, sign: int) -> Accumulator:
-        """A sign hypothesis's state of theta: with a confirmed elastic mode, the tail
-        terms fitted alongside; otherwise left out."""
-        n = self.layout.size
-        if self.elastic is None:
-            return self.acc[sign].leading(n)
-        scale = np.concatenate([self.scale, self.scale[:ELASTIC_TERMS]])
-        return self.acc[sign].marginal(n, scale)
+        """A sign hypothesis's state of theta (:func:`estimator.elastic_tail.effective_state`)."""
+        return effective_state(
+            self.acc[sign], self.layout.size, self.scale, self.elastic is not None
+        )
 
     def solve(self, state: RlsState) -> RlsSolution:
         """The estimate of a state of theta: rank decisions on the parameter scale,
@@ -722,28 +384,34 @@ class InertiaEstimator:
         if self.stats.ambiguous_frames == 0:
             return None
         if self.decided_sign is not None and self.decision is not None:
-            return {
-                "method": "residual",
-                "half_order_sign": self.decided_sign,
-                "residual_ratio": self.decision["ratio"],
-                "decided_after_frames": self.decision["after_frames"],
-                "frames": self.stats.ambiguous_frames,
-            }
-        best, ratio = better_sign(self._sign_rss())
+            best, ratio = self.decided_sign, self.decision["ratio"]
+            after = self.decision["after_frames"]
+        else:
+            (best, ratio), after = better_sign(self._sign_rss()), None
         return {
             "method": "residual",
             "half_order_sign": best,
             "residual_ratio": ratio,
-            "decided_after_frames": None,
+            "decided_after_frames": after,
             "frames": self.stats.ambiguous_frames,
         }
 
-    def estimate(self, final: bool = True) -> Any:
+    def estimate(self, final: bool = True) -> Estimate:
         """The current estimate. ``final=False`` (a live update) skips the full re-solve
         of frames with an unseen motion that the final estimate makes."""
-        from estimator.result import build_estimate
-
         if final:
             self._flush()
             self.partial.solve()
-        return build_estimate(self)
+        acc = self.best_state()
+        return build_estimate(
+            acc,
+            self.solve(acc.state),
+            self.sys_std,
+            self.layout.names,
+            self.setup,
+            self.stats,
+            half_order=self.half_order_resolution(),
+            elastic_mode=None if self.elastic is None else dict(self.elastic),
+            unseen_motion=self.partial.report(),
+            channel_weights=self.channels.measured_weights(),
+        )

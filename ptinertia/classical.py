@@ -18,14 +18,9 @@ from acquisition.classical.modal_setup import load_modal_setup
 from acquisition.classical.pendulum_file import load_pendulum_test
 from acquisition.classical.uff import read_uff
 from estimator.classical.massline import FrfGeometry, MassLineTolerances, estimate_mass_line
-from estimator.classical.pendulum import (
-    BEST_CONDITION,
-    CONDITION_WARN,
-    Plate,
-    Swing,
-    cog_from_lines,
-    inertia_from_swings,
-)
+from estimator.classical.pendulum import Plate, Swing, inertia_from_swings
+from estimator.classical.pendulum_axes import BEST_CONDITION, CONDITION_WARN
+from estimator.classical.plumb_lines import cog_from_lines
 from powertrain.rigidbody import TERMS
 from ptinertia.config import load_bench
 from ptinertia.estimates import estimate_document

@@ -147,21 +147,13 @@ class Pipeline:
         # The frames of one block are estimated together (same decisions as one by one,
         # less numpy overhead); the estimate is published after the block's last used frame.
         last_used = None
-        elastic_before = self.estimator.elastic
         for frame, outcome in zip(frames, self.estimator.update_many(frames), strict=True):
             self.frames += 1
             for sink in self.sinks:
                 sink.on_frame(frame, outcome)
             if outcome.reason is None:
                 last_used = frame
-        if elastic_before is None and self.estimator.elastic is not None:
-            mode = self.estimator.elastic
-            event = SourceEvent(
-                "elastic_mode",
-                f"elastic mode confirmed: H{mode['order']:g} non-rigid from "
-                f"{mode['frequency_hz']:.0f} Hz; inertia and cog now extrapolated to 0 Hz",
-                frames[-1].time_s,
-            )
+        for event in self.estimator.take_events():  # an elastic mode confirmed
             for sink in self.sinks:
                 sink.on_event(event)
         if last_used is not None and (

@@ -25,151 +25,27 @@ full covariance of the right-hand sides: period, stiffness and axis-angle
 errors are independent per configuration; the plate inertia, the body mass
 and the cog are shared by every configuration, so their errors are
 correlated across rows. The cog comes from two or more plumb lines
-(:func:`cog_from_lines`).
+(:func:`estimator.classical.plumb_lines.cog_from_lines`).
 
-Conditioning is measured in the Frobenius-orthonormal basis of symmetric
-tensors (row ``[u^2, v^2, w^2, sqrt2 uv, sqrt2 uw, sqrt2 vw]``), where it does
-not change when the whole axis set is turned: the best six axes (through
-opposite vertices of an icosahedron) reach ``sqrt(5/2) = 1.58``, the lab set
-X, Y, Z plus the three face diagonals 3.2.
+The axis set's conditioning is checked first (:mod:`estimator.classical.pendulum_axes`);
+the plumb lines and the misfit test are in :mod:`estimator.classical.plumb_lines`.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
 
-from powertrain.errors import PhysicsError
+from estimator.classical.pendulum_axes import (
+    PendulumError,
+    check_axis_set,
+    quadratic_rows,
+    unit_axes,
+)
+from estimator.classical.plumb_lines import variance_factor
 from powertrain.rigidbody import TERMS, inertia_matrix
-
-SQRT2 = math.sqrt(2.0)
-#: above this condition number the axis set is accepted with a warning
-CONDITION_WARN = 10.0
-#: above this it is refused: period errors would be amplified a thousandfold
-CONDITION_REFUSE = 1e3
-BEST_CONDITION = math.sqrt(2.5)
-#: a misfit less probable than this under the stated errors widens the intervals
-MISFIT_ALPHA = 0.01
-#: plumb lines closer to parallel than this leave the cog along them undetermined
-MIN_LINE_SPREAD_DEG = 1.0
-
-
-class PendulumError(PhysicsError):
-    """Pendulum data that cannot determine the tensor or the cog; the message says why."""
-
-
-def unit_axes(axes: npt.ArrayLike) -> np.ndarray:
-    """(n, 3) unit directions (eq. 4) from any non-zero (n, 3) vectors."""
-    a = np.atleast_2d(np.asarray(axes, dtype=float))
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise PendulumError(f"axes must have shape (n, 3), got {a.shape}")
-    norm = np.linalg.norm(a, axis=1)
-    bad = np.flatnonzero(~(norm > 1e-12) | ~np.isfinite(norm))
-    if bad.size:
-        raise PendulumError(
-            f"axis {int(bad[0]) + 1} is not a non-zero vector: {a[bad[0]].tolist()}"
-        )
-    return a / norm[:, None]
-
-
-def quadratic_rows(axes: npt.ArrayLike) -> np.ndarray:
-    """(n, 6) rows of eq. 7: ``rows @ [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] == u^T I u``."""
-    u, v, w = unit_axes(axes).T
-    return np.stack([u * u, v * v, w * w, -2 * u * v, -2 * u * w, -2 * v * w], axis=1)
-
-
-def _orthonormal_rows(axes: np.ndarray) -> np.ndarray:
-    """Rows in the Frobenius-orthonormal basis of symmetric tensors (rotation invariant)."""
-    u, v, w = unit_axes(axes).T
-    return np.stack([u * u, v * v, w * w, SQRT2 * u * v, SQRT2 * u * w, SQRT2 * v * w], axis=1)
-
-
-def axis_set_condition(axes: npt.ArrayLike) -> float:
-    """Condition number of an axis set (inf when it cannot determine the tensor).
-
-    1.58 is the best possible for six axes; see the module docstring.
-    """
-    a = _orthonormal_rows(np.asarray(axes, dtype=float))
-    if a.shape[0] < 6:
-        return math.inf
-    s = np.linalg.svd(a, compute_uv=False)
-    return float(s[0] / s[-1]) if s[-1] > 0 else math.inf
-
-
-def _shown(v: np.ndarray) -> list[float]:
-    """Rounded for a message, without the "-0.0" of a tiny negative."""
-    return (np.round(v, 3) + 0.0).tolist()
-
-
-def _degeneracy_reason(axes: np.ndarray) -> str:
-    """Why the axes do not determine the tensor: the plane, planes or cone they lie on."""
-    # One plane, the common slip, is told apart directly by the scatter of the axes.
-    eig, vec = np.linalg.eigh(axes.T @ axes)
-    n = vec[:, 0] * np.sign(vec[np.argmax(np.abs(vec[:, 0])), 0])
-    tilt = math.degrees(math.asin(min(1.0, float(np.max(np.abs(axes @ n))))))
-    if tilt < 1.0:
-        where = "in one plane" if tilt < 1e-6 else f"within {tilt:.2g} deg of one plane"
-        return f"all {len(axes)} axes lie {where} (normal {_shown(n)})"
-    a = _orthonormal_rows(axes)
-    _, sv, vt = np.linalg.svd(a, full_matrices=True)
-    sv = np.concatenate([sv, np.zeros(6 - len(sv))])
-    missing = int(np.sum(sv < 1e-9 * sv[0]))
-    if missing > 1:
-        return (
-            f"the {len(axes)} axes leave {missing} combinations of the six terms unmeasured "
-            "(they lie on several common cones)"
-        )
-    q = vt[-1]
-    # u^T Q u = 0 for every axis u: the axes lie on the cone of Q.
-    big_q = np.array(
-        [
-            [q[0], q[3] / SQRT2, q[4] / SQRT2],
-            [q[3] / SQRT2, q[1], q[5] / SQRT2],
-            [q[4] / SQRT2, q[5] / SQRT2, q[2]],
-        ]
-    )
-    eig = np.linalg.eigvalsh(big_q)
-    significant = np.abs(eig) > 0.05 * np.abs(eig).max()
-    if int(significant.sum()) == 2 and eig[significant].prod() < 0:
-        return f"the {len(axes)} axes lie in two planes"
-    return (
-        f"the {len(axes)} axes lie on one cone (for example all at the same angle to one direction)"
-    )
-
-
-def check_axis_set(axes: npt.ArrayLike) -> float:
-    """The condition number of ``axes``; :class:`PendulumError` with the reason if degenerate.
-
-    Raises
-    ------
-    PendulumError
-        Fewer than 6 axes, or axes that leave a combination of the six terms
-        unmeasured (all in one plane, in two planes, on one cone), or a
-        condition number above ``CONDITION_REFUSE``.
-    """
-    a = unit_axes(axes)
-    if len(a) < 6:
-        raise PendulumError(f"need at least 6 configurations for the 6 inertia terms, got {len(a)}")
-    # u and -u are the same swing axis: count the distinct ones first, it is the usual slip.
-    same = np.abs(a @ a.T) > 1 - 1e-9
-    distinct = len({int(np.argmax(row)) for row in same})
-    if distinct < 6:
-        raise PendulumError(
-            f"only {distinct} distinct axes among the {len(a)} configurations (u and -u are the "
-            "same axis): need at least 6 for the 6 inertia terms"
-        )
-    cond = axis_set_condition(a)
-    if not cond <= CONDITION_REFUSE:
-        shown = "inf" if not math.isfinite(cond) else f"{cond:.3g}"
-        raise PendulumError(
-            f"axis set cannot determine the tensor: {_degeneracy_reason(a)}; "
-            f"condition number {shown} (best possible {BEST_CONDITION:.2f}, refused above "
-            f"{CONDITION_REFUSE:g}): turn at least one axis out of that pattern"
-        )
-    return cond
 
 
 def axis_inertia(inertia: npt.ArrayLike, axes: npt.ArrayLike) -> np.ndarray:
@@ -192,113 +68,6 @@ def distance_to_axis(point: np.ndarray, axis_point: np.ndarray, axis: np.ndarray
     """Offset of ``point`` from the line through ``axis_point`` along unit ``axis``, (..., 3) m."""
     r = point - axis_point
     return r - np.sum(r * axis, axis=-1, keepdims=True) * axis
-
-
-def variance_factor(chi2: float, dof: int, alpha: float = MISFIT_ALPHA) -> float:
-    """``chi2 / dof`` when the misfit is improbable under the stated errors, else 1.
-
-    With the few degrees of freedom of a pendulum test (7 swings: 1) the Birge
-    ratio ``max(1, chi2 / dof)`` would widen honest intervals most of the time;
-    widening only on a significant misfit keeps them calibrated and still
-    guards against understated uncertainties.
-    """
-    from scipy import stats
-
-    if dof <= 0 or not stats.chi2.sf(chi2, dof) < alpha:
-        return 1.0
-    return max(1.0, chi2 / dof)
-
-
-# -- cog from plumb lines ------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class CogFit:
-    """The cog from plumb lines.
-
-    Attributes
-    ----------
-    cog : (3,) m, bench frame.
-    cov : (3, 3) m^2.
-    distances : (n_lines,) m, distance of the cog from each line (0 for lines that meet).
-    variance_factor : see :func:`variance_factor`; ``dof = 2 n - 3``, so lines that
-        miss each other beyond their stated uncertainty widen the interval.
-    chi2, dof : misfit of the lines against their stated uncertainty.
-    """
-
-    cog: np.ndarray
-    cov: np.ndarray
-    distances: np.ndarray
-    variance_factor: float
-    chi2: float
-    dof: int
-
-
-def cog_from_lines(
-    points: npt.ArrayLike,
-    directions: npt.ArrayLike,
-    position_std: npt.ArrayLike,
-    angle_std: npt.ArrayLike = 0.0,
-) -> CogFit:
-    """Least-squares intersection of the plumb lines of a body hung from different points.
-
-    Minimises ``sum_k |P_k (G - p_k)|^2 / s_k^2`` with ``P_k = 1 - d_k d_k^T``; the
-    lateral uncertainty of line k is ``s_k^2 = position_std_k^2 + (angle_std_k L_k)^2``
-    with ``L_k`` the distance along the line from ``p_k`` to the cog (an angle
-    error swings the line about its marked point). Two lines give three
-    equations' worth of data for three unknowns plus one check (their gap).
-
-    Parameters
-    ----------
-    points : (n, 3) m, a marked point of each line (the suspension point), body coordinates.
-    directions : (n, 3), direction of each line (any length).
-    position_std : () or (n,) m, 1 sigma lateral position of each line.
-    angle_std : () or (n,) rad, 1 sigma direction of each line.
-
-    Raises
-    ------
-    PendulumError
-        Fewer than two lines, or lines (nearly) parallel.
-    """
-    p = np.atleast_2d(np.asarray(points, dtype=float))
-    d = unit_axes(directions)
-    n = len(p)
-    if n < 2 or p.shape != d.shape:
-        raise PendulumError(
-            f"the cog needs at least 2 suspension lines with a point and a direction each, "
-            f"got {n} points and {len(d)} directions"
-        )
-    pos = np.broadcast_to(np.asarray(position_std, dtype=float), (n,))
-    ang = np.broadcast_to(np.asarray(angle_std, dtype=float), (n,))
-    proj = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
-    s = np.linalg.svd(d, compute_uv=False)
-    # Two lines at angle a give singular values sqrt(1 +- cos a): spread = 2 atan(s1 / s0).
-    spread = math.degrees(2 * math.atan2(s[1], s[0]))
-    if spread < MIN_LINE_SPREAD_DEG:
-        angle = spread
-        raise PendulumError(
-            f"the {n} suspension lines are (nearly) parallel (spread {angle:.3g} deg): "
-            "the cog along them is not determined; hang the body from points that give "
-            "lines at a large angle"
-        )
-    cog = np.zeros(3)
-    for _ in range(3):  # the angle term depends on the cog: a fixed point in 2-3 steps
-        along = np.einsum("ni,ni->n", cog - p, d)
-        var = pos**2 + (ang * along) ** 2
-        weights = 1.0 / np.maximum(var, 1e-30)  # exact lines: huge equal weights
-        normal = np.einsum("n,nij->ij", weights, proj)
-        rhs = np.einsum("n,nij,nj->i", weights, proj, p)
-        cog = np.linalg.solve(normal, rhs)
-    cov = np.linalg.inv(normal)
-    offsets = np.einsum("nij,nj->ni", proj, cog - p)
-    distances = np.linalg.norm(offsets, axis=1)
-    dof = 2 * n - 3
-    chi2 = float(np.sum(weights * distances**2))
-    factor = variance_factor(chi2, dof)
-    return CogFit(cog, cov * factor, distances, factor, chi2, dof)
-
-
-# -- inertia from periods ------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)

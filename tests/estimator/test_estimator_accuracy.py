@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from support.estimator_runs import I3, cog_error_m, rel_errors, run
 
-from ptinertia.config import load_bench, loads_bench
+from ptinertia.config import ConfigError, load_bench, loads_bench
 from ptinertia.paths import EXAMPLES_DIR
-from ptinertia.runner import RunOptions, run_source
+from ptinertia.runner import RunOptions, make_estimator, run_source
 from ptinertia.sources import REALISTIC_SIMULATION, open_source
 
 I4 = EXAMPLES_DIR / "i4-bench.toml"
@@ -198,9 +198,6 @@ def test_mount_stiffness_30_percent_off_is_estimated_as_a_scale(scaled: bool) ->
 
 
 def test_mount_scale_with_an_estimated_mass_is_a_bench_error() -> None:
-    from ptinertia.config import ConfigError
-    from ptinertia.runner import make_estimator
-
     bench = loads_bench(I4.read_text() + "\n[estimator]\nmount_scale = true\n", "i4.toml")
     with pytest.raises(ConfigError, match="mount_scale"):
         make_estimator(bench)

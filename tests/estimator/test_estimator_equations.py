@@ -9,11 +9,14 @@ unbalance, the documented linearisation of the G x F_unb term).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import numpy as np
 import pytest
 from support.estimator_harness import Body, Frame, frames, make_setup
 
+from estimator.elastic_tail import with_tail
+from estimator.hypotheses import add_frame
 from estimator.setup import Corrections
 from estimator.streaming import InertiaEstimator
 
@@ -206,3 +209,35 @@ def test_a_block_of_frames_gives_the_same_bits_as_one_frame_at_a_time() -> None:
     a, b = single.estimate(), block.estimate()
     assert np.array_equal(a.theta, b.theta)
     assert np.array_equal(a.cov, b.cov)
+
+
+@pytest.mark.parametrize("self_calibration", [False, True])
+def test_the_per_frame_update_agrees_with_its_pure_function_twin(self_calibration: bool) -> None:
+    """The estimator adds each queued frame's rows to its state as ``add_frame`` does."""
+    body = Body()
+    corrections = Corrections(self_calibration=self_calibration)
+    est = InertiaEstimator(make_setup(body, corrections=corrections))
+    for f in frames(body, RPMS[:6]):
+        est.update(f)
+    # the first used frame was flushed for the first relinearisation; the others wait
+    pending = list(est.queue.frames)
+    assert len(pending) == 5
+    sign = np.ones(sum(len(p.orders) for p in pending))
+    dm = est.rows.sensitivity(pending)
+    H, y, dr = est.rows.rows(pending, sign, sign.astype(bool), dm, est.lin)
+    H = with_tail(H, np.concatenate([p.orders * p.rpm / 60.0 for p in pending]))
+    kin = est.rows.redundancy(pending) if self_calibration else None
+    expected = est.acc[1]
+    bounds = np.cumsum([0] + [len(p.orders) for p in pending])
+    for a, b in itertools.pairwise(bounds):
+        own = None if kin is None else (kin[0][a:b], kin[1][a:b], kin[2][a:b])
+        expected = add_frame(expected, H[a:b], y[a:b], dr[a:b], est.forgetting, own)
+    est.best_state()  # assembles the queued frames' rows and adds them
+    got = est.acc[1]
+    for name in ("info", "vec"):
+        np.testing.assert_allclose(
+            getattr(got.state, name), getattr(expected.state, name), rtol=1e-12, atol=0
+        )
+    np.testing.assert_allclose(got.sens, expected.sens, rtol=1e-12, atol=0)
+    assert got.state.yty == pytest.approx(expected.state.yty, rel=1e-12)
+    assert got.state.rows == expected.state.rows

@@ -9,12 +9,14 @@ for the inertia, the priors hold the rest.)
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 import numpy as np
+import pytest
 from support.estimator_runs import cog_error_m, rel_errors, run
 
-from ptinertia.config import load_bench
+from ptinertia.config import ConfigError, load_bench, loads_bench
 from ptinertia.paths import EXAMPLES_DIR
 from ptinertia.runner import make_estimator
 
@@ -85,13 +87,6 @@ def test_noise_alone_does_not_move_the_calibration():
 
 
 def test_two_sensors_cannot_self_calibrate():
-    import re
-
-    import pytest
-
-    from ptinertia.config import ConfigError, loads_bench
-    from ptinertia.runner import make_estimator
-
     text = re.sub(r"\[\[sensors\]\]\nname = \"C_torque_rod\"\n(.+\n)+?\n", "", I3.read_text())
     assert '"C_torque_rod"' not in text
     bench = loads_bench(text + "\n[estimator]\nself_calibration = true\n", "two.toml")

@@ -18,8 +18,9 @@ import numpy as np
 import pytest
 from support.estimator_harness import Body, Frame, frames, make_setup
 
+from estimator.channel_fits import UNSEEN_AFTER_FRAMES
 from estimator.partial import PartialRows, project_out
-from estimator.streaming import UNSEEN_AFTER_FRAMES, InertiaEstimator
+from estimator.streaming import InertiaEstimator
 
 RPMS = np.linspace(1500, 4500, 120)
 ROOT = Path(__file__).resolve().parents[2]

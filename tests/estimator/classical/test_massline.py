@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 
 import numpy as np
@@ -247,8 +248,6 @@ def test_massline_command_on_simulated_uff(tmp_path, capsys):
     )
     out = tmp_path / "ml.json"
     assert main(["massline", str(frf), "--bench", bench, "--json", str(out)]) == 0
-    import json
-
     doc = json.loads(out.read_text())
     assert doc["method"] == "massline"
     assert abs(doc["mass_kg"]["value"] - 110.0) < 0.005 * 110.0

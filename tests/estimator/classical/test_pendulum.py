@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -14,17 +15,16 @@ from acquisition.classical.pendulum_file import (
     parse_pendulum_test,
 )
 from acquisition.stream import SourceError
-from estimator.classical.pendulum import (
+from estimator.classical.pendulum import Plate, Swing, inertia_from_swings
+from estimator.classical.pendulum_axes import (
     BEST_CONDITION,
     PendulumError,
-    Plate,
-    Swing,
     axis_set_condition,
     check_axis_set,
-    cog_from_lines,
-    inertia_from_swings,
 )
+from estimator.classical.plumb_lines import cog_from_lines
 from powertrain.rigidbody import RigidBody, inertia_terms, rotation_matrix
+from ptinertia.classical import pendulum_document as compute
 from ptinertia.cli import main
 from ptinertia.config import load_bench
 from ptinertia.paths import EXAMPLES_DIR
@@ -254,8 +254,6 @@ def test_cog_from_plumb_lines():
 
 def test_the_example_test_file_finds_the_i3_bench():
     """examples/pendulum-test.toml is a noisy test of the i3 bench's powertrain."""
-    from ptinertia.classical import pendulum_document as compute
-
     doc = compute(str(EXAMPLES_DIR / "pendulum-test.toml"))
     p = load_bench(EXAMPLES_DIR / "i3-bench.toml").powertrain
     for t in TERMS:
@@ -271,8 +269,6 @@ def test_the_example_test_file_finds_the_i3_bench():
 def test_pendulum_command_writes_the_result_document(tmp_path, capsys):
     out = tmp_path / "pendulum.json"
     assert main(["pendulum", str(EXAMPLES_DIR / "pendulum-test.toml"), "--json", str(out)]) == 0
-    import json
-
     doc = json.loads(out.read_text())
     assert doc["method"] == "pendulum" and doc["mass_kg"] is None
     assert set(doc["inertia_kgm2"]["value"]) == set(TERMS)

@@ -1,0 +1,279 @@
+"""Used frames waiting for their rows, and the assembly of those rows a batch at a time.
+
+The streaming estimator (:mod:`estimator.streaming`) queues each used frame as a
+:class:`PendingFrame` (its fitted motion and what the rows need, per order) and
+assembles the whitened rows of a whole batch at once (:class:`RowAssembler`):
+the equations of motion (:func:`estimator.equations.frame_rows`), their
+sensitivity to the declared systematic sensor errors and, with
+self-calibration, the rigid fits' redundancy rows. The store of frames with an
+unseen motion (:mod:`estimator.partial_pairs`) builds its rows with the same
+assembler.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimator.elastic_tail import ELASTIC_TERMS
+from estimator.equations import Linearisation, ParameterLayout, frame_rows
+from estimator.kinematics import RigidFit, RigidMotion
+from estimator.redundancy import redundancy_rows
+from estimator.setup import EstimatorSetup
+from estimator.systematic import motion_sensitivity
+
+
+@dataclass(frozen=True)
+class PendingFrame:
+    """A used frame waiting for its rows: its fitted motion and what the rows need, per order."""
+
+    gamma_o: np.ndarray  # (k, 3) complex
+    omega_dot: np.ndarray  # (k, 3) complex
+    origin: np.ndarray  # (3,)
+    cov_unit: np.ndarray  # (6, 6)
+    orders: np.ndarray  # (k,)
+    rpm: float
+    force: np.ndarray  # (k, 3) complex
+    moment: np.ndarray  # (k, 3) complex
+    var: np.ndarray  # (k,)
+    fit: RigidFit  # the channel geometry of the fit
+    amplitudes: np.ndarray  # (k, u) complex, the fitted readings
+    half: np.ndarray  # (k,) bool: a half order of a frame with an unknown 720 deg cycle
+    measured_moment: np.ndarray | None  # (k, 3) complex: the part of moment measured (gas)
+    # self-calibration: the pairs' redundancy rows before whitening, (k, 2r, n_sys) and (k, 2r)
+    redundancy: tuple[np.ndarray, np.ndarray] | None = None
+
+
+class FrameQueue:
+    """Used frames queued for their rows, and the per-order channel noise variance
+    their rows are whitened with.
+
+    Parameters
+    ----------
+    setup : the bench as the estimator sees it.
+    cal : the self-calibrated sensor errors, as indices into the systematic parameters.
+    """
+
+    def __init__(self, setup: EstimatorSetup, cal: Sequence[int]) -> None:
+        self.setup = setup
+        self.cal = list(cal)
+        self.frames: list[PendingFrame] = []
+        self.noise_var: dict[float, float] = {}  # smoothed channel noise variance per order
+        self.cal_hat: np.ndarray | None = None  # the calibration at the last relinearisation
+
+    def take(self) -> list[PendingFrame]:
+        """The queued frames, in stream order; the queue is left empty."""
+        frames, self.frames = self.frames, []
+        return frames
+
+    def add(
+        self,
+        rpm: float,
+        cycle_unknown: bool,
+        fit: RigidFit,
+        motion: RigidMotion,
+        ks: np.ndarray,
+        orders: np.ndarray,
+        readings: np.ndarray,
+        power: np.ndarray,
+        force: np.ndarray,
+        moment: np.ndarray,
+        dsp_var: np.ndarray,
+        gas: np.ndarray | None,
+    ) -> None:
+        """Queue the used orders ``ks`` of a frame; their rows are assembled a batch at a time.
+
+        ``cycle_unknown``: the frame's half orders have an unknown sign. ``readings``
+        (k, u) are the fitted channels' amplitudes, ``power`` (k,) their mean square
+        per order, ``dsp_var`` (k,) a floor for the channel noise variance (what the
+        dsp errs by near modes), ``gas`` the measured gas moment in ``moment``.
+        """
+        floor = max(1e-16 * float(np.mean(power)), 1e-30)
+        redundancy = self._redundancy_raw(fit, motion, readings, ks)
+        var = self._noise_var(self._raw_noise_var(motion, ks, redundancy), ks, orders, floor)
+        var = np.maximum(var, dsp_var[ks])
+        h = orders[ks]
+        self.frames.append(
+            PendingFrame(
+                gamma_o=motion.gamma_o[ks],
+                omega_dot=motion.omega_dot[ks],
+                origin=motion.origin,
+                cov_unit=motion.cov_unit,
+                orders=h,
+                rpm=float(rpm),
+                force=force[ks],
+                moment=moment[ks],
+                var=var,
+                fit=fit,
+                amplitudes=readings[ks],
+                half=((2 * h) % 2 == 1) & cycle_unknown,
+                measured_moment=None if gas is None else gas[ks],
+                redundancy=redundancy,
+            )
+        )
+
+    def _redundancy_raw(
+        self, fit: RigidFit, motion: RigidMotion, readings: np.ndarray, ks: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The redundancy rows of the orders ``ks`` of a fitted frame, not whitened (None
+        without self-calibration, or when two sensors leave no redundancy)."""
+        if not self.cal or fit.null is not None:
+            return None
+        return redundancy_rows(
+            self.setup,
+            fit,
+            readings[ks],
+            motion.gamma_o[ks],
+            motion.omega_dot[ks],
+            np.ones(len(ks)),
+        )
+
+    def _raw_noise_var(
+        self, motion: RigidMotion, ks: np.ndarray, rows: tuple[np.ndarray, np.ndarray] | None
+    ) -> np.ndarray:
+        """Per-order channel noise variance of one frame: what the rigid fit leaves, less
+        what the calibrated sensor errors explain once they are estimated (``rows``: the
+        orders ``ks``'s redundancy rows)."""
+        if rows is None or self.cal_hat is None:
+            return motion.noise_var
+        H, y = rows
+        resid = y - H[:, :, self.cal] @ self.cal_hat
+        raw = motion.noise_var.copy()
+        raw[ks] = np.sum(resid**2, axis=1) / resid.shape[1]
+        return raw
+
+    def _noise_var(
+        self, raw_var: np.ndarray, ks: np.ndarray, orders: np.ndarray, floor: float
+    ) -> np.ndarray:
+        """Per-order channel noise variance, smoothed over frames (3 dof per frame is noisy),
+        floored so noise-free data keep finite weights."""
+        out = []
+        for k in ks:
+            h = float(orders[k])
+            raw = float(raw_var[k])
+            var = 0.8 * self.noise_var[h] + 0.2 * raw if h in self.noise_var else raw
+            self.noise_var[h] = var
+            out.append(max(var, floor))
+        return np.array(out)
+
+
+class RowAssembler:
+    """The rows of queued frames under one parameter layout.
+
+    Parameters
+    ----------
+    setup : the bench as the estimator sees it.
+    layout : where each unknown sits in theta.
+    cal : the self-calibrated sensor errors, as indices into the systematic parameters.
+    cal_cols : their columns in theta (same order as ``cal``).
+    """
+
+    def __init__(
+        self,
+        setup: EstimatorSetup,
+        layout: ParameterLayout,
+        cal: Sequence[int],
+        cal_cols: Sequence[int],
+    ) -> None:
+        self.setup = setup
+        self.layout = layout
+        self.cal = list(cal)
+        self.cal_cols = list(cal_cols)
+
+    def sensitivity(
+        self, batch: list[PendingFrame], motion: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> np.ndarray:
+        """(P, 12, n_sys): d motion / d systematic parameters of every pair of ``batch``
+        (at the pairs' motions, or at ``motion``: (P, 3) gamma_O and Omega' in pair order)."""
+        if motion is None:
+            motion = (
+                np.concatenate([p.gamma_o for p in batch]),
+                np.concatenate([p.omega_dot for p in batch]),
+            )
+        bounds = np.cumsum([0] + [len(p.orders) for p in batch])
+        out = []
+        start = 0
+        for end in range(1, len(batch) + 1):
+            if end == len(batch) or batch[end].fit is not batch[start].fit:
+                run = batch[start:end]
+                a, b = bounds[start], bounds[end]
+                out.append(
+                    motion_sensitivity(
+                        self.setup,
+                        run[0].fit,
+                        np.concatenate([p.amplitudes for p in run]),
+                        motion[0][a:b],
+                        motion[1][a:b],
+                    )
+                )
+                start = end
+        return np.concatenate(out)
+
+    def rows(
+        self,
+        batch: list[PendingFrame],
+        sign: np.ndarray,
+        sel: np.ndarray,
+        dm_real: np.ndarray,
+        lin: Linearisation,
+        motion: tuple[np.ndarray, np.ndarray] | None = None,
+        calibrate: bool = True,
+    ) -> tuple[np.ndarray, ...]:
+        """Whitened rows (k, 12, n), (k, 12) and sensitivities (k, 12, n_sys) of the
+        selected (frame, order) pairs of ``batch``, motions multiplied by ``sign``
+        (the pairs' own motions, or ``motion``: (P, 3) gamma_O and Omega' in pair
+        order), linearised at ``lin``. ``calibrate=False``: the self-calibrated
+        sensor errors stay systematic errors in these rows."""
+        cat = lambda name: np.concatenate([getattr(p, name) for p in batch])[sel]  # noqa: E731
+        gamma_o, omega_dot = (cat("gamma_o"), cat("omega_dot")) if motion is None else motion
+        counts = [len(p.orders) for p in batch]
+
+        def rep(name):
+            return np.repeat(np.array([getattr(p, name) for p in batch]), counts, axis=0)[sel]
+
+        sg = sign[sel]
+        r = frame_rows(
+            self.setup,
+            self.layout,
+            lin,
+            sg[:, None] * gamma_o,
+            sg[:, None] * omega_dot,
+            rep("origin"),
+            rep("cov_unit"),
+            cat("orders"),
+            rep("rpm"),
+            cat("force"),
+            cat("moment"),
+            cat("var"),
+            measured_moment=None if batch[0].measured_moment is None else cat("measured_moment"),
+        )
+        dr = r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[sel])
+        if self.cal and calibrate:
+            # self-calibration: what was a systematic error becomes an unknown
+            r.H[:, :, self.cal_cols] = dr[:, :, self.cal]
+            dr[:, :, self.cal] = 0.0
+        return r.H, r.y, dr
+
+    def redundancy(self, batch: list[PendingFrame]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Self-calibration rows from the rigid fits' redundancy (:mod:`estimator.redundancy`)
+        of every pair of ``batch``: H (P, 2k, n_all) on the calibration columns, y (P, 2k),
+        and the sensitivities to the other systematic errors (P, 2k, n_sys).
+
+        The same under both half-order signs: a flipped motion flips the residual and
+        its sensitivity alike. (Frames that see only two sensors have no redundancy
+        to speak of and give none.)"""
+        rows, ys, drs = [], [], []
+        for p in batch:
+            assert p.redundancy is not None
+            # whitened with the variance the frame's rows got
+            s = 1.0 / np.sqrt(p.var)
+            dr, y = p.redundancy[0] * s[:, None, None], p.redundancy[1] * s[:, None]
+            H = np.zeros((*dr.shape[:2], self.layout.size + ELASTIC_TERMS))
+            H[:, :, self.cal_cols] = dr[:, :, self.cal]
+            dr[:, :, self.cal] = 0.0
+            rows.append(H)
+            ys.append(y)
+            drs.append(dr)
+        return np.concatenate(rows), np.concatenate(ys), np.concatenate(drs)
