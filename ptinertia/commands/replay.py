@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ptinertia.commands.replay_campaign import add_campaign_arguments, replay_campaign
 from ptinertia.commands.run import (
     CORRECTIONS,
     add_mount_scale_flag,
@@ -30,7 +31,7 @@ from ptinertia.runner import RunOptions, print_table, run_source, write_json
 
 def add_parser(sub: Any, name: str, help_text: str) -> None:
     p = sub.add_parser(name, help=help_text, description=__doc__)
-    p.add_argument("log", help="an MCAP recording, or a directory of them")
+    p.add_argument("log", nargs="+", help="an MCAP recording, several, or a directory of them")
     p.add_argument("--bench", help="bench TOML overriding the one stored in the log")
     p.add_argument("--json", metavar="PATH", help="result document (a directory: one file per log)")
     p.add_argument("--record", metavar="PATH", help="record the replay again (single log only)")
@@ -51,6 +52,7 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
     p.add_argument("--no", action="append", default=[], choices=CORRECTIONS, metavar="CORRECTION")
     add_mount_scale_flag(p)
     p.add_argument("--quiet", action="store_true")
+    add_campaign_arguments(p)
 
 
 def parse_speed(text: str) -> float | None:
@@ -132,13 +134,7 @@ def redecoded_can(log: Any, bench: Any, dbc: str, log_path: Path) -> Any:
 def run(args: argparse.Namespace) -> int:
     from replay.reader import find_logs
 
-    target = Path(args.log)
-    logs = find_logs(target)
-    if target.is_dir():
-        if args.record:
-            raise UsageError("--record: replaying a directory records nothing; give one log")
-        out_dir = Path(args.json) if args.json else target
-        out_dir.mkdir(parents=True, exist_ok=True)
-        codes = [replay_one(p, args, out_dir / (p.stem + ".result.json")) for p in logs]
-        return max(codes, default=0)
+    if len(args.log) > 1 or Path(args.log[0]).is_dir():
+        return replay_campaign(args)
+    logs = find_logs(Path(args.log[0]))
     return replay_one(logs[0], args, Path(args.json) if args.json else None)
