@@ -21,7 +21,7 @@ from typing import Any, TextIO
 
 from estimator.result import Z95
 from ptinertia.campaign_plots import plot_campaign
-from ptinertia.cluster import ClusterSpec, open_client, run_tasks
+from ptinertia.cluster import ClusterSpec, failure_line, open_client, run_tasks
 from ptinertia.config import load_bench, loads_bench
 from ptinertia.errors import UsageError, user_error_types
 from ptinertia.runner import RunOptions, run_source, write_json
@@ -142,12 +142,6 @@ def run_campaign(
     write_table(results, out_dir / TABLE_NAME)
     plot_campaign([Path(r.log).stem for r in results], term_series(results), out_dir / PLOT_NAME)
     return results
-
-
-def failure_line(err: BaseException) -> str:
-    """One line for a task that failed on every try (a bug, or workers that kept dying)."""
-    text = str(err).strip().splitlines()
-    return f"{type(err).__name__}: {text[0] if text else 'no message'}"
 
 
 def term_values(doc: dict[str, Any]) -> dict[str, tuple[float, float | None, str]]:

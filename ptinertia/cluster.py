@@ -168,6 +168,12 @@ def run_tasks(
     return out
 
 
+def failure_line(err: BaseException) -> str:
+    """One line for a task that failed on every try (a bug, or workers that kept dying)."""
+    text = str(err).strip().splitlines()
+    return f"{type(err).__name__}: {text[0] if text else 'no message'}"
+
+
 def map_on_cluster(
     spec: ClusterSpec, fn: Callable[..., T], calls: Sequence[tuple[Any, ...]]
 ) -> list[T]:
