@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import csv
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -114,10 +114,12 @@ def run_campaign(
     spec: ClusterSpec,
     progress: bool = True,
     err: TextIO = sys.stderr,
+    on_result: Callable[[int, Any], None] | None = None,
 ) -> list[LogResult]:
     """Replay ``logs`` on the cluster ``spec``; write each result, the table and the plot.
 
-    Returns one :class:`LogResult` per log, in the order of ``logs``.
+    Returns one :class:`LogResult` per log, in the order of ``logs``. ``on_result(i, r)``
+    hears of each log as it completes (``r`` a :class:`LogResult` or the task's exception).
     """
     # imported here: tqdm's bar only for campaigns
     from tqdm import tqdm
@@ -133,6 +135,8 @@ def run_campaign(
             if isinstance(result, LogResult) and result.doc is not None:
                 write_json(result.doc, result_path(out_dir, result.log))
             bar.update(1)
+            if on_result is not None:
+                on_result(i, result)
 
         raw = run_tasks(client, replay_log, calls, on_done=done, key="replay")
     results = [

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import uuid
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -38,11 +39,13 @@ PROTOCOLS = ("tcp", "tls", "inproc", "ucx", "ws", "wss")
 class ClusterSpec:
     """Where tasks run: ``scheduler`` is ``"local"`` or an address, ``workers`` how many
     processes to start (local) or to wait for (address); ``dashboard`` serves Dask's
-    dashboard on 127.0.0.1 (local only)."""
+    dashboard on 127.0.0.1 (local only); ``connect_timeout_s`` bounds the wait for a
+    remote scheduler and its workers."""
 
     scheduler: str = LOCAL
     workers: int | None = None
     dashboard: bool = False
+    connect_timeout_s: float = CONNECT_TIMEOUT_S
 
     def __post_init__(self) -> None:
         if self.workers is not None and self.workers < 1:
@@ -108,29 +111,27 @@ def open_client(spec: ClusterSpec) -> Iterator[Any]:
         )
         try:
             with Client(cluster) as client:
+                if spec.dashboard:
+                    print(f"dask dashboard: {client.dashboard_link}", file=sys.stderr)
                 yield client
         finally:
             cluster.close()
         return
     try:
-        client = Client(spec.scheduler, timeout=CONNECT_TIMEOUT_S)
+        client = Client(spec.scheduler, timeout=spec.connect_timeout_s)
     except (OSError, TimeoutError) as err:
         raise UsageError(f"--scheduler: cannot reach {spec.scheduler} ({err})") from None
     try:
         try:
-            client.wait_for_workers(spec.workers or 1, timeout=CONNECT_TIMEOUT_S)
+            client.wait_for_workers(spec.workers or 1, timeout=spec.connect_timeout_s)
         except TimeoutError:
             raise UsageError(
                 f"--scheduler: {spec.scheduler} has fewer than {spec.workers or 1} workers "
-                f"after {CONNECT_TIMEOUT_S:g} s"
+                f"after {spec.connect_timeout_s:g} s"
             ) from None
         yield client
     finally:
         client.close()
-
-
-def dashboard_link(client: Any) -> str | None:
-    return getattr(client, "dashboard_link", None) if client.cluster is not None else None
 
 
 def run_tasks(
