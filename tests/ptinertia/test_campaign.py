@@ -15,8 +15,8 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
-import psutil
 import pytest
+from dask.distributed import Client
 
 from ptinertia.campaign import ReplayJob, run_campaign
 from ptinertia.cli import main
@@ -126,7 +126,10 @@ def test_a_worker_killed_mid_campaign_is_replaced_and_the_campaign_completes(
     tmp_path: Path,
 ) -> None:
     folder, expected = logs
-    address, nannies = scheduler
+    address, _ = scheduler
+    with Client(address, timeout=20) as client:
+        client.wait_for_workers(2, timeout=20)
+        pids = sorted(client.run(os.getpid).values())
     killed: list[int] = []
 
     def kill_workers(i: int, result: object) -> None:
@@ -134,10 +137,9 @@ def test_a_worker_killed_mid_campaign_is_replaced_and_the_campaign_completes(
         # every worker process (SIGKILL, no goodbye); their nannies start new ones
         if killed:
             return
-        for nanny in nannies:
-            for child in psutil.Process(nanny.pid).children():
-                os.kill(child.pid, signal.SIGKILL)
-                killed.append(child.pid)
+        for pid in pids:
+            os.kill(pid, signal.SIGKILL)
+            killed.append(pid)
 
     out = tmp_path / "out"
     results = run_campaign(
@@ -148,7 +150,7 @@ def test_a_worker_killed_mid_campaign_is_replaced_and_the_campaign_completes(
         progress=False,
         on_result=kill_workers,
     )
-    assert len(killed) >= 2
+    assert killed == pids
     assert [r.status for r in results] == ["error", "ok", "ok", "ok"]
     _check_campaign(out, expected)
 
