@@ -2,8 +2,9 @@
 
 With unchanged settings the estimates are bit-identical to those of the live
 run (the log keeps the exact float32 samples the live dsp stage saw); with
-``--bench``, ``--orders`` or ``--no`` it re-estimates. A directory replays
-every ``*.mcap`` in it and writes one result per log.
+``--bench``, ``--orders`` or ``--no`` it re-estimates. A directory or several
+logs are a campaign on Dask (:mod:`ptinertia.commands.replay_campaign`): one
+result per log, a table and a plot.
 """
 
 from __future__ import annotations
