@@ -19,12 +19,12 @@ from __future__ import annotations
 
 import argparse
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ptinertia.cluster import ClusterSpec, map_on_cluster
 from ptinertia.sources import REALISTIC_SIMULATION
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -99,11 +99,6 @@ def line(label: str, err: dict[str, float]) -> str:
     if "mass_%" in err:
         extra += f"  mass {err['mass_%']:+.2f}%"
     return f"{label:28} {terms}{extra}"
-
-
-def _job(args: tuple[Any, ...]) -> dict[str, Any]:
-    """``run_case(*args)`` in a worker process."""
-    return run_case(*args)
 
 
 def rls_update_us(n_rows: int, n: int) -> float:
@@ -212,10 +207,10 @@ def main() -> None:
         for sim in ({}, {**REALISTIC, "seed": 1})
         for source in ("model", "pressure")
     ]
-    with ProcessPoolExecutor(max_workers=a.jobs) as pool:
-        jobs = [c for _, c in cases] + elastic_seeds + gas_cases + realistic + calibrated
-        docs = list(pool.map(_job, jobs))
-        dead_docs = list(pool.map(_job, two_sensors))
+    # the runs on a local Dask cluster of --jobs worker processes (ptinertia.cluster)
+    jobs = [c for _, c in cases] + elastic_seeds + gas_cases + realistic + calibrated
+    everything = map_on_cluster(ClusterSpec(workers=a.jobs), run_case, [*jobs, *two_sensors])
+    docs, dead_docs = everything[: len(jobs)], everything[len(jobs) :]
     fixed = docs[: len(cases)]
     elastic_docs = docs[len(cases) : len(cases) + len(elastic_seeds)]
     gas_docs = docs[len(cases) + len(elastic_seeds) : len(cases) + len(elastic_seeds) + 4]

@@ -18,21 +18,27 @@ from __future__ import annotations
 
 import argparse
 import sys
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
+import cloudpickle
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_estimator
 from bench_estimator import I3, REALISTIC, errors, run_case
+
+from ptinertia.cluster import ClusterSpec, map_on_cluster
+
+# workers need not find benchmarks/ on their path: its functions travel with the tasks
+cloudpickle.register_pickle_by_value(bench_estimator)
 
 PRODUCTS = ("Ixy", "Ixz", "Iyz")
 MOVES_MM = (2.0, 1.0, 0.5)
 TARGET_PCT = 2.0
 
 
-def _job(args: tuple[Any, ...]) -> dict[str, float]:
+def _job(*args: Any) -> dict[str, float]:
     """The errors of ``run_case(*args)``, in a worker process."""
     return errors(run_case(*args))
 
@@ -70,9 +76,11 @@ def main() -> None:
         ]
         for mm in MOVES_MM
     }
-    with ProcessPoolExecutor(max_workers=a.jobs) as pool:
-        first = list(pool.map(_job, moved_only))
-        rest = {mm: list(pool.map(_job, cases)) for mm, cases in calibrated.items()}
+    # the runs on a local Dask cluster of --jobs worker processes (ptinertia.cluster)
+    groups = [moved_only, *calibrated.values()]
+    flat = map_on_cluster(ClusterSpec(workers=a.jobs), _job, [c for g in groups for c in g])
+    per_group = [flat[sum(map(len, groups[:k])) :][: len(g)] for k, g in enumerate(groups)]
+    first, rest = per_group[0], dict(zip(calibrated, per_group[1:], strict=True))
     print(f"== i3, products of inertia against the sensor position error, seeds 0-{a.seeds - 1}")
     report("noise-free, 2 mm only, default", first)
     for mm, errs in rest.items():

@@ -57,6 +57,7 @@ register("orders", "ptinertia.commands.orders", "order amplitude and phase vs rp
 register("simulate-pendulum", "ptinertia.commands.simulate_classic", "simulated pendulum test")
 register("simulate-frf", "ptinertia.commands.simulate_classic", "simulated hammer FRFs as UFF58")
 register("report", "ptinertia.commands.report", "self-contained HTML report of a run or result")
+register("study", "ptinertia.commands.study", "Monte Carlo study of simulated sweeps on Dask")
 register("export", "ptinertia.commands.export", "estimate as bench TOML, JSON/CSV or Nastran CONM2")
 
 

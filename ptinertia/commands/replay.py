@@ -2,8 +2,9 @@
 
 With unchanged settings the estimates are bit-identical to those of the live
 run (the log keeps the exact float32 samples the live dsp stage saw); with
-``--bench``, ``--orders`` or ``--no`` it re-estimates. A directory replays
-every ``*.mcap`` in it and writes one result per log.
+``--bench``, ``--orders`` or ``--no`` it re-estimates. A directory or several
+logs are a campaign on Dask (:mod:`ptinertia.commands.replay_campaign`): one
+result per log, a table and a plot.
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ from typing import Any
 from acquisition.can.codec import load_plan
 from acquisition.can.source import CanFrameSource
 from acquisition.stream import check_channels
+from ptinertia.campaign import replay_bench
+from ptinertia.commands.replay_campaign import add_campaign_arguments, replay_campaign
 from ptinertia.commands.run import (
     CORRECTIONS,
     add_mount_scale_flag,
@@ -24,9 +27,7 @@ from ptinertia.commands.run import (
     parse_orders,
     recorder_sinks,
     viewer_sinks,
-    with_mount_scale,
 )
-from ptinertia.config import load_bench, loads_bench
 from ptinertia.errors import UsageError
 from ptinertia.runner import RunOptions, print_table, run_source, write_json
 from ptinertia.sources import required_channels
@@ -37,7 +38,7 @@ from replay.source import McapSource
 
 def add_parser(sub: Any, name: str, help_text: str) -> None:
     p = sub.add_parser(name, help=help_text, description=__doc__)
-    p.add_argument("log", help="an MCAP recording, or a directory of them")
+    p.add_argument("log", nargs="+", help="an MCAP recording, several, or a directory of them")
     p.add_argument("--bench", help="bench TOML overriding the one stored in the log")
     p.add_argument("--json", metavar="PATH", help="result document (a directory: one file per log)")
     p.add_argument("--record", metavar="PATH", help="record the replay again (single log only)")
@@ -58,6 +59,7 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
     p.add_argument("--no", action="append", default=[], choices=CORRECTIONS, metavar="CORRECTION")
     add_mount_scale_flag(p)
     p.add_argument("--quiet", action="store_true")
+    add_campaign_arguments(p)
 
 
 def parse_speed(text: str) -> float | None:
@@ -76,15 +78,7 @@ def parse_speed(text: str) -> float | None:
 
 def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None) -> int:
     log = open_log(log_path)
-    if args.bench:
-        bench_text = Path(args.bench).read_text(encoding="utf-8")
-        bench = load_bench(args.bench)
-    else:
-        if not log.bench_text:
-            raise UsageError(f"{log_path}: the log holds no bench file; give one with --bench")
-        bench_text = log.bench_text
-        bench = loads_bench(bench_text, f"{log_path}:bench.toml")
-    bench = with_mount_scale(bench, args.mount_scale)
+    bench, bench_text = replay_bench(log, log_path, args.bench, args.mount_scale)
     source: Any = McapSource(log, speed=parse_speed(args.speed))
     if args.dbc:
         source = redecoded_can(log, bench, args.dbc, log_path)
@@ -128,13 +122,7 @@ def redecoded_can(log: Any, bench: Any, dbc: str, log_path: Path) -> Any:
 
 
 def run(args: argparse.Namespace) -> int:
-    target = Path(args.log)
-    logs = find_logs(target)
-    if target.is_dir():
-        if args.record:
-            raise UsageError("--record: replaying a directory records nothing; give one log")
-        out_dir = Path(args.json) if args.json else target
-        out_dir.mkdir(parents=True, exist_ok=True)
-        codes = [replay_one(p, args, out_dir / (p.stem + ".result.json")) for p in logs]
-        return max(codes, default=0)
+    if len(args.log) > 1 or Path(args.log[0]).is_dir():
+        return replay_campaign(args)
+    logs = find_logs(Path(args.log[0]))
     return replay_one(logs[0], args, Path(args.json) if args.json else None)

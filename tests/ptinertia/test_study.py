@@ -1,0 +1,90 @@
+"""Monte Carlo studies: draws from (seed, run index) only, same numbers on 1 and 2 workers."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import pytest
+
+from ptinertia.cli import main
+from ptinertia.config import Bench
+from ptinertia.errors import UsageError
+from ptinertia.study import DEFAULT_VARY, draw_run, parse_vary, run_seeds
+
+LAYOUTS = """
+[[layouts]]
+name = "two sensors"
+
+[[layouts.sensors]]
+name = "A_engine_mount"
+position_m = [0.05, 0.30, 0.29]
+channels = ["A_x", "A_y", "A_z"]
+
+[[layouts.sensors]]
+name = "C_rod"
+position_m = [-0.28, -0.02, -0.12]
+channels = ["C_x", "C_y", "C_z"]
+"""
+
+
+def test_each_run_draws_from_the_seed_and_its_index_only(i3: Bench) -> None:
+    few = [draw_run(i3, DEFAULT_VARY, s) for s in run_seeds(7, 3)]
+    many = [draw_run(i3, DEFAULT_VARY, s) for s in run_seeds(7, 10)]
+    assert few == many[:3]
+    assert len({d["seed"] for d in many}) == 10
+    other = [draw_run(i3, DEFAULT_VARY, s) for s in run_seeds(8, 3)]
+    assert other != few
+
+
+def test_draws_follow_the_declared_tolerances(i3: Bench) -> None:
+    d = draw_run(i3, ("gain", "alignment", "position"), run_seeds(0, 1)[0])
+    tol = i3.estimator
+    assert d["gain_error_pct"] == tol.gain_tolerance_pct
+    assert d["misalignment_deg"] == tol.alignment_tolerance_deg
+    assert d["position_error_m"] == tol.position_tolerance_m
+    assert "noise_snr_db" not in d and "residual_unbalance_kgm" not in d
+
+
+def test_vary_names() -> None:
+    assert parse_vary(None) == (DEFAULT_VARY, ())
+    assert parse_vary("gain,mounts,gas") == (("gain", "gas"), ("mounts",))
+    with pytest.raises(UsageError, match="'wind'"):
+        parse_vary("gain,wind")
+
+
+def _study(out: Path, workers: int, layouts: Path) -> int:
+    argv = ["study", "--runs", "3", "--duration", "3", "--seed", "5", "--quiet"]
+    return main([*argv, "--layouts", str(layouts), "--workers", str(workers), "--out", str(out)])
+
+
+def test_a_study_gives_the_same_numbers_on_one_and_two_workers(tmp_path: Path) -> None:
+    layouts = tmp_path / "layouts.toml"
+    layouts.write_text(LAYOUTS)
+    one, two = tmp_path / "one", tmp_path / "two"
+    assert _study(one, 1, layouts) == 0
+    assert _study(two, 2, layouts) == 0
+    for name in ("study.csv", "runs.csv", "layouts.csv"):
+        assert (one / name).read_bytes() == (two / name).read_bytes(), name
+    stats = list(csv.DictReader((one / "study.csv").open()))
+    assert {r["layout"] for r in stats} == {"bench", "two sensors"}
+    assert {r["term"] for r in stats} >= {"Ixx", "Iyz", "Gx", "Gz"}
+    for r in stats:
+        assert int(r["runs"]) == 3 and 0.0 <= float(r["coverage95"]) <= 1.0
+    ranking = list(csv.DictReader((one / "layouts.csv").open()))
+    assert [r["rank"] for r in ranking] == ["1", "2"]
+    assert float(ranking[0]["inertia_rms_pct"]) <= float(ranking[1]["inertia_rms_pct"])
+    assert (one / "study.png").stat().st_size > 1000
+
+
+def test_bad_study_inputs_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    for argv in (
+        ["--vary", "gain,wind"],
+        ["--runs", "0"],
+        ["--layouts", str(tmp_path / "missing.toml")],
+        ["--scheduler", "tcp://nowhere"],
+    ):
+        code = main(["study", "--out", str(tmp_path / "o"), "--quiet", *argv])
+        err = capsys.readouterr().err.strip()
+        assert code == 2, argv
+        assert "\n" not in err and "Traceback" not in err, err
