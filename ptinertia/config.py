@@ -2,7 +2,7 @@
 
 One schema serves simulation (``[powertrain]`` is the truth) and estimation
 (``[powertrain]`` holds nominal or weighed values). Keys are SI or carry their
-unit (``stroke_mm``); :mod:`ptinertia.units` converts. Every error names the
+unit (``stroke_mm``); :mod:`acquisition.units` converts. Every error names the
 key path and what was expected, on one line (:class:`ConfigError`).
 """
 
@@ -21,7 +21,7 @@ from pydantic import (
     model_validator,
 )
 
-from ptinertia.validation import TomlTable, format_validation_error
+from acquisition.tables import TomlTable, format_validation_error
 
 # discriminator tags pydantic puts in error locations of the [gas] union
 GAS_MODELS = ("parametric", "trace", "orders")
