@@ -143,7 +143,7 @@ def encode_can(frames: Any, time_s: float) -> bytes:
 
 def decode_can(data: bytes) -> list[Any]:
     """The batch of ``RawFrame`` as received."""
-    from acquisition.can.codec import RawFrame
+    from acquisition.can.frames import RawFrame
 
     msg = wire_class("CanFrames").FromString(data)
     n = len(msg.timestamp_ns)

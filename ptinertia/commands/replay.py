@@ -115,8 +115,8 @@ def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None)
 
 def redecoded_can(log: Any, bench: Any, dbc: str, log_path: Path) -> Any:
     """A source decoding the log's raw CAN frames again with ``dbc``."""
-    from acquisition.can.codec import load_plan
     from acquisition.can.source import CanFrameSource
+    from ptinertia.to_can import can_plan
     from replay.schemas import TOPIC_CAN
 
     batches = iter(log.can_frames())
@@ -125,7 +125,7 @@ def redecoded_can(log: Any, bench: Any, dbc: str, log_path: Path) -> Any:
         raise UsageError(
             f"--dbc: {log_path} holds no raw CAN frames (it was not recorded from a CAN bus)"
         )
-    plan = load_plan(bench, dbc)
+    plan = can_plan(bench, dbc)
     return CanFrameSource(plan, itertools.chain([first], batches))
 
 
