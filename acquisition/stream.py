@@ -19,7 +19,7 @@ Sources are context managers; ``close()`` is idempotent. Drivers override only
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -131,43 +131,6 @@ class SourceEvent:
 
 
 StreamItem = SampleBlock | EdgeBlock | SourceEvent
-
-# A channel a consumer needs: (name, kind, why), kind ``"sampled"`` or ``"edges"``
-# (anything else is not checked), why a few words for the error (``"sensor A"``).
-ChannelNeed = tuple[str, str, str]
-
-
-def check_channels(layout: StreamLayout, required: Iterable[ChannelNeed], where: str) -> None:
-    """Raise :class:`SourceError` naming the first ``required`` channel ``layout`` lacks.
-
-    The app says what a bench needs (``ptinertia.sources.required_channels``);
-    every source is checked the same way on opening, ``where`` (a path) first in
-    the message. A channel of the other kind gets a hint at the ``[tacho]`` key
-    that would match it.
-    """
-    sampled = set(layout.channel_names)
-    edges = set(layout.edge_channels)
-    for name, kind, why in required:
-        if kind == "edges" and name not in edges:
-            hint = (
-                " (it is a sampled channel there: set [tacho] delivery = 'sampled')"
-                if name in sampled
-                else ""
-            )
-            raise SourceError(
-                f"{where}: edge channel {name!r} ({why}) not found{hint}; edge channels: "
-                f"{', '.join(sorted(edges)) or 'none'}"
-            )
-        if kind == "sampled" and name not in sampled:
-            hint = (
-                " (it is an edge channel there: set [tacho] delivery = 'edges')"
-                if name in edges
-                else ""
-            )
-            raise SourceError(
-                f"{where}: channel {name!r} ({why}) not found{hint}; "
-                f"channels: {', '.join(layout.channel_names)}"
-            )
 
 
 class Source(ABC):

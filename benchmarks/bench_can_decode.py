@@ -26,10 +26,12 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.can.codec import RawFrame, frame_time_s, load_plan
-from acquisition.can.source import FrameDecoder
+from acquisition.can.bus_load import frame_time_s
+from acquisition.can.decoder import FrameDecoder
+from acquisition.can.frames import RawFrame
 from ptinertia.commands.can_sim import simulate_to_bus
 from ptinertia.config import load_bench
+from ptinertia.to_can import can_plan
 
 ROOT = Path(__file__).resolve().parent.parent
 BENCH = ROOT / "examples" / "i3-bench.toml"
@@ -54,7 +56,7 @@ def bus_path_rate(bench, plan, seconds: float) -> tuple[float, int]:
 
     import can
 
-    from acquisition.can.source import CanBusSource
+    from acquisition.can.bus import CanBusSource
 
     channel = "bench-can-decode"
     src = CanBusSource(plan, interface="virtual", channel=channel, idle_timeout_s=5.0)
@@ -94,7 +96,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     a = ap.parse_args()
     bench = load_bench(BENCH)
-    plan = load_plan(bench, DBC)
+    plan = can_plan(bench, DBC)
     frames: list[RawFrame] = []
     simulate_to_bus(
         bench,

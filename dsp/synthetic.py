@@ -1,7 +1,8 @@
 """Synthetic order signals with an exactly known crank angle, for tests and benchmarks.
 
-Independent of the simulated bench: the crank speed ramps linearly,
-``phi(t) = phi0 + w0 t + a t^2 / 2`` (inverse in closed form), every channel is a
+Independent of the simulated bench's model: the crank speed ramps linearly,
+``phi(t) = phi0 + w0 t + a t^2 / 2`` (the bench's own :class:`~acquisition.sim.sweep.RpmProfile`,
+inverse in closed form), every channel is a
 sum of orders ``x(t) = sum_h Re{A_h(rpm(t)) exp(i h phi(t))}`` with
 ``A_h(rpm) = A_h0 (rpm / rpm_ref)^p_h``, and the tacho edges are the exact
 times at which the wheel passes its teeth (wheel angle ``theta_w = phi +
@@ -13,9 +14,11 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
+from acquisition.sim.sweep import RpmProfile, ramp
 from acquisition.stream import (
     ChannelSpec,
     EdgeBlock,
@@ -30,12 +33,22 @@ RPM = 2.0 * math.pi / 60.0
 
 @dataclass(frozen=True)
 class Ramp:
-    """Linear rpm ramp ``rpm0 -> rpm1`` over ``duration_s``; constant outside."""
+    """Linear rpm ramp ``rpm0 -> rpm1`` over ``duration_s``; constant outside.
+
+    The crank angle and its inverse are the simulated bench's
+    (:class:`~acquisition.sim.sweep.RpmProfile` of one segment), so the tests of the
+    order tracker and the simulator share one exact kinematics.
+    """
 
     rpm0: float
     rpm1: float
     duration_s: float
     phi0_rad: float = 0.0
+
+    @cached_property
+    def profile(self) -> RpmProfile:
+        """The one-segment profile behind the ramp."""
+        return RpmProfile([ramp(self.rpm0, self.rpm1, self.duration_s)], self.phi0_rad)
 
     @property
     def alpha(self) -> float:
@@ -43,20 +56,17 @@ class Ramp:
         return (self.rpm1 - self.rpm0) * RPM / self.duration_s
 
     def phi(self, t: np.ndarray | float) -> np.ndarray:
-        t = np.asarray(t, dtype=float)
-        return self.phi0_rad + self.rpm0 * RPM * t + 0.5 * self.alpha * t * t
+        return self.profile.phi(np.asarray(t, dtype=float))
 
     def omega(self, t: np.ndarray | float) -> np.ndarray:
-        return self.rpm0 * RPM + self.alpha * np.asarray(t, dtype=float)
+        return self.profile.omega(np.asarray(t, dtype=float))
 
     def rpm(self, t: np.ndarray | float) -> np.ndarray:
-        return self.omega(t) / RPM
+        return self.profile.rpm(np.asarray(t, dtype=float))
 
     def t_of_phi(self, phi: np.ndarray | float) -> np.ndarray:
         """Exact inverse (cancellation-free root of the quadratic)."""
-        d = np.asarray(phi, dtype=float) - self.phi0_rad
-        w0 = self.rpm0 * RPM
-        return 2.0 * d / (w0 + np.sqrt(w0 * w0 + 2.0 * self.alpha * d))
+        return self.profile.t_of_phi(np.asarray(phi, dtype=float))
 
 
 @dataclass(frozen=True)

@@ -19,14 +19,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
-from acquisition.stream import check_channels
+from acquisition.channels import check_channels
 from estimator.result import Z95
 from ptinertia.campaign_plots import plot_campaign
 from ptinertia.cluster import ClusterSpec, failure_line, open_client, run_tasks
 from ptinertia.config import Bench, load_bench, loads_bench
 from ptinertia.errors import UsageError, user_error_types
 from ptinertia.runner import RunOptions, run_source, write_json
-from ptinertia.sources import required_channels
+from ptinertia.to_acquisition import channel_needs
 from replay.reader import open_log
 from replay.recorded_log import RecordedLog
 from replay.source import McapSource
@@ -98,7 +98,7 @@ def _replay(log_path: Path, job: ReplayJob) -> LogResult:
     log = open_log(log_path)
     bench, bench_text = replay_bench(log, log_path, job.bench_path, job.mount_scale)
     source = McapSource(log, speed=None)
-    check_channels(source.layout, required_channels(bench), str(log_path))
+    check_channels(source.layout, channel_needs(bench), str(log_path))
     options = RunOptions(
         orders=job.orders,
         corrections_off=job.corrections_off,

@@ -5,7 +5,7 @@ One schema serves simulation (``[powertrain]`` is the truth) and estimation
 powertrain are in :mod:`ptinertia.config_powertrain`, the field types they share in
 :mod:`ptinertia.config_fields`; this module holds the acquisition, processing and
 simulation settings and the file as a whole. Keys are SI or carry their
-unit (``stroke_mm``); :mod:`ptinertia.units` converts. Every error names the
+unit (``stroke_mm``); :mod:`acquisition.units` converts. Every error names the
 key path and what was expected, on one line (:class:`ConfigError`).
 """
 
@@ -23,6 +23,7 @@ from pydantic import (
     model_validator,
 )
 
+from acquisition.tables import format_validation_error
 from ptinertia.config_fields import NonNegative, Positive, Section
 from ptinertia.config_powertrain import (
     Engine,
@@ -33,7 +34,6 @@ from ptinertia.config_powertrain import (
     Powertrain,
     Sensor,
 )
-from ptinertia.validation import format_validation_error
 
 # discriminator tags pydantic puts in error locations of the [gas] union
 GAS_MODELS = ("parametric", "trace", "orders")

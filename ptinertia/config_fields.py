@@ -12,7 +12,7 @@ from typing import Annotated
 import numpy as np
 from pydantic import Field
 
-from ptinertia.validation import TomlTable
+from acquisition.tables import TomlTable
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]  # (x, y, z)
 Matrix3 = Annotated[list[Vec3], Field(min_length=3, max_length=3)]  # three rows

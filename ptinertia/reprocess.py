@@ -12,12 +12,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from acquisition.stream import check_channels
+from acquisition.channels import check_channels
 from estimator.result import Estimate, EstimateUpdate
 from ptinertia.config import Bench
 from ptinertia.runner import RunOptions, run_source
 from ptinertia.sinks import RunContext, Sink
-from ptinertia.sources import required_channels
+from ptinertia.to_acquisition import channel_needs
 from replay.reader import RecordedLog
 from replay.source import McapSource
 
@@ -67,7 +67,7 @@ def reprocess_log(log: RecordedLog, bench: Bench, bench_text: str, where: str) -
     """Run the chain on the raw data of ``log`` with ``bench`` (``where`` names the log in
     messages: a channel the bench file needs and the log lacks)."""
     source = McapSource(log)
-    check_channels(source.layout, required_channels(bench), where)
+    check_channels(source.layout, channel_needs(bench), where)
     sink = MemorySink()
     summary, doc = run_source(
         bench, bench_text, source, log.source or "replay", RunOptions(quiet=True, sinks=(sink,))

@@ -12,10 +12,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from acquisition.can.logs import is_can_log
+from acquisition.channels import check_channels
 from acquisition.sim.sweep import RpmProfile
-from acquisition.stream import Source, SourceError, check_channels
+from acquisition.stream import Source, SourceError
+from ptinertia.bench import build_simulated_model
 from ptinertia.config import Bench, Simulation, Tacho, parse_bench
 from ptinertia.registry import file_kind, source_backend
+from ptinertia.to_acquisition import channel_needs, sweep_profile, tacho_spec
+from ptinertia.to_can import can_settings
 
 # options of the simulated source that are not bench-file keys
 SIM_OPTIONS = (
@@ -26,6 +31,8 @@ SIM_OPTIONS = (
     "table_rtol",
     "table_degree",
     "bench_text",
+    "clock",
+    "sleep",
 )
 FILE_OPTIONS = ("block_s",)
 
@@ -78,7 +85,9 @@ def open_source(spec: str, bench: Bench, **overrides: Any) -> Source:
     if kind == "file" and sep:
         return open_file(arg, bench, **overrides)
     if kind == "can" and sep:
-        source: Source = source_backend("can")(arg, bench, **overrides)
+        source: Source = source_backend("can")(
+            arg, can_settings(bench.can), channel_needs(bench), **overrides
+        )
         return source
     if Path(spec).suffix.lower() in FILE_SUFFIXES:
         return open_file(spec, bench, **overrides)
@@ -116,8 +125,6 @@ def simulated_bench(bench: Bench, **overrides: Any) -> Bench:
 
 def open_simulated(bench: Bench, **overrides: Any) -> Source:
     """The simulated bench of ``bench`` (see :func:`open_source` for the overrides)."""
-    from ptinertia.bench import build_simulated_model
-
     known = [*Simulation.model_fields, "accel_rate_hz", "tacho", *SIM_OPTIONS]
     _unknown(overrides, known, "source 'sim'")
     bench = simulated_bench(bench, **{k: v for k, v in overrides.items() if k not in SIM_OPTIONS})
@@ -125,7 +132,7 @@ def open_simulated(bench: Bench, **overrides: Any) -> Source:
     sim = bench.simulation
     profile = options.pop("profile", None)
     if profile is None:
-        profile = RpmProfile.from_simulation(sim)
+        profile = sweep_profile(sim)
     elif not isinstance(profile, RpmProfile):
         raise SourceError(f"profile: expected an RpmProfile, got {type(profile).__name__}")
     metadata: dict[str, Any] = {"bench": bench.model_dump(mode="json")}
@@ -136,7 +143,7 @@ def open_simulated(bench: Bench, **overrides: Any) -> Source:
     cls = source_backend("sim")
     source: Source = cls(
         model,
-        tacho=bench.tacho,
+        tacho=tacho_spec(bench.tacho),
         accel_rate_hz=bench.sampling.accel_rate_hz,
         profile=profile,
         max_order=sim.max_order,
@@ -155,50 +162,21 @@ def open_file(path: str | Path, bench: Bench, **overrides: Any) -> Source:
     """A recording chosen by its extension; CSV and MF4 are checked against ``bench``."""
     path = Path(path)
     kind = file_kind(path.suffix)
-    if kind == "mf4" and _is_can_log(path):
+    if kind == "mf4" and is_can_log(path):
         kind = "can-log"
     if kind == "can-log":
-        opened: Source = source_backend(kind)(path, bench, **overrides)
-        return opened
+        log: Source = source_backend(kind)(
+            path, can_settings(bench.can), channel_needs(bench), **overrides
+        )
+        return log
     if kind == "mcap":
-        replayed: Source = source_backend(kind)(path, required_channels(bench), **overrides)
+        replayed: Source = source_backend(kind)(path, channel_needs(bench), **overrides)
         return replayed
     _unknown(overrides, FILE_OPTIONS, f"source 'file:{path}'")
     source: Source = source_backend(kind)(path, **overrides)
     try:
-        check_channels(source.layout, required_channels(bench), str(path))
+        check_channels(source.layout, channel_needs(bench), str(path))
     except BaseException:
         source.close()
         raise
     return source
-
-
-def _is_can_log(path: Path) -> bool:
-    """An MF4 of raw CAN frames (asammdf bus logging), read by the CAN log source."""
-    try:
-        from acquisition.can.logs import is_can_log
-    except ImportError:
-        return False
-    return bool(is_can_log(path))
-
-
-def required_channels(bench: Bench) -> list[tuple[str, str, str]]:
-    """``(channel, kind, why)`` the estimate needs; kind is ``sampled``, ``edges`` or ``either``."""
-    need = [(c, "sampled", f"sensor {s.name}") for s in bench.sensors for c in s.channels if c]
-    t = bench.tacho
-    need.append(
-        (
-            t.channel,
-            "edges" if t.delivery == "edges" else "sampled",
-            f"tacho, delivery {t.delivery!r}",
-        )
-    )
-    if t.kind == "rpm":
-        need.append((t.rpm_channel, "sampled", "rpm channel of a kind='rpm' tacho"))
-    if t.phase_reference == "cam":
-        need.append(
-            (t.cam_channel, "edges" if t.delivery == "edges" else "sampled", "cam phase reference")
-        )
-    if t.phase_reference == "pressure":
-        need.append((t.pressure_channel, "sampled", "cylinder-pressure phase reference"))
-    return need

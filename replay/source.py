@@ -13,18 +13,11 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
-from acquisition.stream import (
-    ChannelNeed,
-    EdgeBlock,
-    SampleBlock,
-    Source,
-    StreamItem,
-    StreamLayout,
-    check_channels,
-)
+from acquisition.channels import ChannelNeed, check_channels
+from acquisition.stream import EdgeBlock, SampleBlock, Source, StreamItem, StreamLayout
 from replay.errors import LogError
 from replay.reader import open_log
 from replay.recorded_log import ReadReport, RecordedLog
@@ -116,7 +109,7 @@ class McapSource(Source):
 
 
 def open_replay(
-    path: str | Path, required: Iterable[ChannelNeed] = (), speed: float | None = None
+    path: str | Path, required: Sequence[ChannelNeed] = (), speed: float | None = None
 ) -> McapSource:
     """A :class:`McapSource`, checked against the channels a consumer needs.
 
@@ -124,7 +117,7 @@ def open_replay(
     ----------
     path : the recording.
     required : the channels the estimate needs (the app's
-        ``ptinertia.sources.required_channels`` of the bench, e.g. a ``--bench``
+        ``ptinertia.to_acquisition.channel_needs`` of the bench, e.g. a ``--bench``
         override); empty: no check.
     speed : as for :class:`McapSource`.
 

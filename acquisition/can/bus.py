@@ -43,7 +43,7 @@ def bus_error_kind(msg: Any) -> str:
 
 def open_bus(interface: str, channel: str, **kwargs: Any) -> Any:
     """``can.Bus`` with errors turned into one-line :class:`SourceError` messages."""
-    import can
+    import can  # on use: python-can loads its interfaces; a replay never needs it
 
     if interface not in can.interfaces.VALID_INTERFACES:
         raise SourceError(
@@ -82,7 +82,7 @@ class _Receiver(threading.Thread):
         self.stop = threading.Event()
 
     def run(self) -> None:
-        import can
+        import can  # on use, as in open_bus
 
         last_state = None
         next_poll = 0.0

@@ -16,7 +16,8 @@ A DBC names the frames; a few custom attributes (``docs/can.md``) say what they 
 * **status frame** (``PtiStatus = 1``): ``STATE`` (1 running, 2 stopped) and
   ``DAQ_TIME``; a stop frame's ``DAQ_TIME`` is the end of the acquisition.
 
-Every check of a DBC against a bench happens here, once, so that a bad DBC fails before
+Every check of a DBC against the channels a run needs
+(:class:`~acquisition.channels.ChannelNeed`) happens here, once, so that a bad DBC fails before
 any frame is read, with a message naming the message and signal; the codecs only touch
 cantools for signals the fast path cannot read.
 """
@@ -26,13 +27,14 @@ from __future__ import annotations
 import re
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from acquisition.can.plan import CanPlan, ChannelScaling, IntField, MessagePlan
+from acquisition.channels import ChannelNeed
 from acquisition.stream import ChannelSpec, SampleGroup, SourceError, StreamLayout
 
-if TYPE_CHECKING:
-    from ptinertia.config import Bench
+# the sample groups a CAN DAQ sends, in the simulated source's order
+SAMPLE_GROUPS = ("accel", "pressure", "rpm")
 
 _SAMPLE_NAME = re.compile(r"^(?P<channel>.+)_s(?P<k>\d+)$")
 _DELTA_NAME = re.compile(r"^EDGE_D(?P<k>\d+)$")
@@ -40,7 +42,7 @@ _DELTA_NAME = re.compile(r"^EDGE_D(?P<k>\d+)$")
 
 def load_dbc(path: str | Path | None) -> Any:
     """cantools database of ``path``; :class:`SourceError` if none is named, missing or unreadable."""
-    import cantools
+    import cantools  # on use: a replay or a CSV run never needs it
 
     if not path:
         raise SourceError(
@@ -271,23 +273,21 @@ def _status_message(msg: Any) -> MessagePlan:
     )
 
 
-def bench_groups(bench: Bench) -> list[tuple[str, str, list[tuple[str, str, bool]]]]:
-    """``(group, default unit, [(channel, why, required)])`` in the simulated source's order."""
-    t = bench.tacho
-    accel = [(c, f"sensor {s.name}", True) for s in bench.sensors for c in s.channels if c]
-    groups = [("accel", "m/s^2", accel)]
-    if t.phase_reference == "pressure":
-        groups.append(
-            ("pressure", "bar", [(t.pressure_channel, "cylinder-pressure phase reference", True)])
-        )
-    groups.append(
-        ("rpm", "rpm", [(t.rpm_channel, "rpm channel of a kind='rpm' tacho", t.kind == "rpm")])
-    )
+def _sample_groups(
+    needs: Sequence[ChannelNeed],
+) -> list[tuple[str, str, list[tuple[str, str, bool]]]]:
+    """``(group, default unit, [(channel, why, required)])`` of the sampled channels needed."""
+    groups = []
+    for gname in SAMPLE_GROUPS:
+        chans = [(n.name, n.why, n.required) for n in needs if n.group == gname and not n.edges]
+        if chans:
+            unit = next(n.unit for n in needs if n.group == gname)
+            groups.append((gname, unit, chans))
     return groups
 
 
-def plan_for_bench(db: Any, bench: Bench, dbc_path: str = "") -> CanPlan:
-    """The messages of ``db`` that carry what ``bench`` needs, and the layout they make.
+def plan_for_channels(db: Any, needs: Sequence[ChannelNeed], dbc_path: str = "") -> CanPlan:
+    """The messages of ``db`` that carry the channels ``needs``, and the layout they make.
 
     Raises
     ------
@@ -297,13 +297,13 @@ def plan_for_bench(db: Any, bench: Bench, dbc_path: str = "") -> CanPlan:
         different rates, a message without counter, a malformed edge message.
     """
     where = f"DBC {dbc_path}" if dbc_path else "DBC"
-    t = bench.tacho
-    if t.delivery != "edges":
+    sampled_tacho = next((n for n in needs if n.group == "tacho"), None)
+    if sampled_tacho is not None:
         raise SourceError(
-            f"[tacho] delivery = 'sampled' at {t.sample_rate_hz:g} Hz cannot travel over CAN; "
+            f"[tacho] delivery = 'sampled' at {sampled_tacho.rate_hz or 0:g} Hz cannot travel over CAN; "
             "CAN DAQ modules timestamp the edges: set delivery = 'edges'"
         )
-    groups = bench_groups(bench)
+    groups = _sample_groups(needs)
     wanted = {c for _, _, chans in groups for c, _, _ in chans}
     found: dict[str, dict[str, dict[int, Any]]] = {}  # message name -> channel -> k -> signal
     owner: dict[str, str] = {}
@@ -373,7 +373,7 @@ def plan_for_bench(db: Any, bench: Bench, dbc_path: str = "") -> CanPlan:
         specs = tuple(ChannelSpec(c, u or unit) for (c, _), u in zip(present, units, strict=True))
         sample_groups.append(SampleGroup(gname, gmsgs[0].rate_hz, specs))
         messages.extend(gmsgs)
-    edge_channels = [t.channel] + ([t.cam_channel] if t.phase_reference == "cam" else [])
+    edge_channels = [n.name for n in needs if n.edges]
     for ch in edge_channels:
         if ch not in edge_msgs:
             known = ", ".join(sorted(edge_msgs)) or "none"
@@ -390,7 +390,6 @@ def plan_for_bench(db: Any, bench: Bench, dbc_path: str = "") -> CanPlan:
     return CanPlan(dbc_path, tuple(messages), layout, ids)
 
 
-def load_plan(bench: Bench, dbc: str | Path | None = None) -> CanPlan:
-    """:func:`plan_for_bench` of ``dbc`` (default: the bench file's ``[can] dbc``)."""
-    path = dbc if dbc is not None else bench.can.dbc
-    return plan_for_bench(load_dbc(path), bench, str(path))
+def load_plan(needs: Sequence[ChannelNeed], dbc: str | Path | None) -> CanPlan:
+    """:func:`plan_for_channels` of the DBC file ``dbc``."""
+    return plan_for_channels(load_dbc(dbc), needs, str(dbc))

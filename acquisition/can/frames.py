@@ -14,6 +14,9 @@ import numpy as np
 
 from acquisition.stream import SourceError
 
+# the payload lengths a CAN (FD) frame can have; the index is the DLC code
+DLC_SIZES = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
+
 
 class RawFrame(NamedTuple):
     """One CAN frame as received (or logged); the record raw-frame logs store.

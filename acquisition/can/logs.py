@@ -13,20 +13,21 @@ column ``L`` the DLC code), which python-can's reader understands.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any
+from typing import IO, Any
 
-from acquisition.can.codec import CanPlan, RawFrame, load_plan
-from acquisition.can.source import CanFrameSource, DecoderOptions, message_to_frame
+from acquisition.can.bus import message_to_frame
+from acquisition.can.dbc import load_plan
+from acquisition.can.frames import DLC_SIZES, RawFrame
+from acquisition.can.plan import CanPlan
+from acquisition.can.reorder import DecoderOptions
+from acquisition.can.source import CanFrameSource, CanSettings
+from acquisition.channels import ChannelNeed
 from acquisition.stream import SourceError
 
-if TYPE_CHECKING:
-    from ptinertia.config import Bench
-
 CAN_LOG_SUFFIXES = (".blf", ".asc", ".trc", ".log")
-_DLC_SIZES = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 
 
 def is_can_log(path: str | Path) -> bool:
@@ -38,7 +39,7 @@ def is_can_log(path: str | Path) -> bool:
     if suffix != ".mf4" or not p.is_file():
         return False
     try:
-        from asammdf import MDF
+        from asammdf import MDF  # on use: heavy, and optional
 
         with MDF(str(p)) as mdf:
             return "CAN_DataFrame" in mdf.channels_db
@@ -50,7 +51,7 @@ def read_frames(
     path: str | Path, batch_frames: int = 5000, errors: list[int] | None = None
 ) -> Iterator[list[RawFrame]]:
     """The data frames of a CAN log in batches; error frames are counted into ``errors[0]``."""
-    import can
+    import can  # on use: python-can loads its interfaces; a CSV run never needs it
 
     p = Path(path)
     if not p.is_file():
@@ -110,8 +111,13 @@ class CanLogSource(CanFrameSource):
         self.decoder.stats.bus_errors = self._errors[0]
 
 
-def open_can_log(path: str | Path, bench: Bench, **overrides: Any) -> CanLogSource:
-    """``--source file:run.blf``: the log decoded with ``dbc`` (default: the bench file's ``[can] dbc``).
+def open_can_log(
+    path: str | Path, settings: CanSettings, needs: Sequence[ChannelNeed], **overrides: Any
+) -> CanLogSource:
+    """``--source file:run.blf``: the channels ``needs`` decoded from the log.
+
+    The DBC is ``settings.dbc`` (the bench file's ``[can] dbc``) unless the override
+    ``dbc`` names another.
 
     Overrides: ``dbc``, ``reorder_window_s``, ``block_s`` (ignored: a log's
     batches are frames, not seconds).
@@ -123,7 +129,8 @@ def open_can_log(path: str | Path, bench: Bench, **overrides: Any) -> CanLogSour
         )
     if not Path(path).is_file():
         raise SourceError(f"CAN log {str(path)!r} not found")
-    plan = load_plan(bench, overrides.get("dbc"))
+    dbc = overrides.get("dbc")
+    plan = load_plan(needs, settings.dbc if dbc is None else dbc)
     opts = DecoderOptions(
         reorder_window_s=float(overrides.get("reorder_window_s", DecoderOptions.reorder_window_s))
     )
@@ -134,7 +141,7 @@ class FrameLogWriter:
     """Writes raw frames to a CAN log chosen by extension (python-can's writers, TRC our own)."""
 
     def __init__(self, path: str | Path) -> None:
-        import can
+        import can  # on use: python-can loads its interfaces
 
         self.path = Path(path)
         suffix = self.path.suffix.lower()
@@ -158,7 +165,7 @@ class FrameLogWriter:
         if self._trc is not None:
             self._write_trc(frame)
         else:
-            import can
+            import can  # on use, as in __init__
 
             self._logger.on_message_received(
                 can.Message(
@@ -186,9 +193,9 @@ class FrameLogWriter:
                 ";   written by ptinertia (CAN FD frames: type FB, L = DLC code)\n"
             )
         n = len(f.data)
-        if n not in _DLC_SIZES:
+        if n not in DLC_SIZES:
             raise SourceError(f"TRC: a CAN frame cannot hold {n} bytes")
-        dlc = _DLC_SIZES.index(n)
+        dlc = DLC_SIZES.index(n)
         kind = "FB" if f.is_fd else "DT"
         ident = f"{f.arbitration_id:08X}" if f.is_extended_id else f"{f.arbitration_id:04X}"
         data = " ".join(f"{b:02X}" for b in f.data)

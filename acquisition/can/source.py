@@ -1,48 +1,51 @@
-"""CAN sources: one import point, the log/replay source and the ``can:`` registry entry.
+"""CAN sources: the log/replay source over raw frames and the ``can:`` registry entry.
 
 :class:`CanFrameSource` decodes batches of raw frames (a CAN log, raw frames replayed from
 a recording); :func:`open_can` builds the live :class:`~acquisition.can.bus.CanBusSource`
-for ``--source can:INTERFACE:CHANNEL`` (``ptinertia.registry`` names it here). The rest
-is split along its seams and re-exported, so ``from acquisition.can.source import X``
-keeps working:
-
-* :mod:`acquisition.can.decoder`: :class:`FrameDecoder`, :func:`decode_frames` (placement, losses).
-* :mod:`acquisition.can.reorder`: :class:`DecoderOptions` and the per-message decoder state.
-* :mod:`acquisition.can.stats`: :class:`DecoderStats`, :class:`StreamStats` (loss accounting).
-* :mod:`acquisition.can.bus`: the live bus, its receive thread and python-can glue.
+for ``--source can:INTERFACE:CHANNEL`` (``ptinertia.registry`` names it here) from the
+bus settings (:class:`CanSettings`) and the channels the run needs. The decoding itself
+is in :mod:`acquisition.can.decoder`, the live bus in :mod:`acquisition.can.bus`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator, Sequence
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass
+from typing import Any
 
-from acquisition.can.bus import CanBusSource, bus_error_kind, message_to_frame, open_bus
+from acquisition.can.bus import CanBusSource
 from acquisition.can.dbc import load_plan
-from acquisition.can.decoder import FrameDecoder, decode_frames
+from acquisition.can.decoder import FrameDecoder
 from acquisition.can.frames import RawFrame
 from acquisition.can.plan import CanPlan
 from acquisition.can.reorder import DecoderOptions
-from acquisition.can.stats import DecoderStats, StreamStats
+from acquisition.can.stats import DecoderStats
+from acquisition.channels import ChannelNeed
 from acquisition.stream import Source, SourceError, SourceEvent, StreamItem, StreamLayout
 
-if TYPE_CHECKING:
-    from ptinertia.config import Bench
 
-__all__ = [
-    "CAN_OPTIONS",
-    "CanBusSource",
-    "CanFrameSource",
-    "DecoderOptions",
-    "DecoderStats",
-    "FrameDecoder",
-    "StreamStats",
-    "bus_error_kind",
-    "decode_frames",
-    "message_to_frame",
-    "open_bus",
-    "open_can",
-]
+@dataclass(frozen=True)
+class CanSettings:
+    """The bus a CAN acquisition listens on, and the DBC that maps its frames to channels.
+
+    Attributes
+    ----------
+    dbc : str or None
+        DBC file (None: none named, :func:`~acquisition.can.dbc.load_dbc` says so).
+    interface, channel : str
+        python-can interface and channel.
+    bitrate, data_bitrate : int
+        Arbitration and CAN FD data bit rates, bit/s.
+    fd : bool
+        CAN FD.
+    """
+
+    dbc: str | None
+    interface: str
+    channel: str
+    bitrate: int
+    data_bitrate: int
+    fd: bool
 
 
 class CanFrameSource(Source):
@@ -102,8 +105,12 @@ CAN_OPTIONS = (
 )
 
 
-def open_can(arg: str, bench: Bench, **overrides: Any) -> CanBusSource:
-    """The live source of ``--source can:INTERFACE:CHANNEL`` (either part defaults to ``[can]``).
+def open_can(
+    arg: str, settings: CanSettings, needs: Sequence[ChannelNeed], **overrides: Any
+) -> CanBusSource:
+    """The live source of ``--source can:INTERFACE:CHANNEL`` reading the channels ``needs``.
+
+    Either part of ``arg`` defaults to ``settings`` (the bench file's ``[can]``).
 
     Overrides: ``dbc``, ``bitrate``, ``data_bitrate``, ``fd``, ``bus_kwargs``,
     ``reorder_window_s``, ``idle_timeout_s``, ``stop_grace_s``, ``max_outage_s``,
@@ -115,10 +122,11 @@ def open_can(arg: str, bench: Bench, **overrides: Any) -> CanBusSource:
             f"source 'can:{arg}': unknown option {bad[0]!r}; known: {', '.join(CAN_OPTIONS)}"
         )
     interface, _, channel = arg.partition(":")
-    cfg = bench.can
+    cfg = settings
     interface = interface or cfg.interface
     channel = channel or cfg.channel
-    plan = load_plan(bench, overrides.get("dbc"))
+    dbc = overrides.get("dbc")
+    plan = load_plan(needs, cfg.dbc if dbc is None else dbc)
     fd = bool(overrides.get("fd", cfg.fd))
     if not fd:
         fd_msgs = [m.name for m in plan.messages if m.is_fd]

@@ -24,23 +24,22 @@ from typing import Annotated
 import numpy as np
 from pydantic import Field, ValidationError, field_validator
 
-from acquisition.classical.pendulum_file import TomlSection
 from acquisition.stream import SourceError
-from ptinertia.validation import format_validation_error
+from acquisition.tables import TomlTable, format_validation_error
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 Matrix3 = Annotated[list[Vec3], Field(min_length=3, max_length=3)]
 IDENTITY = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
 
 
-class SetupResponse(TomlSection):
+class SetupResponse(TomlTable):
     """A response node: which bench sensor it is."""
 
     node: int
     sensor: str
 
 
-class SetupExcitation(TomlSection):
+class SetupExcitation(TomlTable):
     """An excitation node: where it is and its frame (direction code k = row k of ``axes``)."""
 
     node: int
@@ -60,7 +59,7 @@ class SetupExcitation(TomlSection):
         return v
 
 
-class ModalSetup(TomlSection):
+class ModalSetup(TomlTable):
     """Which UFF node is which point (see module docstring)."""
 
     responses: list[SetupResponse] = Field(default_factory=list)

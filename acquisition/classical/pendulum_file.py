@@ -25,14 +25,11 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, ValidationError, model_validator
 
 from acquisition.stream import SourceError
-from ptinertia.validation import TomlTable, format_validation_error
+from acquisition.tables import TomlTable, format_validation_error
 
 Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
-
-
-TomlSection = TomlTable  # unknown keys refused, unit suffixes normalised (as the bench file)
 
 
 def _nonzero(v: list[float], what: str) -> list[float]:
@@ -42,13 +39,13 @@ def _nonzero(v: list[float], what: str) -> list[float]:
     return v
 
 
-class Meta(TomlSection):
+class Meta(TomlTable):
     name: str = "pendulum test"
     description: str = ""
     method: Literal["pendulum", "rolling_plate"] = "pendulum"
 
 
-class Uncertainty(TomlSection):
+class Uncertainty(TomlTable):
     """1-sigma defaults; a configuration or line may override its own.
 
     ``stiffness_pct`` is independent per configuration; ``stiffness_calibration_pct``
@@ -64,7 +61,7 @@ class Uncertainty(TomlSection):
     plate_point_std_m: NonNegative = 0.0
 
 
-class Plate(TomlSection):
+class Plate(TomlTable):
     """The rolling plate (eq. 8): its inertia about its pivot and the body mass ``M``."""
 
     inertia_kgm2: NonNegative
@@ -75,7 +72,7 @@ class Plate(TomlSection):
     cog_std_m: NonNegative = 0.0
 
 
-class Line(TomlSection):
+class Line(TomlTable):
     """A plumb line through the suspension point, in body (bench) coordinates."""
 
     point_m: Vec3
@@ -89,7 +86,7 @@ class Line(TomlSection):
         return self
 
 
-class Configuration(TomlSection):
+class Configuration(TomlTable):
     """One swing: axis through the cog, torsional period, suspension stiffness."""
 
     name: str = ""
@@ -108,7 +105,7 @@ class Configuration(TomlSection):
         return self
 
 
-class TruthTerms(TomlSection):
+class TruthTerms(TomlTable):
     Ixx: float
     Iyy: float
     Izz: float
@@ -117,13 +114,13 @@ class TruthTerms(TomlSection):
     Iyz: float = 0.0
 
 
-class Truth(TomlSection):
+class Truth(TomlTable):
     mass_kg: Positive | None = None
     cog_m: Vec3 | None = None
     inertia_kgm2: TruthTerms | None = None
 
 
-class PendulumTestFile(TomlSection):
+class PendulumTestFile(TomlTable):
     meta: Meta = Field(default_factory=Meta)
     uncertainty: Uncertainty = Field(default_factory=Uncertainty)
     plate: Plate | None = None

@@ -143,7 +143,7 @@ def read_uff(path: str | Path) -> UffFile:
         Unreadable file, a FRF with unknown units or a rotation direction,
         two FRFs for the same response and reference.
     """
-    import pyuff
+    import pyuff  # on use: optional, only the classical methods read UFF
 
     path = Path(path)
     if not path.is_file():
@@ -227,7 +227,7 @@ def write_uff(
     ``binary``): complex double, even abscissa in Hz, ordinate acceleration
     ``m/s^2`` over excitation force ``N``.
     """
-    import pyuff
+    import pyuff  # on use, as in read_uff
 
     path = Path(path)
     if path.exists():

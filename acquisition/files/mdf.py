@@ -37,7 +37,7 @@ METADATA_NAME = "ptinertia-metadata.json"
 
 
 def _open_mdf(path: Path) -> Any:
-    from asammdf import MDF
+    from asammdf import MDF  # on use: heavy, and a CSV run never needs it
 
     if not path.is_file():
         raise SourceError(f"{path}: no such MDF file")
@@ -159,7 +159,7 @@ class MdfWriter:
         self.paths: list[Path] = []
 
     def start(self, layout: StreamLayout) -> None:
-        from asammdf import MDF, Signal
+        from asammdf import MDF, Signal  # on use, as in the reader
 
         self._layout = layout
         self._mdf = MDF(version="4.10")

@@ -20,14 +20,11 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from acquisition.stream import SourceError
-
-if TYPE_CHECKING:
-    from ptinertia.config import Simulation
 
 RPM_TO_RAD_S = 2.0 * math.pi / 60.0
 
@@ -101,16 +98,18 @@ class RpmProfile:
     # -- construction -------------------------------------------------------------------------
 
     @classmethod
-    def from_simulation(cls, sim: Simulation) -> RpmProfile:
-        """The default sweep of ``[simulation]``.
+    def sweep(
+        cls, rpm_start: float, rpm_end: float, duration_s: float, hold_s: float = 0.0
+    ) -> RpmProfile:
+        """The default sweep of a simulated bench.
 
         An optional hold at ``rpm_start`` for ``hold_s``, then the ramp
         ``rpm_start -> rpm_end`` over ``duration_s``.
         """
         segments = []
-        if sim.hold_s > 0:
-            segments.append(hold(sim.rpm_start, sim.hold_s))
-        segments.append(ramp(sim.rpm_start, sim.rpm_end, sim.duration_s))
+        if hold_s > 0:
+            segments.append(hold(rpm_start, hold_s))
+        segments.append(ramp(rpm_start, rpm_end, duration_s))
         return cls(segments)
 
     @classmethod

@@ -1,7 +1,7 @@
 """Tacho and cam signals of a simulated bench, from the exact crank angle.
 
-Conventions (``ptinertia.config.Tacho``; ``phi`` is the crank angle of
-cylinder 1 from its firing TDC):
+Conventions (:class:`TachoSpec`, which the application builds from the bench
+file's ``[tacho]``; ``phi`` is the crank angle of cylinder 1 from its firing TDC):
 
 * ``kind="wheel"``: an N-M wheel at angle ``theta_w = phi + tdc_after_gap_deg``;
   rising edges at ``theta_w = 360 j / N`` for ``j = 0 .. N-M-1``, the first
@@ -24,17 +24,57 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Literal
 
 import numpy as np
 
 from acquisition.sim.sweep import RpmProfile
 from acquisition.stream import SourceError
 
-if TYPE_CHECKING:
-    from ptinertia.config import Tacho
-
 HIGH_V = 5.0
+
+
+@dataclass(frozen=True)
+class TachoSpec:
+    """What the simulated bench needs to know about its tacho (see the module conventions).
+
+    Attributes
+    ----------
+    kind : {"wheel", "pulses", "rpm"}
+    teeth, missing : int
+        An N-M wheel (``missing`` ignored for ``pulses``).
+    delivery : {"edges", "sampled"}
+        Edge timestamps, or a 0/5 V square wave sampled at ``sample_rate_hz``.
+    sample_rate_hz : float
+    channel : str
+        The crank tacho's channel.
+    tdc_after_gap_deg, tdc_offset_deg : float
+        Crank angle from the first tooth after the gap to cylinder-1 TDC (wheel,
+        pulses); the once-per-rev pulse's angle after TDC (``kind="rpm"``).
+    rpm_channel : str
+    rpm_rate_hz : float
+        The rpm channel and its rate.
+    phase_reference : {"none", "cam", "pressure"}
+    cam_channel : str
+    cam_angle_deg : float
+    pressure_channel : str
+        Cylinder-1 pressure (bar).
+    """
+
+    kind: Literal["wheel", "pulses", "rpm"]
+    teeth: int
+    missing: int
+    delivery: Literal["edges", "sampled"]
+    sample_rate_hz: float
+    channel: str
+    tdc_after_gap_deg: float
+    tdc_offset_deg: float
+    rpm_channel: str
+    rpm_rate_hz: float
+    phase_reference: Literal["none", "cam", "pressure"]
+    cam_channel: str
+    cam_angle_deg: float
+    pressure_channel: str
 
 
 @dataclass(frozen=True)
@@ -69,7 +109,7 @@ def _pattern(rising_deg: np.ndarray, high_deg: float, period_deg: float) -> Edge
     return EdgePattern(rising, falling, period)
 
 
-def crank_pattern(tacho: Tacho) -> EdgePattern:
+def crank_pattern(tacho: TachoSpec) -> EdgePattern:
     """Edge pattern of the crank tacho (wheel, pulses or once-per-rev pulse)."""
     if tacho.kind == "rpm":
         return _pattern(np.array([tacho.tdc_offset_deg]), 180.0, 360.0)
@@ -79,7 +119,7 @@ def crank_pattern(tacho: Tacho) -> EdgePattern:
     return _pattern(theta_w - tacho.tdc_after_gap_deg, 180.0 / n, 360.0)
 
 
-def cam_pattern(tacho: Tacho) -> EdgePattern:
+def cam_pattern(tacho: TachoSpec) -> EdgePattern:
     """One edge per 720 deg at ``phi = cam_angle_deg``, high for 360 deg."""
     return _pattern(np.array([tacho.cam_angle_deg]), 360.0, 720.0)
 

@@ -16,17 +16,23 @@ import json
 import sys
 import time
 from collections import Counter
-from dataclasses import dataclass, field
+from collections.abc import Callable
 from typing import Any
 
-import numpy as np
-
-from acquisition.can.codec import CanPlan, RawFrame, TxFrame, frame_crc
+from acquisition.can.bus import open_bus
+from acquisition.can.bus_load import bus_load
+from acquisition.can.encoder import FrameEncoder, TxFrame
+from acquisition.can.faults import FAULT_KINDS, FaultInjector, FaultRateError, FaultRates
+from acquisition.can.frames import RawFrame
+from acquisition.can.logs import FrameLogWriter
+from acquisition.can.plan import CanPlan
+from acquisition.sim.sweep import parse_sweep
+from acquisition.stream import EdgeBlock, SampleBlock, StreamItem, StreamLayout
+from ptinertia.config import Bench, load_bench
 from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
-
-CORRUPTIONS = ("length", "crc", "id", "counter")
-_FRAME_SIZES = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
+from ptinertia.sources import open_source
+from ptinertia.to_can import can_plan
 
 
 def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentParser:
@@ -83,11 +89,8 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
     p.add_argument(
         "--start-delay", type=float, default=0.0, help="wait this long before the first frame, s"
     )
-    for fault, what in (
-        ("drop", "drop"),
-        ("duplicate", "send twice"),
-        ("reorder", "delay by 1-3 frames"),
-        ("corrupt", "corrupt"),
+    for fault, what in zip(
+        FAULT_KINDS, ("drop", "send twice", "delay by 1-3 frames", "corrupt"), strict=True
     ):
         p.add_argument(
             f"--{fault}",
@@ -106,147 +109,6 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
     return p
 
 
-# -- fault injection -------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class FaultRates:
-    drop: float = 0.0
-    duplicate: float = 0.0
-    reorder: float = 0.0
-    corrupt: float = 0.0
-
-    def __post_init__(self) -> None:
-        for name in ("drop", "duplicate", "reorder", "corrupt"):
-            v = getattr(self, name)
-            if not 0.0 <= v <= 1.0:
-                raise UsageError(f"--{name}: expected a fraction in [0, 1], got {v:g}")
-        total = self.drop + self.duplicate + self.reorder + self.corrupt
-        if total > 1.0:
-            raise UsageError(f"the fault fractions add up to {total:g} > 1")
-
-
-@dataclass
-class FaultLog:
-    """What the injector did, per DBC message (``corrupted`` by kind)."""
-
-    dropped: Counter[str] = field(default_factory=Counter)
-    duplicated: Counter[str] = field(default_factory=Counter)
-    reordered: Counter[str] = field(default_factory=Counter)
-    corrupted: dict[str, Counter[str]] = field(default_factory=dict)
-    spoiled: dict[str, set[int]] = field(default_factory=dict)  # frame numbers dropped or corrupted
-
-    def as_dict(self) -> dict[str, Any]:
-        return {
-            "dropped": dict(self.dropped),
-            "duplicated": dict(self.duplicated),
-            "reordered": dict(self.reordered),
-            "corrupted": {k: dict(v) for k, v in self.corrupted.items()},
-        }
-
-
-class FaultInjector:
-    """Drops, duplicates, delays and corrupts data frames; status frames pass untouched.
-
-    Each frame draws one fate: dropped, duplicated (the copy follows 0-2 frames
-    later), reordered (sent 1-3 frames later) or corrupted (wrong length, a bit
-    flipped under the CRC, an id the DBC does not know, or a counter moved far
-    off with a valid CRC), with the given probabilities.
-    """
-
-    def __init__(self, rates: FaultRates, plan: CanPlan, seed: int = 0) -> None:
-        self.rates = rates
-        self.rng = np.random.default_rng(seed)
-        self.log = FaultLog()
-        self._known = set(plan.dbc_ids) | {m.key for m in plan.messages}
-        self._delayed: list[list[Any]] = []  # [frames still to pass, TxFrame]
-
-    def apply(self, frames: list[TxFrame]) -> list[TxFrame]:
-        out: list[TxFrame] = []
-        r = self.rates
-        cuts = np.cumsum([r.drop, r.duplicate, r.reorder, r.corrupt])
-        for f in frames:
-            self._release(out)
-            if f.message.kind == "status":
-                out.append(f)
-                continue
-            u = self.rng.random()
-            name = f.message.name
-            if u < cuts[0]:
-                self.log.dropped[name] += 1
-                self.log.spoiled.setdefault(name, set()).add(f.frame_no)
-            elif u < cuts[1]:
-                self.log.duplicated[name] += 1
-                out.append(f)
-                self._delayed.append([int(self.rng.integers(0, 3)), f])
-            elif u < cuts[2]:
-                self.log.reordered[name] += 1
-                self._delayed.append([int(self.rng.integers(1, 4)), f])
-            elif u < cuts[3]:
-                kind = CORRUPTIONS[int(self.rng.integers(len(CORRUPTIONS)))]
-                if kind == "crc" and f.message.crc is None:
-                    kind = "length"
-                self.log.corrupted.setdefault(name, Counter())[kind] += 1
-                self.log.spoiled.setdefault(name, set()).add(f.frame_no)
-                out.append(self._corrupt(f, kind))
-            else:
-                out.append(f)
-        return out
-
-    def flush(self) -> list[TxFrame]:
-        out = [d[1] for d in self._delayed]
-        self._delayed.clear()
-        return out
-
-    def _release(self, out: list[TxFrame]) -> None:
-        keep = []
-        for d in self._delayed:
-            if d[0] <= 0:
-                out.append(d[1])
-            else:
-                d[0] -= 1
-                keep.append(d)
-        self._delayed = keep
-
-    def _corrupt(self, f: TxFrame, kind: str) -> TxFrame:
-        m = f.message
-        data = bytearray(f.data)
-        if kind == "length":
-            # the next shorter length a CAN (FD) frame can have
-            shorter = max(n for n in _FRAME_SIZES if n < len(data))
-            return f._replace(data=bytes(data[:shorter]))
-        if kind == "crc":
-            assert m.crc is not None
-            skip = set(range(m.crc.byte, m.crc.byte + m.crc.n_bytes))
-            byte = int(self.rng.choice([i for i in range(len(data)) if i not in skip]))
-            data[byte] ^= 1 << int(self.rng.integers(8))
-            return f._replace(data=bytes(data))
-        if kind == "id":
-            unknown = next(
-                i for i in range(0x7FF, 0, -1) if (i, m.is_extended_id) not in self._known
-            )
-            return f._replace(message=_with_id(m, unknown))
-        # a counter far off (a random quarter to half of its range), CRC made valid again
-        c = m.counter
-        assert c is not None
-        raw = int(np.frombuffer(bytes(data[c.byte : c.byte + c.n_bytes]), c.dtype)[0])
-        shift = int(self.rng.integers(1 << (c.bits - 2), 1 << (c.bits - 1)))
-        data[c.byte : c.byte + c.n_bytes] = np.array(
-            [(raw + shift) % (1 << c.bits)], c.dtype
-        ).tobytes()
-        if m.crc is not None:
-            data[m.crc.byte : m.crc.byte + 2] = np.array(
-                [frame_crc(bytes(data), m.crc)], m.crc.dtype
-            ).tobytes()
-        return f._replace(data=bytes(data))
-
-
-def _with_id(m: Any, frame_id: int) -> Any:
-    from dataclasses import replace
-
-    return replace(m, frame_id=frame_id)
-
-
 # -- transmission ----------------------------------------------------------------------------------
 
 
@@ -263,7 +125,7 @@ class _Sender:
         self.max_late_s = 0.0
 
     def send(self, f: TxFrame) -> None:
-        import can
+        import can  # on use: python-can loads its interfaces
 
         if self.pace:
             wait = self.t0_mono + f.time_s - time.monotonic()
@@ -290,11 +152,11 @@ class _Sender:
 
 
 def simulate_to_bus(
-    bench: Any,
+    bench: Bench,
     plan: CanPlan,
     *,
     bus: Any,
-    log_frame: Any = None,
+    log_frame: Callable[[RawFrame], None] | None = None,
     pace: bool = True,
     faults: FaultInjector | None = None,
     start_delay_s: float = 0.0,
@@ -303,9 +165,6 @@ def simulate_to_bus(
     data_bitrate: int | None = None,
 ) -> dict[str, Any]:
     """Run the simulated DAQ on ``bus`` (and/or ``log_frame``); return the summary."""
-    from acquisition.can.codec import FrameEncoder, bus_load
-    from ptinertia.sources import open_source
-
     source = open_source("sim", bench, block_s=0.02, **(sim_overrides or {}))
     encoder = FrameEncoder(plan, source.layout)
     profile = getattr(source, "profile", None)
@@ -368,9 +227,7 @@ def simulate_to_bus(
     }
 
 
-def _start_time(item: Any, layout: Any) -> float | None:
-    from acquisition.stream import EdgeBlock, SampleBlock
-
+def _start_time(item: StreamItem, layout: StreamLayout) -> float | None:
     if isinstance(item, SampleBlock):
         return item.first_index / layout.group(item.group).rate_hz
     if isinstance(item, EdgeBlock) and item.times_s.size:
@@ -379,15 +236,9 @@ def _start_time(item: Any, layout: Any) -> float | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from acquisition.can.codec import load_plan
-    from acquisition.can.logs import FrameLogWriter
-    from acquisition.can.source import open_bus
-    from acquisition.sim.sweep import parse_sweep
-    from ptinertia.config import load_bench
-
     bench = load_bench(args.bench)
     cfg = bench.can
-    plan = load_plan(bench, args.dbc)
+    plan = can_plan(bench, args.dbc)
     interface = args.interface or cfg.interface
     channel = args.channel or cfg.channel
     fd = cfg.fd if args.fd is None else args.fd
@@ -401,12 +252,11 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--interface none sends nothing: give --log PATH")
     if args.duration is not None and not args.duration > 0:
         raise UsageError(f"--duration: expected a positive time in s, got {args.duration:g}")
-    rates = FaultRates(args.drop, args.duplicate, args.reorder, args.corrupt)
-    faults = (
-        FaultInjector(rates, plan, args.fault_seed)
-        if any((rates.drop, rates.duplicate, rates.reorder, rates.corrupt))
-        else None
-    )
+    try:
+        rates = FaultRates(args.drop, args.duplicate, args.reorder, args.corrupt)
+    except FaultRateError as err:  # a fraction is named by its option here
+        raise UsageError(f"--{err.kind}: {err.reason}" if err.kind else err.reason) from None
+    faults = FaultInjector(rates, plan, args.fault_seed) if rates.any else None
     overrides: dict[str, Any] = {}
     if args.duration is not None:
         overrides["duration_s"] = args.duration

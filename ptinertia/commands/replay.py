@@ -15,9 +15,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from acquisition.can.codec import load_plan
 from acquisition.can.source import CanFrameSource
-from acquisition.stream import check_channels
+from acquisition.channels import check_channels
 from ptinertia.campaign import replay_bench
 from ptinertia.commands.replay_campaign import add_campaign_arguments, replay_campaign
 from ptinertia.commands.run import (
@@ -30,7 +29,8 @@ from ptinertia.commands.run import (
 )
 from ptinertia.errors import UsageError
 from ptinertia.runner import RunOptions, print_table, run_source, write_json
-from ptinertia.sources import required_channels
+from ptinertia.to_acquisition import channel_needs
+from ptinertia.to_can import can_plan
 from replay.reader import find_logs, open_log
 from replay.schemas import TOPIC_CAN
 from replay.source import McapSource
@@ -82,7 +82,7 @@ def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None)
     source: Any = McapSource(log, speed=parse_speed(args.speed))
     if args.dbc:
         source = redecoded_can(log, bench, args.dbc, log_path)
-    check_channels(source.layout, required_channels(bench), str(log_path))
+    check_channels(source.layout, channel_needs(bench), str(log_path))
     sinks = recorder_sinks(args.record) + viewer_sinks(args.rerun, args.record)
     options = RunOptions(
         orders=parse_orders(args.orders),
@@ -117,7 +117,7 @@ def redecoded_can(log: Any, bench: Any, dbc: str, log_path: Path) -> Any:
         raise UsageError(
             f"--dbc: {log_path} holds no raw CAN frames (it was not recorded from a CAN bus)"
         )
-    plan = load_plan(bench, dbc)
+    plan = can_plan(bench, dbc)
     return CanFrameSource(plan, itertools.chain([first], batches))
 
 

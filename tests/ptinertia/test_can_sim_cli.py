@@ -23,13 +23,14 @@ import numpy as np
 import pytest
 from support.can_streams import DBC, assemble, can_bench_file, check_same_stream, simulated
 
-from acquisition.can.codec import load_plan
-from acquisition.can.source import CanBusSource
+from acquisition.can.bus import CanBusSource
+from acquisition.can.faults import FaultInjector, FaultRates
 from ptinertia import cli
-from ptinertia.commands.can_sim import FaultInjector, FaultRates, simulate_to_bus
+from ptinertia.commands.can_sim import simulate_to_bus
 from ptinertia.config import load_bench
 from ptinertia.runner import RunOptions, run_source
 from ptinertia.sources import REALISTIC_SIMULATION, open_source
+from ptinertia.to_can import can_plan
 
 REALISTIC = REALISTIC_SIMULATION
 RUN = {**REALISTIC, "duration_s": 8.0, "rpm_start": 1500.0, "rpm_end": 4500.0, "seed": 3}
@@ -48,7 +49,7 @@ def bench(bench_path):
 
 @pytest.fixture(scope="module")
 def plan(bench):
-    return load_plan(bench)
+    return can_plan(bench)
 
 
 def realistic_bench(tmp_path: Path, bench_path: Path) -> Path:

@@ -171,7 +171,7 @@ def test_raw_can_frames_from_the_acquisition_thread(tmp_path: Path) -> None:
     """The CAN source's frame_listener runs on another thread than the other hooks."""
     import threading
 
-    from acquisition.can.codec import RawFrame
+    from acquisition.can.frames import RawFrame
 
     rng = np.random.default_rng(9)
     batches = [

@@ -315,7 +315,7 @@ def test_unknown_topics_and_bad_messages_are_skipped_and_reported(tmp_path: Path
 
 def test_bench_that_no_longer_matches_the_channels(tmp_path: Path) -> None:
     from ptinertia.config import load_bench
-    from ptinertia.sources import required_channels
+    from ptinertia.to_acquisition import channel_needs
     from replay.source import open_replay
 
     layout = synthetic_layout()
@@ -323,7 +323,7 @@ def test_bench_that_no_longer_matches_the_channels(tmp_path: Path) -> None:
     record_source(synthetic_items(layout, 0.2), path, layout=layout)
     bench = load_bench(ROOT / "examples" / "i3-bench.toml")
     with pytest.raises(SourceError, match="not found") as info:
-        open_replay(path, required_channels(bench))
+        open_replay(path, channel_needs(bench))
     assert "\n" not in str(info.value) and str(path) in str(info.value)
 
 

@@ -6,10 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from acquisition.can.codec import (
-    CanPlan,
-    RawFrame,
-)
+from acquisition.can.frames import RawFrame
+from acquisition.can.plan import CanPlan
 from acquisition.stream import EdgeBlock, SampleBlock, SourceEvent
 from ptinertia.commands.can_sim import simulate_to_bus
 from ptinertia.paths import EXAMPLES_DIR

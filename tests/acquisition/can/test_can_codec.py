@@ -9,27 +9,18 @@ import cantools
 import numpy as np
 import pytest
 
-from acquisition.can.codec import (
-    IntField,
-    RawFrame,
-    as_rows,
-    encode_edge_frames,
-    encode_sample_frames,
-    frame_crc,
-    frame_time_s,
-    load_dbc,
-    load_plan,
-    pack_frames,
-    plan_for_bench,
-    raw_fields_slow,
-    read_fields,
-    scale_samples,
-    unpack_frames,
-)
+from acquisition.can.bus_load import frame_time_s
+from acquisition.can.dbc import load_dbc, plan_for_channels
+from acquisition.can.encoder import encode_edge_frames, encode_sample_frames
+from acquisition.can.fields import as_rows, frame_crc, raw_fields_slow, read_fields, scale_samples
+from acquisition.can.frames import RawFrame, pack_frames, unpack_frames
+from acquisition.can.plan import IntField
 from acquisition.stream import SourceError
 from ptinertia.config import load_bench
 from ptinertia.paths import EXAMPLES_DIR
 from ptinertia.sources import open_source, simulated_bench
+from ptinertia.to_acquisition import channel_needs
+from ptinertia.to_can import can_plan
 
 DBC = EXAMPLES_DIR / "bench.dbc"
 
@@ -52,14 +43,14 @@ def test_plan_layout_matches_the_simulated_source(bench_file, reference):
     bench = simulated_bench(
         load_bench(EXAMPLES_DIR / bench_file), tacho={"phase_reference": reference}
     )
-    plan = load_plan(bench, DBC)
+    plan = can_plan(bench, DBC)
     sim = open_source("sim", bench, duration_s=0.5)
     assert plan.layout.groups == sim.layout.groups
     assert plan.layout.edge_channels == sim.layout.edge_channels
 
 
 def test_example_dbc_frames_are_what_docs_say(i3):
-    plan = load_plan(i3, DBC)
+    plan = can_plan(i3, DBC)
     acc = messages(plan, "samples")
     by_name = {m.name: m for m in acc}
     assert [m.name for m in acc] == ["DAQ_AccA", "DAQ_AccB", "DAQ_AccC", "ECU_EngineSpeed"]
@@ -83,7 +74,7 @@ def test_example_dbc_frames_are_what_docs_say(i3):
 
 
 def test_sample_frames_decode_like_cantools(i3, db):
-    plan = load_plan(i3, DBC)
+    plan = can_plan(i3, DBC)
     rng = np.random.default_rng(3)
     for m in messages(plan, "samples"):
         sc = m.scalings[0]
@@ -113,7 +104,7 @@ def test_sample_frames_decode_like_cantools(i3, db):
 
 
 def test_cantools_encoded_frames_decode_by_the_fast_path(i3, db):
-    plan = load_plan(i3, DBC)
+    plan = can_plan(i3, DBC)
     m = next(m for m in plan.messages if m.name == "DAQ_AccB")
     msg = db.get_message_by_name(m.name)
     rng = np.random.default_rng(4)
@@ -130,7 +121,7 @@ def test_cantools_encoded_frames_decode_by_the_fast_path(i3, db):
 
 
 def test_edge_frames_decode_like_cantools(i3, db):
-    plan = load_plan(i3, DBC)
+    plan = can_plan(i3, DBC)
     (m,) = messages(plan, "edges")
     ticks = [
         np.array([10**12 + 5, 10**12 + 400_001, 10**12 + 900_000]),
@@ -146,7 +137,7 @@ def test_edge_frames_decode_like_cantools(i3, db):
 
 
 def test_invalid_and_out_of_range_samples(i3):
-    plan = load_plan(i3, DBC)
+    plan = can_plan(i3, DBC)
     m = plan.messages[0]
     values = np.zeros((1, 9, 3))
     values[0, 0, 0] = np.nan
@@ -176,9 +167,9 @@ def test_big_endian_and_unaligned_signals_match_cantools(tmp_path, i3):
     (tmp_path / "packed.dbc").write_text(
         _rewrite_ax(text, lambda b: f"{b + 4}|12@1- (0.1,0) [-204.7|204.7]")
     )
-    m_be = load_plan(i3, tmp_path / "be.dbc").messages[0]
+    m_be = can_plan(i3, tmp_path / "be.dbc").messages[0]
     assert m_be.fast and m_be.payload[0].big_endian and not m_be.payload[1].big_endian
-    m_sl = load_plan(i3, tmp_path / "packed.dbc").messages[0]
+    m_sl = can_plan(i3, tmp_path / "packed.dbc").messages[0]
     assert not m_sl.fast and m_sl.scalings[0].scale == 0.1
     for m, name in ((m_be, "be.dbc"), (m_sl, "packed.dbc")):
         db = cantools.database.load_file(str(tmp_path / name))
@@ -229,20 +220,20 @@ def dbc_variant(tmp_path, old, new, name="v.dbc"):
 )
 def test_dbc_inconsistencies_are_named(tmp_path, i3, old, new, message):
     with pytest.raises(SourceError, match=message):
-        load_plan(i3, dbc_variant(tmp_path, old, new))
+        can_plan(i3, dbc_variant(tmp_path, old, new))
 
 
 def test_missing_channel_names_it(tmp_path, i3):
     path = dbc_variant(tmp_path, "SG_ C_z_s", "SG_ C_w_s")
     with pytest.raises(SourceError) as err:
-        load_plan(i3, path)
+        can_plan(i3, path)
     msg = str(err.value)
     assert "no signal carries channel 'C_z' (sensor C_torque_rod)" in msg and "\n" not in msg
 
 
 def test_missing_unreadable_or_unnamed_dbc(tmp_path, i3):
     with pytest.raises(SourceError, match="no DBC: name it in the bench file"):
-        load_plan(
+        can_plan(
             i3.model_copy(update={"can": i3.can.model_copy(update={"dbc": None})})
         )  # a bench that names none
     with pytest.raises(SourceError, match="not found"):
@@ -258,7 +249,7 @@ def test_sampled_tacho_cannot_travel_over_can(i3, db):
     with pytest.raises(
         SourceError, match="delivery = 'sampled' at 200000 Hz cannot travel over CAN"
     ):
-        plan_for_bench(db, bench)
+        plan_for_channels(db, channel_needs(bench))
 
 
 def test_rpm_channel_is_required_for_an_rpm_tacho_only(tmp_path, i3):
@@ -267,10 +258,10 @@ def test_rpm_channel_is_required_for_an_rpm_tacho_only(tmp_path, i3):
         'BA_ "PtiChannel" SG_ 192 EngineSpeed "rpm";',
         'BA_ "PtiChannel" SG_ 192 EngineSpeed "speed";',
     )
-    plan = load_plan(i3, path)
+    plan = can_plan(i3, path)
     assert [g.name for g in plan.layout.groups] == ["accel"]
     with pytest.raises(SourceError, match="channel 'rpm' \\(rpm channel of a kind='rpm' tacho\\)"):
-        load_plan(simulated_bench(i3, tacho={"kind": "rpm"}), path)
+        can_plan(simulated_bench(i3, tacho={"kind": "rpm"}), path)
 
 
 # -- CRC, bus timing, raw-frame records --------------------------------------------------------

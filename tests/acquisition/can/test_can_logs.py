@@ -14,19 +14,19 @@ from support.can_streams import (
     simulated,
 )
 
-from acquisition.can.codec import load_plan
+from acquisition.can.decoder import decode_frames
 from acquisition.can.logs import FrameLogWriter, is_can_log, read_frames, write_can_log
-from acquisition.can.source import decode_frames
 from acquisition.stream import SourceError, SourceEvent
 from ptinertia.config import load_bench
 from ptinertia.sources import open_source
+from ptinertia.to_can import can_plan
 
 FORMATS = ["blf", "asc", "trc", "log", "mf4"]
 
 
 @pytest.fixture(scope="module")
 def plan(i3):
-    return load_plan(i3, DBC)
+    return can_plan(i3, DBC)
 
 
 @pytest.fixture(scope="module")

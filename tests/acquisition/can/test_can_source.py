@@ -26,27 +26,20 @@ from support.can_streams import (
     simulated,
 )
 
-from acquisition.can.codec import (
-    RawFrame,
-    as_rows,
-    load_plan,
-    pack_frames,
-    read_fields,
-    unpack_frames,
-)
-from acquisition.can.source import (
-    CanBusSource,
-    CanFrameSource,
-    DecoderOptions,
-    FrameDecoder,
-    decode_frames,
-    open_can,
-)
+from acquisition.can.bus import CanBusSource
+from acquisition.can.decoder import FrameDecoder, decode_frames
+from acquisition.can.faults import FaultInjector, FaultRates
+from acquisition.can.fields import as_rows, read_fields
+from acquisition.can.frames import RawFrame, pack_frames, unpack_frames
+from acquisition.can.reorder import DecoderOptions
+from acquisition.can.source import CanFrameSource, open_can
 from acquisition.stream import SourceError, SourceEvent
-from ptinertia.commands.can_sim import FaultInjector, FaultRates, simulate_to_bus
+from ptinertia.commands.can_sim import simulate_to_bus
 from ptinertia.config import load_bench
 from ptinertia.paths import EXAMPLES_DIR
 from ptinertia.sources import open_source, simulated_bench
+from ptinertia.to_acquisition import channel_needs
+from ptinertia.to_can import can_plan, can_settings
 
 # -- shared helpers (also used by test_can_logs.py and test_can_sim_cli.py) ---------------------
 
@@ -66,7 +59,7 @@ def clean_frames(i3, plan):
 
 @pytest.fixture(scope="module")
 def plan(i3):
-    return load_plan(i3, DBC)
+    return can_plan(i3, DBC)
 
 
 def test_decoded_frames_carry_the_simulated_stream(plan, reference, clean_frames):
@@ -102,7 +95,7 @@ def test_pressure_and_cam_channels(bench_file, reference_kind):
     bench = simulated_bench(
         load_bench(EXAMPLES_DIR / bench_file), tacho={"phase_reference": reference_kind}
     )
-    plan = load_plan(bench, DBC)
+    plan = can_plan(bench, DBC)
     sim = simulated(bench, duration_s=1.0)
     frames, _ = sim_frames(bench, plan, duration_s=1.0)
     check_same_stream(plan, *sim, decode_frames(plan, frames)[0])
@@ -111,8 +104,8 @@ def test_pressure_and_cam_channels(bench_file, reference_kind):
 def test_frames_the_bench_does_not_need_are_ignored_not_unknown(i3):
     # a DAQ sending pressure too, a bench that uses no pressure: those frames are known, unused
     with_p = simulated_bench(i3, tacho={"phase_reference": "pressure"})
-    frames, _ = sim_frames(with_p, load_plan(with_p, DBC), duration_s=1.0)
-    plan = load_plan(i3, DBC)
+    frames, _ = sim_frames(with_p, can_plan(with_p, DBC), duration_s=1.0)
+    plan = can_plan(i3, DBC)
     items, stats = decode_frames(plan, [*frames, RawFrame(0, 0x555, False, bytes(8), False)])
     n_pressure = sum(1 for f in frames if f.arbitration_id == 0x110)
     assert n_pressure > 100 and stats.ignored == n_pressure
@@ -232,7 +225,7 @@ def test_short_counters_unwrap_with_the_receive_clock(tmp_path, i3):
         " SG_ AliveCounter : 0|16@1+ (1,0) [0|65535]", " SG_ AliveCounter : 0|8@1+ (1,0) [0|255]"
     )
     (tmp_path / "c8.dbc").write_text(text)
-    plan = load_plan(i3, tmp_path / "c8.dbc")
+    plan = can_plan(i3, tmp_path / "c8.dbc")
     frames, _ = sim_frames(i3, plan, duration_s=8.0)
     ecu = plan.by_key()[(0xC0, False)]
     seq = iter(range(10**9))
@@ -272,7 +265,7 @@ def test_bad_counter_at_the_start_does_not_anchor_the_stream(plan, clean_frames)
     m = plan.by_key()[(0x100, False)]
     data = bytearray(frames[first_acc].data)
     data[0:4] = (2**31).to_bytes(4, "little")
-    from acquisition.can.codec import frame_crc
+    from acquisition.can.fields import frame_crc
 
     data[4:6] = frame_crc(bytes(data), m.crc).to_bytes(2, "little")
     frames[first_acc] = frames[first_acc]._replace(data=bytes(data))
@@ -414,20 +407,24 @@ def test_close_from_another_thread_ends_a_silent_source(plan):
     assert time.monotonic() - t < 2.0
 
 
+def _open_can(arg, bench, **overrides):
+    return open_can(arg, can_settings(bench.can), channel_needs(bench), **overrides)
+
+
 def test_open_can_bad_input(i3, tmp_path):
     bench = load_bench(can_bench_file(tmp_path))
     with pytest.raises(
         SourceError, match=r"unknown CAN interface 'nosuchbus'; python-can knows: .*virtual"
     ):
-        open_can("nosuchbus:0", bench)
+        _open_can("nosuchbus:0", bench)
     with pytest.raises(SourceError, match="no DBC"):
-        open_can(
+        _open_can(
             "virtual:x", i3.model_copy(update={"can": i3.can.model_copy(update={"dbc": None})})
         )
     with pytest.raises(SourceError, match="unknown option 'bogus'"):
-        open_can("virtual:x", bench, bogus=1)
+        _open_can("virtual:x", bench, bogus=1)
     with pytest.raises(SourceError, match="CAN FD frame but the bus is classic"):
-        open_can("virtual:x", bench, fd=False)
+        _open_can("virtual:x", bench, fd=False)
 
 
 def test_open_source_can_spec_uses_the_bench_defaults(tmp_path):

@@ -3,18 +3,20 @@
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pytest
 
-from acquisition.sim.simulator import AmplitudeTable, SimulatedBench, half_orders, synthesize_accel
+from acquisition.sim.amplitude_table import AmplitudeTable
+from acquisition.sim.simulator import SimulatedBench
 from acquisition.sim.sweep import RpmProfile, hold, ramp
+from acquisition.sim.synthesis import half_orders, synthesize_accel
 from acquisition.stream import EdgeBlock, SampleBlock, SourceError
 from ptinertia.bench import build_simulated_model
 from ptinertia.config import ElasticMode, Tacho, parse_bench
 from ptinertia.paths import EXAMPLES_DIR
 from ptinertia.sources import open_source
+from ptinertia.to_acquisition import tacho_spec
 
 W = 2 * math.pi / 60
 I3 = EXAMPLES_DIR / "i3-bench.toml"
@@ -318,7 +320,7 @@ def test_pressure_reference_without_a_pressure_model() -> None:
     with pytest.raises(SourceError, match="needs a cylinder pressure"):
         SimulatedBench(
             FakeModel(),
-            tacho=Tacho(phase_reference="pressure"),
+            tacho=tacho_spec(Tacho(phase_reference="pressure")),
             accel_rate_hz=4096,
             profile=RpmProfile([hold(2000, 0.1)]),
         )
@@ -327,7 +329,10 @@ def test_pressure_reference_without_a_pressure_model() -> None:
 def test_aliasing_order_refused() -> None:
     with pytest.raises(SourceError, match="aliases"):
         SimulatedBench(
-            FakeModel(), tacho=Tacho(), accel_rate_hz=400, profile=RpmProfile([hold(3000, 0.1)])
+            FakeModel(),
+            tacho=tacho_spec(Tacho()),
+            accel_rate_hz=400,
+            profile=RpmProfile([hold(3000, 0.1)]),
         )
 
 
@@ -336,8 +341,35 @@ def test_unknown_sim_option(i3) -> None:
         open_source("sim", i3, durations=3)
 
 
-def test_paced_stream_follows_the_wall_clock(i3) -> None:
-    src = open_source("sim", i3, duration_s=0.3, block_s=0.1, paced=True)
-    t0 = time.monotonic()
-    collect(src)
-    assert time.monotonic() - t0 >= 0.28
+class FakeClock:
+    """Monotonic seconds that move only when the source sleeps."""
+
+    def __init__(self, start: float = 100.0) -> None:
+        self.now = start
+        self.sleeps: list[float] = []
+
+    def __call__(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.sleeps.append(seconds)
+        self.now += seconds
+
+
+def test_paced_stream_follows_the_clock(i3) -> None:
+    clock = FakeClock()
+    src = open_source(
+        "sim", i3, duration_s=0.3, block_s=0.1, paced=True, clock=clock, sleep=clock.sleep
+    )
+    yielded = []
+    with src:
+        for item in src:
+            yielded.append((clock.now - 100.0, item))
+    # one wait per 0.1 s window, and no sample before the clock has reached it
+    assert clock.sleeps == pytest.approx([0.1, 0.1, 0.1])
+    for t, item in yielded:
+        if isinstance(item, SampleBlock):
+            rate = src.layout.group(item.group).rate_hz
+            assert (item.first_index + item.n_samples - 1) / rate <= t + 1e-12
+        elif isinstance(item, EdgeBlock):
+            assert item.times_s[-1] <= t + 1e-12

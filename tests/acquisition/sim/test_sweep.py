@@ -11,6 +11,7 @@ from scipy.integrate import quad
 from acquisition.sim.sweep import RpmProfile, hold, parse_sweep, ramp
 from acquisition.stream import SourceError
 from ptinertia.config import Simulation
+from ptinertia.to_acquisition import sweep_profile
 
 W = 2 * math.pi / 60  # rpm -> rad/s
 
@@ -97,16 +98,14 @@ def test_phi_strictly_increasing_also_beyond_the_ends() -> None:
 
 
 def test_default_profile_from_simulation() -> None:
-    p = RpmProfile.from_simulation(
-        Simulation(rpm_start=1200, rpm_end=5000, duration_s=30, hold_s=4)
-    )
+    p = sweep_profile(Simulation(rpm_start=1200, rpm_end=5000, duration_s=30, hold_s=4))
     assert [(s.rpm_from, s.rpm_to, s.duration_s) for s in p.segments] == [
         (1200, 1200, 4),
         (1200, 5000, 30),
     ]
     assert p.duration_s == 34
     assert p.phi(np.array([0.0]))[0] == 0.0
-    p = RpmProfile.from_simulation(Simulation(rpm_start=1200, rpm_end=5000, duration_s=30))
+    p = sweep_profile(Simulation(rpm_start=1200, rpm_end=5000, duration_s=30))
     assert len(p.segments) == 1
 
 

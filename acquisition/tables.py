@@ -1,5 +1,10 @@
-"""Validation shared by our TOML files (bench, pendulum test, modal set-up): the table base
-class and one-line messages from pydantic errors."""
+"""TOML tables shared by our files (bench, pendulum test, modal set-up): the table base class
+(unknown keys refused, unit suffixes normalised by :mod:`acquisition.units`) and one-line
+messages from pydantic errors.
+
+In ``acquisition`` because the classical-method input files are TOML tables too, and
+``ptinertia.config`` (the bench file) builds on the same base.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +13,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
 
-from ptinertia.units import normalise_keys
+from acquisition.units import normalise_keys
 
 
 class TomlTable(BaseModel):
