@@ -20,12 +20,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from ptinertia.campaign import ReplayJob, replay_log
+from ptinertia.batch.campaign import ReplayJob, replay_log
+from ptinertia.batch.cluster import ClusterSpec, open_client, run_tasks
+from ptinertia.batch.study import DEFAULT_VARY, Layout, draw_run, run_seeds, simulate_run
 from ptinertia.cli import main as cli
-from ptinertia.cluster import ClusterSpec, open_client, run_tasks
 from ptinertia.config import load_bench
 from ptinertia.paths import EXAMPLES_DIR
-from ptinertia.study import DEFAULT_VARY, Layout, draw_run, run_seeds, simulate_run
 
 I3 = EXAMPLES_DIR / "i3-bench.toml"
 

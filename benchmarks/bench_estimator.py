@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from ptinertia.cluster import ClusterSpec, map_on_cluster
+from ptinertia.batch.cluster import ClusterSpec, map_on_cluster
 from ptinertia.sources import REALISTIC_SIMULATION
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -207,7 +207,7 @@ def main() -> None:
         for sim in ({}, {**REALISTIC, "seed": 1})
         for source in ("model", "pressure")
     ]
-    # the runs on a local Dask cluster of --jobs worker processes (ptinertia.cluster)
+    # the runs on a local Dask cluster of --jobs worker processes (ptinertia.batch.cluster)
     jobs = [c for _, c in cases] + elastic_seeds + gas_cases + realistic + calibrated
     everything = map_on_cluster(ClusterSpec(workers=a.jobs), run_case, [*jobs, *two_sensors])
     docs, dead_docs = everything[: len(jobs)], everything[len(jobs) :]

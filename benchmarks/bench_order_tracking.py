@@ -251,7 +251,7 @@ def comparison() -> None:
         "\n4. Accuracy and time on the simulated i3 sweep, 1500 -> 4500 rpm at 50 rpm/s, 9 ch, 5120 Hz"
     )
     bench, src, items = _sim_sweep()
-    from ptinertia.tracking import tracker_config
+    from ptinertia.to_dsp import tracker_config
 
     config = tracker_config(bench, ORDERS)
     cpu_live, _, frames = _timed(src.layout, config, items, repeat=3)

@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_estimator
 from bench_estimator import I3, REALISTIC, errors, run_case
 
-from ptinertia.cluster import ClusterSpec, map_on_cluster
+from ptinertia.batch.cluster import ClusterSpec, map_on_cluster
 
 # workers need not find benchmarks/ on their path: its functions travel with the tasks
 cloudpickle.register_pickle_by_value(bench_estimator)
@@ -76,7 +76,7 @@ def main() -> None:
         ]
         for mm in MOVES_MM
     }
-    # the runs on a local Dask cluster of --jobs worker processes (ptinertia.cluster)
+    # the runs on a local Dask cluster of --jobs worker processes (ptinertia.batch.cluster)
     groups = [moved_only, *calibrated.values()]
     flat = map_on_cluster(ClusterSpec(workers=a.jobs), _job, [c for g in groups for c in g])
     per_group = [flat[sum(map(len, groups[:k])) :][: len(g)] for k, g in enumerate(groups)]

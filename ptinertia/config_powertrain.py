@@ -1,6 +1,6 @@
 """The bench file's tables that describe the powertrain: its body, mounts, engine, gas, sensors.
 
-Part of the bench file (:class:`ptinertia.config.Bench`); :mod:`ptinertia.bench` turns
+Part of the bench file (:class:`ptinertia.config.Bench`); :mod:`ptinertia.to_physics` turns
 them into the physics model.
 """
 

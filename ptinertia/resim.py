@@ -44,8 +44,8 @@ from powertrain.half_orders import rpm_to_omega
 from powertrain.model import BenchModel
 from powertrain.rigidbody import TERMS, RigidBody, consistency_problems
 from ptinertia import config
-from ptinertia.bench import build_model
 from ptinertia.resim_compare import LIMIT_DB, LIMIT_DEG, ResimCheck, compare
+from ptinertia.to_physics import build_model
 
 
 @dataclass(frozen=True)

@@ -19,11 +19,11 @@ from estimator.result import Z95, Estimate
 from estimator.setup import Corrections, Gates, Tolerances
 from estimator.streaming import InertiaEstimator
 from ptinertia.config import Bench
-from ptinertia.estimation import PressureGas, estimator_setup, pressure_gas
 from ptinertia.pipeline import Pipeline, RunSummary
 from ptinertia.progress import ProgressLine
 from ptinertia.sinks import RunContext, Sink
-from ptinertia.tracking import BenchTracker, tracker_config
+from ptinertia.to_dsp import BenchTracker, tracker_config
+from ptinertia.to_estimator import PressureGas, estimator_setup, pressure_gas
 
 
 @dataclass(frozen=True)
@@ -42,7 +42,7 @@ def make_estimator(
     bench: Bench, corrections_off: tuple[str, ...] = (), pressure: PressureGas | None = None
 ) -> InertiaEstimator:
     """The streaming estimator with the bench file's ``[estimator]`` settings (``pressure``:
-    the gas torque comes from that channel, see :func:`ptinertia.estimation.pressure_gas`)."""
+    the gas torque comes from that channel, see :func:`ptinertia.to_estimator.pressure_gas`)."""
     s = bench.estimator
     self_calibration = s.self_calibration and "self_calibration" not in corrections_off
     corrections = Corrections(

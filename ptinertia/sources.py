@@ -16,11 +16,11 @@ from acquisition.can.logs import is_can_log
 from acquisition.channels import check_channels
 from acquisition.sim.sweep import RpmProfile
 from acquisition.stream import Source, SourceError
-from ptinertia.bench import build_simulated_model
 from ptinertia.config import Bench, Simulation, Tacho, parse_bench
 from ptinertia.registry import file_kind, source_backend
 from ptinertia.to_acquisition import channel_needs, sweep_profile, tacho_spec
 from ptinertia.to_can import can_settings
+from ptinertia.to_physics import build_simulated_model
 
 # options of the simulated source that are not bench-file keys
 SIM_OPTIONS = (

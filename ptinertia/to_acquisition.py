@@ -1,7 +1,7 @@
 """The bench file -> ``acquisition``'s own settings: the tacho, the default sweep, the channels.
 
 ``acquisition`` never sees :class:`~ptinertia.config.Bench` (as ``dsp`` takes its
-tracker settings from :mod:`ptinertia.tracking`); these translators are the only
+tracker settings from :mod:`ptinertia.to_dsp`); these translators are the only
 place the bench's ``[tacho]``, ``[simulation]`` and sensors are read for it. The CAN
 settings are built in :mod:`ptinertia.to_can`.
 """

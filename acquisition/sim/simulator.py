@@ -53,7 +53,7 @@ class SimulatedBench(Source):
     Parameters
     ----------
     model : AmplitudeModel
-        The as-built bench (``ptinertia.bench.build_simulated_model``).
+        The as-built bench (``ptinertia.to_physics.build_simulated_model``).
     tacho : TachoSpec
         Tacho kind, delivery and channel names.
     accel_rate_hz : float

@@ -13,10 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from ptinertia.bench import build_model
 from ptinertia.config import load_bench
 from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
+from ptinertia.to_physics import build_model
 
 COMPONENTS = ("Fx", "Fy", "Fz", "Mx", "My", "Mz")
 

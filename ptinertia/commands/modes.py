@@ -12,10 +12,10 @@ import argparse
 import json
 from typing import Any
 
-from ptinertia.bench import build_model
 from ptinertia.config import load_bench
 from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
+from ptinertia.to_physics import build_model
 
 
 def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentParser:

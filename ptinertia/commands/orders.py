@@ -31,7 +31,7 @@ from ptinertia.config import load_bench
 from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
 from ptinertia.sources import open_source
-from ptinertia.tracking import tracker_config
+from ptinertia.to_dsp import tracker_config
 
 # Flags that leave a frame's amplitudes trustworthy for the plot: the cycle may be off by
 # 360 deg (half-order signs) and the angle rebased, but the magnitudes are right.

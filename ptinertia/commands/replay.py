@@ -17,7 +17,7 @@ from typing import Any
 
 from acquisition.can.source import CanFrameSource
 from acquisition.channels import check_channels
-from ptinertia.campaign import replay_bench
+from ptinertia.batch.campaign import replay_bench
 from ptinertia.commands.replay_campaign import add_campaign_arguments, replay_campaign
 from ptinertia.commands.run import (
     CORRECTIONS,

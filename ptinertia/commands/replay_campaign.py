@@ -1,7 +1,7 @@
 """``ptinertia replay DIR|FILES...``: a campaign of logs, replayed on a Dask cluster.
 
 Parses the campaign options of ``replay``, finds the logs, runs
-:func:`ptinertia.campaign.run_campaign` and prints one line per log. Exit code 0
+:func:`ptinertia.batch.campaign.run_campaign` and prints one line per log. Exit code 0
 when every log gave an estimate, 1 when some did not (their rows say why), 2 for
 a bad command line (no logs, a bad scheduler address).
 """
@@ -13,8 +13,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ptinertia.campaign import PLOT_NAME, TABLE_NAME, ReplayJob, print_summary, run_campaign
-from ptinertia.cluster import add_cluster_arguments, spec_from_args
+from ptinertia.batch.campaign import PLOT_NAME, TABLE_NAME, ReplayJob, print_summary, run_campaign
+from ptinertia.batch.cluster import add_cluster_arguments, spec_from_args
 from ptinertia.commands.run import parse_orders
 from ptinertia.config import load_bench
 from ptinertia.errors import UsageError

@@ -67,8 +67,8 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
 def simulate_pendulum(args: argparse.Namespace) -> str:
     from acquisition.classical.classic_sim import PendulumNoise, simulate_pendulum_test
     from acquisition.classical.pendulum_file import dumps_pendulum_test
-    from ptinertia.bench import build_model
     from ptinertia.config import load_bench
+    from ptinertia.to_physics import build_model
 
     for option in (
         "period_noise_pct",
@@ -124,8 +124,8 @@ def simulate_frf(args: argparse.Namespace) -> str:
     from acquisition.classical.frf_matrix import frfs_from_matrix
     from acquisition.classical.uff import write_uff
     from powertrain.mounted import MountedPowertrain
-    from ptinertia.bench import build_model
     from ptinertia.config import load_bench
+    from ptinertia.to_physics import build_model
 
     if not (args.df_hz > 0 and args.fmax_hz > 2 * args.df_hz):
         raise UsageError(

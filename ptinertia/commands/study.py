@@ -2,7 +2,7 @@
 
 N simulated sweeps of the bench, each with sensor, model-input and noise errors
 drawn from the bench file's declared tolerances (``--vary``, see
-:mod:`ptinertia.study`), each through the real dsp and estimator. Prints per term
+:mod:`ptinertia.batch.study`), each through the real dsp and estimator. Prints per term
 the bias, spread, worst error and how often the 95 % interval held the truth;
 writes ``study.csv``, ``runs.csv``, ``layouts.csv`` and ``study.png`` to ``--out``.
 ``--layouts L.toml`` compares candidate sensor layouts on the same draws and ranks
@@ -21,11 +21,11 @@ import sys
 from pathlib import Path
 from typing import Any, TextIO
 
-from ptinertia.cluster import add_cluster_arguments, spec_from_args
+from ptinertia.batch.cluster import add_cluster_arguments, spec_from_args
+from ptinertia.batch.study import load_layouts, parse_vary, run_study
+from ptinertia.batch.study_stats import TermStats
 from ptinertia.config import load_bench
 from ptinertia.paths import DEFAULT_BENCH
-from ptinertia.study import load_layouts, parse_vary, run_study
-from ptinertia.study_stats import TermStats
 
 SCALE = {"kgm2": (1.0, "kg m^2"), "m": (1e3, "mm"), "kg": (1.0, "kg")}
 

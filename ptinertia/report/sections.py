@@ -12,7 +12,6 @@ import math
 import numpy as np
 
 from estimator.result import Z95
-from ptinertia.bench import build_model
 from ptinertia.report import plots
 from ptinertia.report.data import ConvergenceSeries, ReportData
 from ptinertia.report.html import esc, fixed, flatten, image, table
@@ -26,6 +25,7 @@ from ptinertia.report.stats import (
 )
 from ptinertia.resim import estimated_properties, resim_model
 from ptinertia.resim_compare import ResimCheck
+from ptinertia.to_physics import build_model
 
 REASONS = {
     "rpm_unsteady": "speed changed too much across the analysis window (order leakage)",

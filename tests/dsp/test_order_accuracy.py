@@ -25,7 +25,7 @@ from dsp.orders import OrderTracker
 from dsp.synthetic import OrderContent, Ramp, SyntheticBench, random_content
 from dsp.tacho import TachoConfig
 from ptinertia.sources import open_source
-from ptinertia.tracking import tracker_config
+from ptinertia.to_dsp import tracker_config
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 FLOOR = 1e-3  # -60 dB

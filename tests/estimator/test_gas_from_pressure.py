@@ -18,9 +18,9 @@ from support.estimator_runs import cog_error_m, rel_errors, run
 from acquisition.stream import ChannelSpec, SampleGroup, StreamLayout
 from ptinertia.cli import main
 from ptinertia.config import ConfigError, load_bench, loads_bench
-from ptinertia.estimation import pressure_gas
 from ptinertia.paths import EXAMPLES_DIR
 from ptinertia.sources import open_source
+from ptinertia.to_estimator import pressure_gas
 
 I3 = EXAMPLES_DIR / "i3-bench.toml"
 OFF_GAS = {"duration_s": 20.0, "heat_release_error_pct": 20.0}

@@ -8,9 +8,9 @@ import pytest
 from powertrain.errors import PhysicsError
 from powertrain.mounted import Mount, MountedPowertrain, gyroscopic_matrix
 from powertrain.rigidbody import RigidBody, inertia_matrix, rotation_matrix
-from ptinertia.bench import build_model
 from ptinertia.config import load_bench
 from ptinertia.paths import EXAMPLES_DIR
+from ptinertia.to_physics import build_model
 
 BODY = RigidBody(
     110.0, np.array([0.035, -0.085, 0.105]), inertia_matrix(4.6, 3.1, 4.2, 0.28, -0.42, 0.21)

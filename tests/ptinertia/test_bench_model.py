@@ -13,10 +13,10 @@ from powertrain.model import BenchModel, ElasticMode
 from powertrain.rigidbody import inertia_terms
 from powertrain.sensors import rigid_channel_matrix
 from ptinertia import config, config_powertrain
-from ptinertia.bench import build_model, build_simulated_model, gas_model, read_pressure_trace
 from ptinertia.cli import main
 from ptinertia.config import ConfigError, load_bench
 from ptinertia.paths import EXAMPLES_DIR
+from ptinertia.to_physics import build_model, build_simulated_model, gas_model, read_pressure_trace
 
 I3 = EXAMPLES_DIR / "i3-bench.toml"
 ORDERS = np.array([0.5, 1.0, 1.5, 2.0, 3.0])

@@ -18,9 +18,9 @@ from pathlib import Path
 import pytest
 from dask.distributed import Client
 
-from ptinertia.campaign import ReplayJob, run_campaign
+from ptinertia.batch.campaign import ReplayJob, run_campaign
+from ptinertia.batch.cluster import ClusterSpec, open_client
 from ptinertia.cli import main
-from ptinertia.cluster import ClusterSpec, open_client
 from ptinertia.errors import UsageError
 
 BIN = Path(sys.executable).parent

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import pytest
 
+from ptinertia.batch.study import DEFAULT_VARY, draw_run, parse_vary, run_seeds
 from ptinertia.cli import main
 from ptinertia.config import Bench
 from ptinertia.errors import UsageError
-from ptinertia.study import DEFAULT_VARY, draw_run, parse_vary, run_seeds
 
 LAYOUTS = """
 [[layouts]]

@@ -1,4 +1,4 @@
-"""The bench file -> dsp translator (ptinertia/tracking.py)."""
+"""The bench file -> dsp translator (ptinertia/to_dsp.py)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import dataclasses
 
 from dsp.tacho import TachoConfig
 from ptinertia.config import Bench, Tacho
-from ptinertia.tracking import tacho_config, tracker_config
+from ptinertia.to_dsp import tacho_config, tracker_config
 
 
 def test_every_tacho_key_the_tracker_shares_reaches_it() -> None:

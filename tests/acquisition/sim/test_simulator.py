@@ -12,11 +12,11 @@ from acquisition.sim.simulator import SimulatedBench
 from acquisition.sim.sweep import RpmProfile, hold, ramp
 from acquisition.sim.synthesis import half_orders, synthesize_accel
 from acquisition.stream import EdgeBlock, SampleBlock, SourceError
-from ptinertia.bench import build_simulated_model
 from ptinertia.config import ElasticMode, Tacho, parse_bench
 from ptinertia.paths import EXAMPLES_DIR
 from ptinertia.sources import open_source
 from ptinertia.to_acquisition import tacho_spec
+from ptinertia.to_physics import build_simulated_model
 
 W = 2 * math.pi / 60
 I3 = EXAMPLES_DIR / "i3-bench.toml"

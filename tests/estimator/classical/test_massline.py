@@ -26,10 +26,10 @@ from estimator.classical.massline import (
 )
 from powertrain.mounted import MountedPowertrain
 from powertrain.rigidbody import inertia_matrix
-from ptinertia.bench import build_model
 from ptinertia.cli import main
 from ptinertia.config import load_bench
 from ptinertia.paths import EXAMPLES_DIR
+from ptinertia.to_physics import build_model
 
 BENCH = load_bench(EXAMPLES_DIR / "i3-bench.toml")
 MODEL = build_model(BENCH)

@@ -22,11 +22,11 @@ from dsp.frames import OrderFrame
 from estimator.kinematics import fit_rigid_motion
 from estimator.result import EstimateUpdate, principal_axes
 from estimator.streaming import InertiaEstimator
-from ptinertia.bench import build_simulated_model
 from ptinertia.config import load_bench
 from ptinertia.errors import UsageError, user_error_types
-from ptinertia.estimation import estimator_setup
 from ptinertia.sinks import RunContext
+from ptinertia.to_estimator import estimator_setup
+from ptinertia.to_physics import build_simulated_model
 from ptinertia.viewer import options as viewer_options
 from ptinertia.viewer.options import open_recording, parse_rerun_option
 from ptinertia.viewer.rerun_sink import RerunSink, ViewerMode, estimate_rows, make_viewer_sink

@@ -26,7 +26,7 @@ from powertrain.half_orders import OrderExcitation
 from powertrain.model import BenchModel
 from powertrain.pressure_torque import PressureTorqueMap, pressure_torque_map
 from ptinertia import config
-from ptinertia.bench import build_model
+from ptinertia.to_physics import build_model
 
 #: Pa per unit of a cylinder-pressure channel.
 PRESSURE_UNITS = {"Pa": 1.0, "kPa": 1e3, "MPa": 1e6, "bar": 1e5, "mbar": 100.0, "psi": 6894.757}

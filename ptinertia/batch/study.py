@@ -34,13 +34,9 @@ from typing import Any
 
 import numpy as np
 
-from ptinertia.campaign_plots import plot_study
-from ptinertia.cluster import ClusterSpec, failure_line, open_client, run_tasks
-from ptinertia.config import Bench, ConfigError, load_bench, parse_bench
-from ptinertia.errors import UsageError, user_error_types
-from ptinertia.runner import RunOptions, run_source
-from ptinertia.sources import REALISTIC_SIMULATION, open_source
-from ptinertia.study_stats import (
+from ptinertia.batch.cluster import ClusterSpec, failure_line, open_client, run_tasks
+from ptinertia.batch.plots import plot_study
+from ptinertia.batch.study_stats import (
     TermStats,
     cog_rms_mm,
     inertia_score_pct,
@@ -49,6 +45,10 @@ from ptinertia.study_stats import (
     write_runs,
     write_stats,
 )
+from ptinertia.config import Bench, ConfigError, load_bench, parse_bench
+from ptinertia.errors import UsageError, user_error_types
+from ptinertia.runner import RunOptions, run_source
+from ptinertia.sources import REALISTIC_SIMULATION, open_source
 
 SIMULATED = ("noise", "gain", "alignment", "position", "unbalance", "gas")
 NOT_SIMULATED = ("spin_inertia", "mounts")

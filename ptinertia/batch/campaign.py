@@ -21,8 +21,8 @@ from typing import Any, TextIO
 
 from acquisition.channels import check_channels
 from estimator.result import Z95
-from ptinertia.campaign_plots import plot_campaign
-from ptinertia.cluster import ClusterSpec, failure_line, open_client, run_tasks
+from ptinertia.batch.cluster import ClusterSpec, failure_line, open_client, run_tasks
+from ptinertia.batch.plots import plot_campaign
 from ptinertia.config import Bench, load_bench, loads_bench
 from ptinertia.errors import UsageError, user_error_types
 from ptinertia.runner import RunOptions, run_source, write_json
