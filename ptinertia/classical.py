@@ -17,7 +17,9 @@ from acquisition.classical.frf_matrix import SensorPoint, frf_matrix
 from acquisition.classical.modal_setup import load_modal_setup
 from acquisition.classical.pendulum_file import load_pendulum_test
 from acquisition.classical.uff import read_uff
-from estimator.classical.massline import FrfGeometry, MassLineTolerances, estimate_mass_line
+from estimator.classical.massline import estimate_mass_line
+from estimator.classical.massline_band import FrfGeometry
+from estimator.classical.massline_rigid import MassLineTolerances
 from estimator.classical.pendulum import Plate, Swing, inertia_from_swings
 from estimator.classical.pendulum_axes import BEST_CONDITION, CONDITION_WARN
 from estimator.classical.plumb_lines import cog_from_lines

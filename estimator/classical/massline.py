@@ -14,7 +14,7 @@ The method is two fits, one module each: the band and the per-FRF fit of the
 constant ``A0`` (with the suspension's and the elastic modes' residual terms) in
 :mod:`estimator.classical.massline_band`, and the rigid body fitted to all ``A0`` at once in
 :mod:`estimator.classical.massline_rigid`. :func:`estimate_mass_line` here runs them in order;
-its ``__all__`` names the method's public API, so callers import from ``estimator.classical.massline``.
+callers import each name from the module that defines it.
 """
 
 from __future__ import annotations
@@ -32,32 +32,12 @@ from estimator.classical.massline_band import (
     choose_band,
     find_resonances,
     fit_mass_line,
-    mass_line_accelerance,
 )
 from estimator.classical.massline_rigid import (
-    PARAMETERS,
     MassLineTolerances,
     RigidBodyFit,
     rigid_body_from_mass_line,
 )
-
-# the method's public names, wherever they are defined
-__all__ = [
-    "PARAMETERS",
-    "Band",
-    "FrfGeometry",
-    "MassLineError",
-    "MassLineFit",
-    "MassLineResult",
-    "MassLineTolerances",
-    "RigidBodyFit",
-    "choose_band",
-    "estimate_mass_line",
-    "find_resonances",
-    "fit_mass_line",
-    "mass_line_accelerance",
-    "rigid_body_from_mass_line",
-]
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ import argparse
 import math
 from typing import Any
 
-from estimator.classical.massline import MassLineTolerances
+from estimator.classical.massline_rigid import MassLineTolerances
 from estimator.result import Z95
 from ptinertia.classical import massline_document
 from ptinertia.errors import UsageError

@@ -13,8 +13,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from acquisition.sim.sweep import parse_sweep
+from acquisition.stream import EdgeBlock, SampleBlock
+from ptinertia.config import load_bench
 from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
+from ptinertia.registry import writer_class
+from ptinertia.sources import open_source
 
 
 def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentParser:
@@ -41,7 +46,6 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
 
 def overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
     """The ``open_source("sim", ...)`` overrides the options ask for."""
-    from acquisition.sim.sweep import parse_sweep
 
     out: dict[str, Any] = {}
     if args.sweep is not None:
@@ -65,10 +69,6 @@ def simulate(
     bench_path: str | Path, out: str | Path, progress: bool = False, **overrides: Any
 ) -> dict[str, Any]:
     """Simulate ``bench_path`` into ``out``; returns a summary (files, samples, edges)."""
-    from acquisition.stream import EdgeBlock, SampleBlock
-    from ptinertia.config import load_bench
-    from ptinertia.registry import writer_class
-    from ptinertia.sources import open_source
 
     out = Path(out)
     writer_cls = writer_class(out.suffix)  # an unsupported extension fails before the work

@@ -22,8 +22,22 @@ from typing import Any
 
 import numpy as np
 
+from acquisition.classical.classic_sim import (
+    ElasticModeSpec,
+    PendulumNoise,
+    default_hits,
+    simulate_frfs,
+    simulate_pendulum_test,
+    soft_suspension,
+)
+from acquisition.classical.frf_matrix import frfs_from_matrix
+from acquisition.classical.pendulum_file import dumps_pendulum_test
+from acquisition.classical.uff import write_uff
+from powertrain.mounted import MountedPowertrain
+from ptinertia.config import load_bench
 from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
+from ptinertia.to_physics import build_model
 
 HIT_NODE0 = 101
 
@@ -65,10 +79,6 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
 
 
 def simulate_pendulum(args: argparse.Namespace) -> str:
-    from acquisition.classical.classic_sim import PendulumNoise, simulate_pendulum_test
-    from acquisition.classical.pendulum_file import dumps_pendulum_test
-    from ptinertia.config import load_bench
-    from ptinertia.to_physics import build_model
 
     for option in (
         "period_noise_pct",
@@ -115,17 +125,6 @@ def simulate_pendulum(args: argparse.Namespace) -> str:
 
 
 def simulate_frf(args: argparse.Namespace) -> str:
-    from acquisition.classical.classic_sim import (
-        ElasticModeSpec,
-        default_hits,
-        simulate_frfs,
-        soft_suspension,
-    )
-    from acquisition.classical.frf_matrix import frfs_from_matrix
-    from acquisition.classical.uff import write_uff
-    from powertrain.mounted import MountedPowertrain
-    from ptinertia.config import load_bench
-    from ptinertia.to_physics import build_model
 
     if not (args.df_hz > 0 and args.fmax_hz > 2 * args.df_hz):
         raise UsageError(

@@ -15,15 +15,14 @@ from acquisition.classical.classic_sim import (
     simulate_frfs,
     soft_suspension,
 )
-from estimator.classical.massline import (
+from estimator.classical.massline import estimate_mass_line
+from estimator.classical.massline_band import (
     FrfGeometry,
     MassLineError,
-    MassLineTolerances,
     choose_band,
-    estimate_mass_line,
     mass_line_accelerance,
-    rigid_body_from_mass_line,
 )
+from estimator.classical.massline_rigid import MassLineTolerances, rigid_body_from_mass_line
 from powertrain.mounted import MountedPowertrain
 from powertrain.rigidbody import inertia_matrix
 from ptinertia.cli import main
