@@ -13,21 +13,11 @@ class UsageError(ValueError):
 
 def user_error_types() -> tuple[type[BaseException], ...]:
     """Every exception class that means "the user's input is wrong", not "we have a bug"."""
+    # Imported here, not at the top: cli.py imports this module before it knows the command,
+    # and loading the layers (numpy, scipy, pydantic) would make every ``--help`` pay for them.
     from acquisition.stream import SourceError
+    from dsp.errors import DspConfigError
     from powertrain.errors import PhysicsError
     from ptinertia.config import ConfigError
 
-    types: list[type[BaseException]] = [UsageError, ConfigError, SourceError, PhysicsError]
-    try:
-        from dsp.errors import DspConfigError
-
-        types.append(DspConfigError)
-    except ImportError:  # dsp not built yet in this checkout
-        pass
-    try:
-        from estimator.errors import EstimatorError
-
-        types.append(EstimatorError)
-    except ImportError:
-        pass
-    return tuple(types)
+    return (UsageError, ConfigError, SourceError, PhysicsError, DspConfigError)
