@@ -3,8 +3,10 @@
 Format (``docs/file-formats.md``): one file per sample group (rate), the first
 column ``time_s``, then one column per channel headed ``name[unit]``; a file
 ``BASE.csv`` holds group ``accel``, a file ``BASE.NAME.csv`` group ``NAME``. An
-edge file has a single column ``CHANNEL_edge_s`` of tacho edge times. An
-optional ``BASE.meta.json`` carries the metadata (simulated truth, bench).
+edge file has a single column of edge times (``CHANNEL_edge_s``, or any header
+naming the channel). An optional ``BASE.meta.json`` carries the metadata. Given the
+bench's channel needs, only those channels are passed on, by name and in the
+pipeline's units (:mod:`acquisition.files.selection`).
 
 Readers stream: the files are parsed in chunks and merged into time windows
 (:class:`~acquisition.files.windowed.WindowedFileSource`), so an hour-long recording

@@ -1,6 +1,11 @@
 """ASAM MDF4 recordings (``.mf4``) through asammdf: streaming reader and writer.
 
-Layout (``docs/file-formats.md``): one channel group per sample group, its
+The reader takes any layout a DAQ or asammdf writes when given the bench's channel
+needs: each channel found by name (and group) in any channel group, its unit converted,
+edge channels from event groups (:mod:`acquisition.files.selection`); the groups the
+bench does not need are never read.
+
+The writer's layout (``docs/file-formats.md``): one channel group per sample group, its
 acquisition name the group name (``accel``, ``rpm``, ``pressure``, ``tacho``),
 its master channel the time (s); a tacho edge channel is a channel group of
 its own whose single channel, commented ``ptinertia:edges``, holds the edge
