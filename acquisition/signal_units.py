@@ -30,6 +30,8 @@ import functools
 import re
 from typing import Any
 
+from acquisition.stream import SourceError
+
 # what each pipeline unit measures, for messages
 QUANTITY = {
     "m/s^2": "an acceleration (m/s^2, g, mm/s^2, ...)",
@@ -44,8 +46,9 @@ _RPM_ALIASES = {"U/min": "rpm", "u/min": "rpm", "r/min": "rpm", "RPM": "rpm", "r
 _BARE_EXPONENT = re.compile(r"(?<=[A-Za-z])([2-4])\b")
 
 
-class UnitError(ValueError):
-    """A unit that cannot be converted to the one the pipeline needs; the message says why."""
+class UnitError(SourceError):
+    """A unit that cannot be converted to the one the pipeline needs; the message says why
+    (prefixed with where, when the caller says where)."""
 
 
 @functools.cache
@@ -64,14 +67,25 @@ def _spelling(unit: str, target: str) -> str:
     return _BARE_EXPONENT.sub(r"**\1", text)
 
 
-def unit_factor(unit: str, target: str) -> float:
+def unit_factor(unit: str, target: str, where: str = "") -> float:
     """The factor taking values in ``unit`` to ``target`` (one of :data:`QUANTITY`).
+
+    ``where`` (a file, channel or message) prefixes the message of a refusal.
 
     Raises
     ------
     UnitError
         ``unit`` empty, unknown, or of another quantity than ``target``.
     """
+    try:
+        return _factor(unit, target)
+    except UnitError as err:
+        if where:
+            raise UnitError(f"{where}: {err}") from None
+        raise
+
+
+def _factor(unit: str, target: str) -> float:
     expected = QUANTITY.get(target, target)
     if not unit.strip():
         raise UnitError(f"no unit given, expected {expected}")
