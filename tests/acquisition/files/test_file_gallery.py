@@ -101,7 +101,8 @@ def _accel(ref: dict) -> dict[str, np.ndarray]:
 
 def _daq_mdf(ref: dict) -> tuple[Path, str]:
     """A DAQ's MF4: one 5120 Hz group (accelerometers in g, speed in 1/min), a 102.4 kHz
-    tacho wave, tacho and cam edge event groups; every name its own."""
+    tacho wave, ECU events at irregular times, tacho and cam edge event groups; every name
+    its own."""
     from asammdf import MDF, Signal
 
     ch, t = ref["channels"], ref["channels"]["time:accel"]
@@ -115,6 +116,9 @@ def _daq_mdf(ref: dict) -> tuple[Path, str]:
     wave_t = np.arange(0, 0.2, 1 / 102_400.0)
     wave = np.where(np.sin(2 * np.pi * 1000 * wave_t) > 0, 5.0, 0.0)
     mdf.append([Signal(wave, wave_t, name="tacho_wave", unit="V")], acq_name="tacho wave")
+    # an ECU's events at irregular times, unneeded: never read, so never refused
+    ecu_t = np.cumsum(np.random.default_rng(1).uniform(0.01, 0.3, 12))
+    mdf.append([Signal(np.arange(12.0), ecu_t, name="gear", unit="")], acq_name="ECU events")
     for name, edges in (("TachoEdge", ref["edges"]["tacho"]), ("CamEdge", ref["edges"]["cam"])):
         mdf.append([Signal(np.ones(edges.size), edges, name=name, unit="")], acq_name=name)
     path = ref["dir"] / "daq.mf4"
@@ -146,8 +150,10 @@ def _per_sensor_mdf(ref: dict) -> tuple[Path, str]:
     path = ref["dir"] / "per_sensor.mf4"
     mdf.save(path, overwrite=True)
     mdf.close()
+    # groups by acquisition name, and sensor C's by its index (the third group, 2)
+    group = {"A": "sensor A", "B": "sensor B", "C": "2"}
     table = "[channels]\n" + "".join(
-        f'{s}_{a} = {{ name = "{a.upper()}", group = "sensor {s}" }}\n'
+        f'{s}_{a} = {{ name = "{a.upper()}", group = "{group[s]}" }}\n'
         for s in "ABC"
         for a in "xyz"
     )
