@@ -28,7 +28,9 @@ class ChannelNeed:
         The sample group the simulated source puts it in (``"accel"``,
         ``"pressure"``, ``"rpm"``, ``"tacho"``), or ``"edges"`` for an edge channel.
     unit : str
-        Its unit when the recording does not say (``""`` for an edge channel).
+        The unit the pipeline takes it in (``"m/s^2"``, ``"rpm"``, ``"bar"``, ``"V"``;
+        ``""`` for an edge channel): a recording's own unit is converted to it
+        (:mod:`acquisition.signal_units`).
     why : str
         What needs it, for messages (``"sensor A_engine"``, ``"cam phase reference"``).
     edges : bool
@@ -38,6 +40,15 @@ class ChannelNeed:
         wheel tacho).
     rate_hz : float or None
         The rate the bench declares for it (a sampled tacho), for messages.
+    recorded_name : str
+        Its name in a recording when that differs (the bench's ``[channels]`` table);
+        ``""``: the same as ``name``.
+    recorded_group : str
+        The recording's group (an MDF4 channel group's acquisition name or index, a
+        CSV file's group) that holds it, where names repeat; ``""``: any group.
+    declared_unit : str
+        The unit the bench declares for it, overriding the recording's own (for a
+        recording that gives none or one no unit library knows); ``""``: the recording's.
     """
 
     name: str
@@ -47,6 +58,14 @@ class ChannelNeed:
     edges: bool = False
     required: bool = True
     rate_hz: float | None = None
+    recorded_name: str = ""
+    recorded_group: str = ""
+    declared_unit: str = ""
+
+    @property
+    def file_name(self) -> str:
+        """Its name in the recording."""
+        return self.recorded_name or self.name
 
 
 def check_channels(layout: StreamLayout, needs: Sequence[ChannelNeed], where: str) -> None:

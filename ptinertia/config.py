@@ -178,6 +178,20 @@ class Can(Section):
     fd: bool = True
 
 
+class ChannelMap(Section):
+    """Where a recording keeps one of the bench's channels (``[channels]``).
+
+    ``name``: the channel's name in the file (default: the bench's name); ``group``:
+    the MDF4 channel group (acquisition name or index) or CSV group holding it, where
+    names repeat; ``unit``: its unit, overriding the file's (a file without units,
+    or with one no unit library knows).
+    """
+
+    name: str | None = None
+    group: str | None = None
+    unit: str | None = None
+
+
 class Bench(Section):
     meta: Meta = Field(default_factory=Meta)
     powertrain: Powertrain
@@ -193,6 +207,21 @@ class Bench(Section):
     dsp: Dsp = Field(default_factory=Dsp)
     estimator: EstimatorSettings = Field(default_factory=EstimatorSettings)
     can: Can = Field(default_factory=Can)
+    # bench channel name -> its name in recordings (a string) or a ChannelMap
+    channels: dict[str, str | ChannelMap] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _channel_map(self) -> Bench:
+        t = self.tacho
+        known = [c for s in self.sensors for c in s.channels if c]
+        known += [t.channel, t.rpm_channel, t.cam_channel, t.pressure_channel]
+        for name in self.channels:
+            if name not in known:
+                raise ValueError(
+                    f"channels: {name!r} is not a channel of this bench; its channels: "
+                    + ", ".join(known)
+                )
+        return self
 
     @model_validator(mode="after")
     def _sensors(self) -> Bench:

@@ -18,7 +18,12 @@ from acquisition.sim.sweep import RpmProfile
 from acquisition.stream import Source, SourceError
 from ptinertia.config import Bench, Simulation, Tacho, parse_bench
 from ptinertia.registry import file_kind, source_backend
-from ptinertia.to_acquisition import channel_needs, sweep_profile, tacho_spec
+from ptinertia.to_acquisition import (
+    channel_needs,
+    recorded_channel_needs,
+    sweep_profile,
+    tacho_spec,
+)
 from ptinertia.to_can import can_settings
 from ptinertia.to_physics import build_simulated_model
 
@@ -159,7 +164,11 @@ def open_simulated(bench: Bench, **overrides: Any) -> Source:
 
 
 def open_file(path: str | Path, bench: Bench, **overrides: Any) -> Source:
-    """A recording chosen by its extension; CSV and MF4 are checked against ``bench``."""
+    """A recording chosen by its extension.
+
+    CSV and MF4 pass on only the channels ``bench`` reads, found by the names of its
+    ``[channels]`` table and converted to the pipeline's units.
+    """
     path = Path(path)
     kind = file_kind(path.suffix)
     if kind == "mf4" and is_can_log(path):
@@ -173,9 +182,10 @@ def open_file(path: str | Path, bench: Bench, **overrides: Any) -> Source:
         replayed: Source = source_backend(kind)(path, channel_needs(bench), **overrides)
         return replayed
     _unknown(overrides, FILE_OPTIONS, f"source 'file:{path}'")
-    source: Source = source_backend(kind)(path, **overrides)
+    needs = recorded_channel_needs(bench)
+    source: Source = source_backend(kind)(path, needs=needs, **overrides)
     try:
-        check_channels(source.layout, channel_needs(bench), str(path))
+        check_channels(source.layout, needs, str(path))
     except BaseException:
         source.close()
         raise

@@ -8,10 +8,12 @@ settings are built in :mod:`ptinertia.to_can`.
 
 from __future__ import annotations
 
+import dataclasses
+
 from acquisition.channels import ChannelNeed
 from acquisition.sim.sweep import RpmProfile
 from acquisition.sim.tacho_synth import TachoSpec
-from ptinertia.config import Bench, Simulation, Tacho
+from ptinertia.config import Bench, ChannelMap, Simulation, Tacho
 
 
 def tacho_spec(tacho: Tacho) -> TachoSpec:
@@ -80,4 +82,37 @@ def channel_needs(bench: Bench) -> tuple[ChannelNeed, ...]:
         needs.append(
             ChannelNeed(t.pressure_channel, "pressure", "bar", "cylinder-pressure phase reference")
         )
-    return tuple(needs)
+    return tuple(_mapped(n, bench.channels.get(n.name)) for n in needs)
+
+
+def recorded_channel_needs(bench: Bench) -> tuple[ChannelNeed, ...]:
+    """What a run reads from a CSV or MF4 recording: :func:`channel_needs`, and the
+    cylinder pressure when the gas torque may come from it (``[estimator] gas_torque``
+    ``auto`` or ``pressure``), since the file source passes on only what is asked for.
+    """
+    needs = channel_needs(bench)
+    t = bench.tacho
+    if bench.estimator.gas_torque != "model" and t.pressure_channel not in {n.name for n in needs}:
+        need = ChannelNeed(
+            t.pressure_channel,
+            "pressure",
+            "bar",
+            f"cylinder pressure, gas_torque {bench.estimator.gas_torque!r}",
+            required=bench.estimator.gas_torque == "pressure",
+        )
+        needs = (*needs, _mapped(need, bench.channels.get(need.name)))
+    return needs
+
+
+def _mapped(need: ChannelNeed, where: str | ChannelMap | None) -> ChannelNeed:
+    """``need`` with its recorded name, group and unit from the bench's ``[channels]``."""
+    if where is None:
+        return need
+    if isinstance(where, str):
+        return dataclasses.replace(need, recorded_name=where)
+    return dataclasses.replace(
+        need,
+        recorded_name=where.name or "",
+        recorded_group=where.group or "",
+        declared_unit=where.unit or "",
+    )

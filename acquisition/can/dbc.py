@@ -24,6 +24,7 @@ cantools for signals the fast path cannot read.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from collections.abc import Sequence
 from pathlib import Path
@@ -31,6 +32,7 @@ from typing import Any
 
 from acquisition.can.plan import CanPlan, ChannelScaling, IntField, MessagePlan
 from acquisition.channels import ChannelNeed
+from acquisition.signal_units import unit_factor
 from acquisition.stream import ChannelSpec, SampleGroup, SourceError, StreamLayout
 
 # the sample groups a CAN DAQ sends, in the simulated source's order
@@ -286,6 +288,16 @@ def _sample_groups(
     return groups
 
 
+def _in_pipeline_units(m: MessagePlan, needs: Sequence[ChannelNeed], where: str) -> MessagePlan:
+    """``m`` with each scaling taken from its DBC unit to the pipeline's (decode and encode)."""
+    need, scalings = {n.name: n for n in needs}, []
+    for c, sc in zip(m.channels, m.scalings, strict=True):
+        at = f"{where}: message {m.name} channel {c!r} ({need[c].why})"
+        f = unit_factor(need[c].declared_unit or sc.unit, need[c].unit, at)
+        scalings.append(sc.in_unit(need[c].unit, f))
+    return dataclasses.replace(m, scalings=tuple(scalings))
+
+
 def plan_for_channels(db: Any, needs: Sequence[ChannelNeed], dbc_path: str = "") -> CanPlan:
     """The messages of ``db`` that carry the channels ``needs``, and the layout they make.
 
@@ -361,16 +373,8 @@ def plan_for_channels(db: Any, needs: Sequence[ChannelNeed], dbc_path: str = "")
             raise SourceError(
                 f"{where}: the {gname} channels must share one sample rate, got {desc}"
             )
-        units = [
-            next(
-                sc.unit
-                for m in gmsgs
-                for ch, sc in zip(m.channels, m.scalings, strict=True)
-                if ch == c
-            )
-            for c, _ in present
-        ]
-        specs = tuple(ChannelSpec(c, u or unit) for (c, _), u in zip(present, units, strict=True))
+        gmsgs = [_in_pipeline_units(m, needs, where) for m in gmsgs]
+        specs = tuple(ChannelSpec(c, unit) for c, _ in present)
         sample_groups.append(SampleGroup(gname, gmsgs[0].rate_hz, specs))
         messages.extend(gmsgs)
     edge_channels = [n.name for n in needs if n.edges]

@@ -8,7 +8,7 @@ and the decoder must agree on them.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -50,6 +50,10 @@ class ChannelScaling:
     raw_min: int
     raw_max: int
     invalid_raw: int
+
+    def in_unit(self, unit: str, factor: float) -> ChannelScaling:
+        """The same scaling giving values in ``unit``, ``factor`` times the old ones."""
+        return replace(self, scale=self.scale * factor, offset=self.offset * factor, unit=unit)
 
 
 @dataclass(frozen=True)

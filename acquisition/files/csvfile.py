@@ -3,8 +3,10 @@
 Format (``docs/file-formats.md``): one file per sample group (rate), the first
 column ``time_s``, then one column per channel headed ``name[unit]``; a file
 ``BASE.csv`` holds group ``accel``, a file ``BASE.NAME.csv`` group ``NAME``. An
-edge file has a single column ``CHANNEL_edge_s`` of tacho edge times. An
-optional ``BASE.meta.json`` carries the metadata (simulated truth, bench).
+edge file has a single column of edge times (``CHANNEL_edge_s``, or any header
+naming the channel). An optional ``BASE.meta.json`` carries the metadata. Given the
+bench's channel needs, only those channels are passed on, by name and in the
+pipeline's units (:mod:`acquisition.files.selection`).
 
 Readers stream: the files are parsed in chunks and merged into time windows
 (:class:`~acquisition.files.windowed.WindowedFileSource`), so an hour-long recording
@@ -28,13 +30,23 @@ from typing import IO, Any
 
 import numpy as np
 
+from acquisition.channels import ChannelNeed
 from acquisition.files.csvwriter import BASE_GROUP, EDGE_SUFFIX, sidecar_path
+from acquisition.files.selection import (
+    FileGroup,
+    event_times,
+    scaled,
+    select,
+    select_all,
+    unique_labels,
+)
 from acquisition.files.windowed import (
     Chunk,
     EdgeStream,
     SampleStream,
     WindowedFileSource,
 )
+from acquisition.signal_units import UnitError, unit_factor
 from acquisition.stream import ChannelSpec, SourceError
 
 # -- CSV reading ---------------------------------------------------------------------------------
@@ -56,10 +68,12 @@ def _parse_header(line: str, path: Path) -> list[ChannelSpec]:
     return specs
 
 
-def _csv_chunks(fh: IO[str], path: Path, columns: Sequence[str], rows: int) -> Iterator[Chunk]:
+def _csv_chunks(
+    fh: IO[str], path: Path, columns: Sequence[str], rows: int, time_factor: float = 1.0
+) -> Iterator[Chunk]:
     """Parsed rows of an open CSV after its header.
 
-    Yields (file line of the first row, first column, other columns as (n_ch, n)).
+    Yields (file line of the first row, first column in s, other columns as (n_ch, n)).
     """
     line_no = 2
     while True:
@@ -78,7 +92,7 @@ def _csv_chunks(fh: IO[str], path: Path, columns: Sequence[str], rows: int) -> I
         if arr.size:
             yield (
                 line_no,
-                arr[:, 0].copy(),
+                arr[:, 0] * time_factor if time_factor != 1.0 else arr[:, 0].copy(),
                 (np.ascontiguousarray(arr[:, 1:].T) if arr.shape[1] > 1 else None),
             )
         line_no += len(lines)
@@ -136,50 +150,88 @@ class CsvSource(WindowedFileSource):
         paths: str | Path | Sequence[str | Path],
         block_s: float = 0.1,
         rows_per_chunk: int = 20000,
+        needs: Sequence[ChannelNeed] | None = None,
     ) -> None:
         files = discover_csv(paths) if isinstance(paths, str | Path) else [Path(p) for p in paths]
         self._handles: list[IO[str]] = []
-        samples: list[SampleStream] = []
-        edges: list[EdgeStream] = []
         try:
-            for path in files:
-                try:
-                    fh = path.open("r", encoding="utf-8", newline="")
-                    header = fh.readline()
-                except OSError as err:
-                    raise SourceError(f"{path}: cannot read ({err.strerror})") from None
-                except UnicodeDecodeError:
-                    raise SourceError(f"{path}: not a text CSV file") from None
-                self._handles.append(fh)
-                if not header.strip():
-                    raise SourceError(f"{path}: empty file, expected a header line")
-                specs = _parse_header(header, path)
-                names = [s.name for s in specs]
-                if len(specs) == 1 and names[0].endswith(EDGE_SUFFIX):
-                    ch = names[0][: -len(EDGE_SUFFIX)]
-                    edges.append(
-                        EdgeStream(
-                            ch, str(path), _csv_chunks(fh, path, names, rows_per_chunk), "line"
-                        )
-                    )
-                    continue
-                if names[0] not in ("time_s", "time") or specs[0].unit not in ("", "s"):
-                    raise SourceError(
-                        f"{path}: first column is {header.split(',')[0].strip()!r}: "
-                        "expected time_s "
-                        f"(or a single column CHANNEL{EDGE_SUFFIX} for tacho edges)"
-                    )
-                if len(specs) < 2:
-                    raise SourceError(f"{path}: no channel columns after time_s")
-                chunks = _csv_chunks(fh, path, names, rows_per_chunk)
-                samples.append(
-                    SampleStream(group_name_of(path), specs[1:], str(path), chunks, "line")
+            groups, columns, time_factors = self._describe(files)
+            where = str(files[0])
+            if needs is None:
+                picks, edge_picks = select_all(groups)
+            else:
+                picks, edge_picks = select(groups, needs, where)
+
+            def chunks(key: int) -> Iterator[Chunk]:
+                return _csv_chunks(
+                    self._handles[key], files[key], columns[key], rows_per_chunk, time_factors[key]
                 )
-            metadata = _read_sidecar(files[0])
-            super().__init__(samples, edges, metadata, block_s)
+
+            samples = [
+                SampleStream(
+                    name,
+                    p.specs,
+                    str(files[p.group.key]),
+                    scaled(chunks(p.group.key), p.columns, p.factors),
+                    "line",
+                )
+                for p, name in zip(picks, unique_labels([p.group for p in picks]), strict=True)
+            ]
+            edges = [
+                EdgeStream(
+                    e.channel,
+                    str(files[e.group.key]),
+                    chunks(e.group.key)
+                    if e.group.edge_list
+                    else event_times(
+                        chunks(e.group.key), e.column, e.channel, str(files[e.group.key])
+                    ),
+                    "line",
+                )
+                for e in edge_picks
+            ]
+            super().__init__(samples, edges, _read_sidecar(files[0]), block_s)
+            for stream in edges:
+                stream.next_time()  # an event file that is a sampled wave fails on opening
         except BaseException:
             self._close_handles()
             raise
+
+    def _describe(self, files: list[Path]) -> tuple[list[FileGroup], list[list[str]], list[float]]:
+        """Each file as a group (its header), its column names, its time column's factor to s."""
+        groups: list[FileGroup] = []
+        columns: list[list[str]] = []
+        time_factors: list[float] = []
+        for key, path in enumerate(files):
+            try:
+                fh = path.open("r", encoding="utf-8", newline="")
+                header = fh.readline()
+            except OSError as err:
+                raise SourceError(f"{path}: cannot read ({err.strerror})") from None
+            except UnicodeDecodeError:
+                raise SourceError(f"{path}: not a text CSV file") from None
+            self._handles.append(fh)
+            if not header.strip():
+                raise SourceError(f"{path}: empty file, expected a header line")
+            specs = _parse_header(header, path)
+            names = [s.name for s in specs]
+            columns.append(names)
+            label = group_name_of(path)
+            if len(specs) == 1:  # an edge file: one column of edge times, any header
+                ch = names[0][: -len(EDGE_SUFFIX)] if names[0].endswith(EDGE_SUFFIX) else names[0]
+                spec = ChannelSpec(ch, "s")
+                groups.append(FileGroup(key, label, (spec,), (path.name,), edge_list=True))
+                time_factors.append(_time_factor(specs[0], path))
+                continue
+            if names[0] not in ("time_s", "time"):
+                raise SourceError(
+                    f"{path}: first column is {header.split(',')[0].strip()!r}: "
+                    "expected time_s "
+                    f"(or a single column CHANNEL{EDGE_SUFFIX} for tacho edges)"
+                )
+            time_factors.append(_time_factor(specs[0], path))
+            groups.append(FileGroup(key, label, tuple(specs[1:]), (path.name,)))
+        return groups, columns, time_factors
 
     def _close_handles(self) -> None:
         for fh in self._handles:
@@ -188,6 +240,14 @@ class CsvSource(WindowedFileSource):
 
     def _shutdown(self) -> None:
         self._close_handles()
+
+
+def _time_factor(spec: ChannelSpec, path: Path) -> float:
+    unit = spec.unit or "s"  # time_s, or an edge column: seconds unless it says otherwise
+    try:
+        return unit_factor(unit, "s")
+    except UnitError as err:
+        raise SourceError(f"{path}: column {spec.name!r}: {err}") from None
 
 
 def _read_sidecar(base: Path) -> dict[str, Any]:

@@ -1,6 +1,11 @@
 """ASAM MDF4 recordings (``.mf4``) through asammdf: streaming reader and writer.
 
-Layout (``docs/file-formats.md``): one channel group per sample group, its
+The reader takes any layout a DAQ or asammdf writes when given the bench's channel
+needs: each channel found by name (and group) in any channel group, its unit converted,
+edge channels from event groups (:mod:`acquisition.files.selection`); the groups the
+bench does not need are never read.
+
+The writer's layout (``docs/file-formats.md``): one channel group per sample group, its
 acquisition name the group name (``accel``, ``rpm``, ``pressure``, ``tacho``),
 its master channel the time (s); a tacho edge channel is a channel group of
 its own whose single channel, commented ``ptinertia:edges``, holds the edge
@@ -15,13 +20,22 @@ The reader pulls ``records_per_chunk`` records of one group at a time
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from acquisition.channels import ChannelNeed
 from acquisition.files.csvwriter import json_default
+from acquisition.files.selection import (
+    FileGroup,
+    event_times,
+    scaled,
+    select,
+    select_all,
+    unique_labels,
+)
 from acquisition.files.windowed import Chunk, EdgeStream, SampleStream, WindowedFileSource
 from acquisition.stream import (
     ChannelSpec,
@@ -73,7 +87,7 @@ def _mdf_chunks(
 
 
 class MdfSource(WindowedFileSource):
-    """Stream an MDF4 recording written in the layout above.
+    """Stream an MDF4 recording: the layout above, or any layout a DAQ or asammdf writes.
 
     Parameters
     ----------
@@ -82,49 +96,105 @@ class MdfSource(WindowedFileSource):
         Window length of the merged stream (s).
     records_per_chunk : int
         Records read at a time per channel group.
+    needs : sequence of ChannelNeed, optional
+        The channels the run reads (:func:`acquisition.files.selection.select`): found
+        by name in any group, converted to the pipeline's units, everything else left
+        unread. None: every group as written, units unchecked.
     """
 
     def __init__(
-        self, path: str | Path, block_s: float = 0.1, records_per_chunk: int = 65536
+        self,
+        path: str | Path,
+        block_s: float = 0.1,
+        records_per_chunk: int = 65536,
+        needs: Sequence[ChannelNeed] | None = None,
     ) -> None:
         self.path = Path(path)
         self._mdf = _open_mdf(self.path)
         try:
+            groups, records = self._describe(needs is None)
+            if needs is None:
+                picks, edge_picks = select_all(groups)
+            else:
+                picks, edge_picks = select(groups, needs, str(self.path))
             samples: list[SampleStream] = []
             edges: list[EdgeStream] = []
-            for gi, group in enumerate(self._mdf.groups):
-                cg = group.channel_group
-                n = int(cg.cycles_nr)
-                master = self._mdf.masters_db.get(gi)
-                chans = [(ci, c) for ci, c in enumerate(group.channels) if ci != master]
-                name = cg.acq_name or f"group{gi}"
-                where = f"{self.path} group {name!r}"
-                if n == 0 or not chans:
-                    continue
-                if len(chans) == 1 and chans[0][1].comment == EDGE_COMMENT:
-                    ch = chans[0][1].name
-                    edges.append(
-                        EdgeStream(
-                            ch,
-                            f"{self.path} channel {ch!r}",
-                            _mdf_chunks(self._mdf, gi, [], n, records_per_chunk, where),
-                            "record",
-                        )
-                    )
-                    continue
-                specs = []
-                for _, c in chans:
-                    if not c.name or c.name.lower() == "nan":
-                        raise SourceError(f"{where}: a channel has no usable name ({c.name!r})")
-                    specs.append(ChannelSpec(c.name, c.unit or ""))
+            names = unique_labels([p.group for p in picks])
+            for pick, name in zip(picks, names, strict=True):
+                gi = pick.group.key
+                where = f"{self.path} group {pick.group.label!r}"
+                indices = [records[gi][1][c] for c in pick.columns]
                 chunks = _mdf_chunks(
-                    self._mdf, gi, [ci for ci, _ in chans], n, records_per_chunk, where
+                    self._mdf, gi, indices, records[gi][0], records_per_chunk, where
                 )
-                samples.append(SampleStream(name, specs, where, chunks, "record"))
+                samples.append(
+                    SampleStream(
+                        name,
+                        pick.specs,
+                        where,
+                        scaled(chunks, None, pick.factors),
+                        "record",
+                    )
+                )
+            for e in edge_picks:
+                gi = e.group.key
+                where = f"{self.path} group {e.group.label!r}"
+                n = records[gi][0]
+                if e.group.edge_list:
+                    chunks = _mdf_chunks(self._mdf, gi, [], n, records_per_chunk, where)
+                else:
+                    index = records[gi][1][e.column]
+                    raw = _mdf_chunks(self._mdf, gi, [index], n, records_per_chunk, where)
+                    chunks = event_times(raw, 0, e.channel, where)
+                edges.append(
+                    EdgeStream(e.channel, f"{where} channel {e.channel!r}", chunks, "record")
+                )
             super().__init__(samples, edges, self._metadata(), block_s)
+            for stream in edges:
+                stream.next_time()  # an event group that is a sampled wave fails on opening
         except BaseException:
             self._mdf.close()
             raise
+
+    def _describe(self, strict: bool) -> tuple[list[FileGroup], dict[int, tuple[int, list[int]]]]:
+        """The file's channel groups, and per group its record count and channel indices.
+
+        ``strict`` (no bench): a channel without a usable name is an error, empty
+        groups are left out; otherwise unusable channels are skipped (nobody can ask
+        for them) and an empty group is kept (a channel needed there has no samples).
+        """
+        groups: list[FileGroup] = []
+        records: dict[int, tuple[int, list[int]]] = {}
+        for gi, group in enumerate(self._mdf.groups):
+            cg = group.channel_group
+            n = int(cg.cycles_nr)
+            master = self._mdf.masters_db.get(gi)
+            chans = [(ci, c) for ci, c in enumerate(group.channels) if ci != master]
+            label = cg.acq_name or f"group{gi}"
+            if not chans or (strict and n == 0):
+                continue
+            edge_list = len(chans) == 1 and chans[0][1].comment == EDGE_COMMENT
+            usable = []
+            for ci, c in chans:
+                if not c.name or c.name.lower() == "nan":
+                    if strict:
+                        raise SourceError(
+                            f"{self.path} group {label!r}: a channel has no usable name "
+                            f"({c.name!r})"
+                        )
+                    continue
+                usable.append((ci, ChannelSpec(c.name, c.unit or "")))
+            groups.append(
+                FileGroup(
+                    gi,
+                    label,
+                    tuple(spec for _, spec in usable),
+                    (str(gi), f"group{gi}"),
+                    edge_list,
+                )
+            )
+            records[gi] = (n, [ci for ci, _ in usable])
+        return groups, records
 
     def _metadata(self) -> dict[str, Any]:
         for i, att in enumerate(self._mdf.attachments):

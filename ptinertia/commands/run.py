@@ -32,7 +32,10 @@ CORRECTIONS = (
 def add_parser(sub: Any, name: str, help_text: str) -> None:
     p = sub.add_parser(name, help=help_text, description=__doc__)
     p.add_argument(
-        "--bench", default=str(DEFAULT_BENCH), help="bench TOML (default: the i3 example)"
+        "--bench",
+        default=None,
+        help="bench TOML: required with a file or CAN source (the bench the data was "
+        "measured on); the simulated source defaults to the i3 example",
     )
     p.add_argument(
         "--source",
@@ -154,7 +157,15 @@ def recorder_sinks(path: str | None) -> list[Sink]:
 
 
 def run(args: argparse.Namespace) -> int:
-    bench_path = Path(args.bench)
+    if args.bench is None and args.source != "sim":
+        # a recording read with the example bench's sensor positions, mounts and tacho
+        # would give a confident, wrong estimate: the bench must be named
+        raise UsageError(
+            f"--source {args.source}: needs --bench B.toml, the bench the data was "
+            "measured on (its sensors, tacho, mounts and [channels]); only the "
+            "simulated source defaults to the i3 example"
+        )
+    bench_path = Path(args.bench) if args.bench is not None else DEFAULT_BENCH
     bench = with_mount_scale(load_bench(bench_path), args.mount_scale)
     bench_text = bench_path.read_text(encoding="utf-8")
     overrides = sim_overrides(args) if args.source == "sim" else {}

@@ -2,8 +2,9 @@
 and a live (python-can virtual) bus.
 
 Each file is written by the tool a user has for it (``ptinertia simulate`` for CSV, MF4 and
-MCAP; ``ptinertia can-sim --log`` through python-can's log writers for BLF, ASC and TRC) and
-opened through the same entry point the CLI uses (:func:`ptinertia.sources.open_source`). The
+MCAP; ``ptinertia can-sim --log`` through python-can's log writers for BLF, ASC and TRC;
+asammdf's own writer for an MF4 in a DAQ's layout, names and units, read through the bench's
+``[channels]``) and opened through the same entry point the CLI uses (:func:`ptinertia.sources.open_source`). The
 body below is the same for every source: the layout is known before the first item and holds
 the channels the bench needs, the blocks are well formed and in order per group and edge
 channel, the samples are the simulated bench's to the format's resolution, and closing is
@@ -35,6 +36,8 @@ RESOLUTION = {
     "sim": lambda peak: 0.0,
     "csv": lambda peak: 0.0,
     "mf4": lambda peak: 0.0,
+    # a DAQ's layout written by asammdf, accelerations in g: x / g0 * g0 is within 2 ulp
+    "mf4-daq": lambda peak: 2.0**-51 * peak,
     "mcap": lambda peak: 2.0**-24 * peak,
     "blf": lambda peak: 0.005,
     "asc": lambda peak: 0.005,
@@ -71,7 +74,39 @@ def written(tmp_path_factory: pytest.TempPathFactory) -> tuple[Bench, dict[str, 
     for kind in ("blf", "asc", "trc"):
         files[kind] = tmp / f"run.{kind}"
         _run_cli("can-sim", *common, "--interface", "none", "--log", str(files[kind]))
+    files["mf4-daq"] = _daq_layout(files["mf4"], tmp / "daq.mf4")
     return load_bench(bench_path), files
+
+
+G0 = 9.80665  # m/s^2 per g
+
+
+def _daq_layout(reference: Path, out: Path) -> Path:
+    """The reference MF4 rewritten with asammdf as a DAQ would: its own names, accelerations
+    in g, the speed in 1/min, the tacho as an event group (a 1 at each edge time)."""
+    from asammdf import MDF, Signal
+
+    with MDF(reference) as ref:
+        accel = [ref.get(f"{s}_{a}") for s in "ABC" for a in "xyz"]
+        rpm, tacho = ref.get("rpm"), ref.get("tacho")
+    mdf = MDF(version="4.10")
+    mdf.append(
+        [Signal(x.samples / G0, x.timestamps, name="Acc" + x.name, unit="g") for x in accel],
+        acq_name="DAQ",
+    )
+    mdf.append([Signal(rpm.samples, rpm.timestamps, name="n_mot", unit="1/min")], acq_name="ECU")
+    edges = tacho.timestamps
+    mdf.append([Signal(edges * 0 + 1, edges, name="TachoEdge", unit="")], acq_name="events")
+    mdf.save(out, overwrite=True)
+    mdf.close()
+    return out
+
+
+DAQ_CHANNELS = {
+    **{f"{s}_{a}": f"Acc{s}_{a}" for s in "ABC" for a in "xyz"},
+    "rpm": "n_mot",
+    "tacho": "TachoEdge",
+}
 
 
 def _open(kind: str, bench: Bench, files: dict[str, Path]) -> Source:
@@ -91,6 +126,8 @@ def _open(kind: str, bench: Bench, files: dict[str, Path]) -> Source:
         sender.start()
         sender.join()
         return source
+    if kind == "mf4-daq":
+        bench = bench.model_copy(update={"channels": DAQ_CHANNELS})
     return open_source(f"file:{files[kind]}", bench)
 
 

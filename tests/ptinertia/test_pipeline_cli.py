@@ -129,7 +129,9 @@ def test_a_dead_sensor_in_a_file_leaves_two_that_still_estimate(
     csv.write_text("\n".join(dead) + "\n")
     capsys.readouterr()
     out = tmp_path / "r.json"
-    code = main(["run", "--source", f"file:{csv}", "--rerun", "off", "--json", str(out)])
+    code = main(
+        ["run", "--bench", str(I3), "--source", f"file:{csv}", "--rerun", "off", "--json", str(out)]
+    )
     assert code == 0  # (the printed note is checked in test_two_sensors, in a subprocess)
     doc = json.loads(out.read_text())
     assert doc["unseen_motion"]["converged"]
