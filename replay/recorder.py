@@ -8,7 +8,11 @@ One channel per topic (see ``docs/recording-format.md``):
 * ``/raw/can`` (CanFrames): the CAN frames as received, when the source is a
   CAN bus (:meth:`McapRecorder.on_can_frames` as its ``frame_listener``);
 * ``/orders`` (OrderFrame), ``/gating`` (Gating), ``/estimate`` (Estimate), and
-  ``/events`` with ``origin = "dsp"``: what the live run computed from it.
+  ``/events`` with ``origin = "dsp"``: what the live run computed from it;
+* ``/foxglove/log`` (``foxglove.Log``): every event and every change of the
+  gating, for Foxglove's log panel; ``/foxglove/scene`` and ``/foxglove/tf``
+  (the 3D view) come from a scene sink through :meth:`McapRecorder.write_view`
+  (:mod:`replay.foxglove`).
 
 Times. Both times of a message are on one clock, the run's stream clock
 placed at ``time_origin_ns`` (the wall clock at ``start``, kept in the
@@ -65,7 +69,7 @@ from acquisition.stream import EdgeBlock, SampleBlock, SourceEvent, StreamItem, 
 from dsp.frames import OrderFrame
 from estimator.result import Estimate, EstimateUpdate
 from estimator.streaming import FrameOutcome
-from replay import results_codec, stream_codec
+from replay import foxglove, results_codec, stream_codec
 from replay.errors import LogError
 from replay.mcapwriter import ThreadedWriter
 from replay.recording_head import check_topics, ptinertia_version, write_head
@@ -158,10 +162,16 @@ class McapRecorder:
         late = LATE_S * self.chunk_s / CHUNK_S if late_s is None else float(late_s)
         self._chunker = TimeChunker(self.chunk_s, late, monotonic)
         self._last_source_event: SourceEvent | None = None
+        self._gating_log = foxglove.GatingLog()
         self._closed = False
         # on_can_frames comes from the acquisition thread, everything else from the
         # processing thread: one lock around the writer
         self._lock = threading.Lock()
+
+    @property
+    def origin_ns(self) -> int:
+        """Log time of stream time 0, ns (fixed by :meth:`start`)."""
+        return self._origin_ns
 
     # -- lifecycle ------------------------------------------------------------------------
     def start(self, context: Any) -> None:
@@ -242,6 +252,7 @@ class McapRecorder:
             self._last_source_event = item
             t = self._t_last if item.time_s is None else item.time_s
             self._add(TOPIC_EVENTS, t, stream_codec.encode_event(item, "source", t), "raw")
+            self._log_event(item, "source", t)
         else:
             raise TypeError(f"not a stream item: {type(item).__name__}")
 
@@ -253,16 +264,40 @@ class McapRecorder:
         self._require_started()
         t = self._t_last if event.time_s is None else event.time_s
         self._add(TOPIC_EVENTS, t, stream_codec.encode_event(event, "dsp", t), "result")
+        self._log_event(event, "dsp", t)
 
     def on_frame(self, frame: OrderFrame, outcome: FrameOutcome) -> None:
         self._require_started()
         self._add(TOPIC_ORDERS, frame.time_s, results_codec.encode_frame(frame), "result")
         self._add(TOPIC_GATING, outcome.time_s, results_codec.encode_outcome(outcome), "result")
+        change = self._gating_log.update(outcome.reason, outcome.rpm)
+        if change is not None:
+            self._log(outcome.time_s, *change, "gating")
 
     def on_estimate(self, update: EstimateUpdate) -> None:
         self._require_started()
         data = results_codec.encode_estimate(update.time_s, update.rpm, update.estimate)
         self._add(TOPIC_ESTIMATE, update.time_s, data, "result")
+
+    def write_view(self, topic: str, t: float, data: bytes) -> None:
+        """A message on one of the Foxglove view topics (``replay.foxglove.TOPICS``) at stream
+        time ``t`` (s): what a scene sink running beside the recorder draws."""
+        if topic not in foxglove.TOPICS:
+            raise ValueError(
+                f"write_view: {topic} is not a view topic ({', '.join(foxglove.TOPICS)})"
+            )
+        self._require_started()
+        self._add(topic, t, data, "result")
+
+    def _log_event(self, event: SourceEvent, origin: str, t: float) -> None:
+        repeat = f" (x{event.count})" if event.count > 1 else ""
+        level = "info" if event.kind in foxglove.INFO_EVENTS else "warning"
+        self._log(t, level, f"{event.kind}: {event.message}{repeat}", origin)
+
+    def _log(self, t: float, level: str, message: str, name: str) -> None:
+        t = t if math.isfinite(t) else self._t_last
+        t_ns = max(0, self._origin_ns + round(t * 1e9))
+        self._add(foxglove.TOPIC_LOG, t, foxglove.log_line(t_ns, level, message, name), "result")
 
     def on_backlog(self, seconds: float) -> None:
         """Not recorded: the backlog says how the live run kept up, not what it measured."""
