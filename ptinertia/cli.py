@@ -12,6 +12,8 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import platform
+import re
 import sys
 from collections.abc import Sequence
 
@@ -43,7 +45,9 @@ register(
 )
 register("modes", "ptinertia.commands.modes", "rigid-body modes of the powertrain on its mounts")
 register(
-    "simulate", "ptinertia.commands.simulate", "simulate a bench run and write it as CSV or MF4"
+    "simulate",
+    "ptinertia.commands.simulate",
+    "simulate a bench run and write it as CSV, MF4 or MCAP",
 )
 register(
     "can-sim",
@@ -61,14 +65,70 @@ register("study", "ptinertia.commands.study", "Monte Carlo study of simulated sw
 register("export", "ptinertia.commands.export", "estimate as bench TOML, JSON/CSV or Nastran CONM2")
 
 
+# Dependencies whose versions ``--version`` prints beside ptinertia's own, as
+# python-can's tools do: a bug report then says which decoders and writers ran.
+KEY_DEPENDENCIES = (
+    "numpy",
+    "scipy",
+    "python-can",
+    "cantools",
+    "asammdf",
+    "mcap",
+    "rerun-sdk",
+    "dask",
+)
+
+# ``ptinertia run``: / :mod:`x` / ``x``: the docstrings are RST for the API docs,
+# the terminal wants plain text
+_COMMAND_PREFIX = re.compile(r"^``ptinertia [^`]+``(?: and ``[^`]+``)?:\s*")
+_ROLE = re.compile(r":[a-z]+:`~?([^`]+)`")
+_LITERAL = re.compile(r"``([^`]+)``")
+
+
+def plain_help(text: str | None) -> str | None:
+    """A command module's RST docstring as the plain text ``--help`` prints.
+
+    The leading "``ptinertia name``:" is dropped (argparse prints the usage line
+    just above it) and the first letter is capitalised; roles and literals lose
+    their markup.
+    """
+    if not text:
+        return text
+    text = _COMMAND_PREFIX.sub("", text.strip())
+    text = _LITERAL.sub(r"\1", _ROLE.sub(r"\1", text))
+    return text[:1].upper() + text[1:]
+
+
+class _ParagraphFormatter(argparse.HelpFormatter):
+    """Re-wraps each paragraph of a description but keeps the blank lines between them."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        paragraphs = re.split(r"\n\s*\n", text)
+        return "\n\n".join(
+            super(_ParagraphFormatter, self)._fill_text(p, width, indent) for p in paragraphs
+        )
+
+
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        # subparsers are built by this class too, so every command's help is cleaned here
+        if isinstance(kwargs.get("description"), str):
+            kwargs["description"] = plain_help(str(kwargs["description"]))
+        kwargs.setdefault("formatter_class", _ParagraphFormatter)
+        super().__init__(*args, **kwargs)  # type: ignore[arg-type]
+
     def error(self, message: str) -> None:  # type: ignore[override]
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
 def build_parser(argv: Sequence[str]) -> tuple[argparse.ArgumentParser, str | None]:
     parser = _Parser(prog="ptinertia", description=__doc__.splitlines()[0] if __doc__ else None)
-    parser.add_argument("--version", action="version", version=_version())
+    parser.add_argument(
+        "--version",
+        action=_VersionAction,
+        nargs=0,
+        help="show the versions of ptinertia and its key dependencies and exit",
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     chosen = next((a for a in argv if not a.startswith("-")), None)
     for name, (module, help_text) in COMMANDS.items():
@@ -80,13 +140,28 @@ def build_parser(argv: Sequence[str]) -> tuple[argparse.ArgumentParser, str | No
     return parser, chosen
 
 
+class _VersionAction(argparse.Action):
+    """argparse's ``version`` action re-wraps the text into one line and looks the
+    versions up on every start; this prints one per line, only when asked."""
+
+    def __call__(self, parser: argparse.ArgumentParser, *_: object, **__: object) -> None:
+        print(_version())  # on stdout, as argparse's own version action
+        parser.exit(0)
+
+
 def _version() -> str:
+    """ptinertia's version, then Python's and the key dependencies' (one line each)."""
     from importlib.metadata import PackageNotFoundError, version
 
-    try:
-        return version("ptinertia")
-    except PackageNotFoundError:
-        return "unknown"
+    def installed(dist: str) -> str:
+        try:
+            return version(dist)
+        except PackageNotFoundError:
+            return "not installed"
+
+    lines = [f"ptinertia {installed('ptinertia')}", f"  Python {platform.python_version()}"]
+    lines += [f"  {dist} {installed(dist)}" for dist in KEY_DEPENDENCIES]
+    return "\n".join(lines)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

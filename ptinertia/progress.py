@@ -1,4 +1,4 @@
-"""The terminal progress line of ``ptinertia run`` / ``replay``.
+"""The terminal progress line of ``ptinertia run`` / ``replay``, and a bar for other long work.
 
 One line, rewritten in place on a terminal (at most 5 times a second), one
 line every 10 s when stderr is a file or a CI log: stream time, rpm, frames
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import TextIO
+from typing import Any, TextIO
 
 from acquisition.stream import SourceEvent
 from estimator.result import Z95, Estimate, EstimateUpdate
@@ -97,3 +97,30 @@ class ProgressLine(Sink):
         if self.tty:
             self.stream.write("\n")
             self.stream.flush()
+
+
+def work_bar(total: float, desc: str, unit: str = "s", stream: TextIO | None = None) -> Any:
+    """A tqdm bar on stderr for long work that is not a run (``report``, ``can-sim --log``).
+
+    Shown after 1 s (short work prints nothing) and only on a terminal (a CI log or a
+    pipe gets no bar). ``unit="s"``: advanced by seconds of stream time; ``"step"``: one
+    per stage, whose name :func:`set_postfix_str` shows.
+    """
+    from tqdm import tqdm  # on use: a run or a replay never needs it
+
+    out = stream or sys.stderr
+    fmt = (
+        "{l_bar}{bar}| {n:.1f}/{total:.1f} s"
+        if unit == "s"
+        else "{l_bar}{bar}| {n_fmt}/{total_fmt}{postfix}"
+    )
+    return tqdm(
+        total=round(total, 3),
+        unit=unit,
+        delay=1.0,
+        file=out,
+        disable=not getattr(out, "isatty", lambda: False)(),
+        desc=desc,
+        leave=False,
+        bar_format=fmt,
+    )

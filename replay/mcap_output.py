@@ -4,8 +4,9 @@ Everything here runs on the writer thread, one job at a time, in the order
 the caller submitted them: the magic and the header, metadata and
 attachment records, each closed chunk (its records joined, CRC'd,
 compressed) followed by its message indexes, and at the end the data end
-record, the summary section, the footer and the magic again, as
-``mcap.writer.Writer`` (1.6, default options) writes them. :class:`McapOutput`
+record (with the data section's CRC), the summary section, the footer and
+the magic again, as ``mcap.writer.Writer(enable_data_crcs=True)`` (1.6)
+writes them. :class:`McapOutput`
 keeps the indexes and statistics the summary needs.
 """
 
@@ -66,10 +67,17 @@ class McapOutput:
         self.start_time = 0
         self.end_time = 0
         self._compress: Callable[[bytes], bytes] | None = None
+        # CRC-32 of every byte from the magic on, until the data end record carries it
+        # (``mcap.writer.Writer(enable_data_crcs=True)``; 0 would mean "not computed").
+        # crc32 runs at GB/s: ~10 ms per minute of a 10-channel 25.6 kHz recording.
+        self.data_crc = 0
+        self._in_data = True
 
     def write(self, data: bytes | bytearray | memoryview) -> None:
         self.stream.write(data)
         self.pos += len(data)
+        if self._in_data:
+            self.data_crc = zlib.crc32(data, self.data_crc)
 
     def flush(self) -> None:
         self.stream.flush()
@@ -153,7 +161,8 @@ class McapOutput:
 
     def summary(self, schemas: list[Schema], channels: list[Channel]) -> None:
         """Data end, the summary section (as ``mcap.writer.Writer.finish``), footer, magic."""
-        self._record(DataEnd(0))
+        self._in_data = False
+        self._record(DataEnd(self.data_crc))
         summary_start = self.pos
         builder = RecordBuilder()
         offsets: list[SummaryOffset] = []

@@ -10,8 +10,9 @@ writer thread, which joins it, computes the CRC, compresses it (zstandard,
 lz4 and file writes release the GIL, so this runs beside the caller),
 indexes it and writes it (:mod:`replay.mcap_output`, the file side).
 
-The file is the one ``mcap.writer.Writer`` (1.6, default options) writes
-for the same calls, byte for byte: the same records in the same order, the
+The file is the one ``mcap.writer.Writer`` (1.6, default options but
+``enable_data_crcs=True``: the data end record carries the data section's
+CRC) writes for the same calls, byte for byte: the same records in the same order, the
 schemas and channels inside the first chunk, message indexes after each
 chunk, the same summary section and footer. ``tests/replay/test_mcap_writer.py``
 checks it.
@@ -43,7 +44,7 @@ from replay.mcap_output import COMPRESSIONS, MESSAGE_HEADER, OP_MESSAGE, McapOut
 class ThreadedWriter:
     """Write an MCAP file; chunks are finished on a writer thread.
 
-    The calls of ``mcap.writer.Writer`` with its default options: ``start``,
+    The calls of ``mcap.writer.Writer`` (``enable_data_crcs=True``): ``start``,
     ``add_metadata``, ``add_attachment``, ``register_schema``,
     ``register_channel``, ``add_message``, ``flush``, ``finish``; plus
     :meth:`sync`. One caller thread at a time. Message data is kept, not

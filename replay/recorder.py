@@ -8,23 +8,36 @@ One channel per topic (see ``docs/recording-format.md``):
 * ``/raw/can`` (CanFrames): the CAN frames as received, when the source is a
   CAN bus (:meth:`McapRecorder.on_can_frames` as its ``frame_listener``);
 * ``/orders`` (OrderFrame), ``/gating`` (Gating), ``/estimate`` (Estimate), and
-  ``/events`` with ``origin = "dsp"``: what the live run computed from it.
+  ``/events`` with ``origin = "dsp"``: what the live run computed from it;
+* ``/foxglove/log`` (``foxglove.Log``): every event and every change of the
+  gating, for Foxglove's log panel; ``/foxglove/scene`` and ``/foxglove/tf``
+  (the 3D view) come from a scene sink through :meth:`McapRecorder.write_view`
+  (:mod:`replay.foxglove`).
 
-Log times are ``time_origin_ns`` (the wall clock at ``start``, kept in the
-metadata) plus the stream time, so Foxglove shows the run at its real date
-and replays it at its real pace; publish times are the wall clock when the
-message was written.
+Times. Both times of a message are on one clock, the run's stream clock
+placed at ``time_origin_ns`` (the wall clock at ``start``, kept in the
+metadata), so Foxglove shows the run at its real date and replays it at its
+real pace, paced or not. The log time is when the data the message describes
+was measured: ``time_origin_ns`` plus the stream time of the block's first
+sample, the frame's centre, the gating decision, the estimate's last frame.
+The publish time is when the message existed: ``time_origin_ns`` plus the
+newest stream time the recorder had seen when it came, so ``publish >= log``
+and the difference is the message's latency in stream time (about one dsp
+block for order frames). The wall clock of writing is not used: on an unpaced
+run it ran 48 s behind the stream clock, and it made every file different.
 
 Crash safety. The file is written in place from the start: header,
 metadata (layout, settings, truth, version, source) and attachments (bench
-file, DBC) first (:mod:`replay.recording_head`), then ZSTD-compressed chunks. A chunk is closed as soon as
-it spans ``chunk_s`` (0.5 s) of stream time or of wall time, whichever comes
-first, and is in the file, flushed to the OS, a few milliseconds later, so a
-process killed with SIGKILL loses at most the open chunk: 0.5 s of data plus
-the item that was being written. (The wall-time bound is checked when a
-message arrives; a stalled stream adds nothing to lose.) The page cache
-survives the process, so there is no fsync: a power cut is a different
-matter.
+file, DBC) first (:mod:`replay.recording_head`), then ZSTD-compressed chunks,
+one per ``chunk_s`` (0.5 s) slice of stream time (:mod:`replay.time_chunks`:
+chunks do not overlap in time, so readers seek by time). A slice is closed
+once the stream is ``late_s`` (0.25 s) past its end, or it has been open
+``chunk_s + late_s`` of wall time, and is in the file, flushed to the OS, a
+few milliseconds later, so a process killed with SIGKILL loses at most the
+open slices: 0.75 s of data plus the item that was being written. (The
+wall-time bound is checked when a message arrives; a stalled stream adds
+nothing to lose.) The page cache survives the process, so there is no fsync:
+a power cut is a different matter.
 
 Cost to the processing thread. Chunks are compressed and written by
 :class:`replay.mcapwriter.ThreadedWriter` on its own thread (compression
@@ -56,7 +69,7 @@ from acquisition.stream import EdgeBlock, SampleBlock, SourceEvent, StreamItem, 
 from dsp.frames import OrderFrame
 from estimator.result import Estimate, EstimateUpdate
 from estimator.streaming import FrameOutcome
-from replay import results_codec, stream_codec
+from replay import foxglove, results_codec, stream_codec
 from replay.errors import LogError
 from replay.mcapwriter import ThreadedWriter
 from replay.recording_head import check_topics, ptinertia_version, write_head
@@ -70,8 +83,10 @@ from replay.schemas import (
     edge_topic,
     raw_topic,
 )
+from replay.time_chunks import Pending, TimeChunker
 
 CHUNK_S = 0.5
+LATE_S = 0.25  # how long a slice waits for late results (they lag ~0.04 s in the i3 run)
 CHUNK_BYTES = 8 * 1024 * 1024  # a size bound too, for very wide streams
 
 
@@ -104,7 +119,9 @@ class McapRecorder:
     path : str or Path
         Output file, written in place (a killed run leaves a readable prefix).
     chunk_s : float
-        Longest span of a chunk, s of stream time and of wall time.
+        Stream time of a chunk, s (:mod:`replay.time_chunks`).
+    late_s : float
+        How long past its end a chunk waits for late results, s of stream time.
     chunk_bytes : int
         Largest uncompressed chunk, bytes.
     time_origin_ns : int or None
@@ -119,6 +136,7 @@ class McapRecorder:
         path: str | Path,
         chunk_s: float = CHUNK_S,
         chunk_bytes: int = CHUNK_BYTES,
+        late_s: float | None = None,
         time_origin_ns: int | None = None,
         compression: str = "zstd",
         monotonic: Callable[[], float] = time.monotonic,
@@ -141,13 +159,19 @@ class McapRecorder:
         self._layout: StreamLayout | None = None
         self._origin_ns = 0
         self._t_last = 0.0  # latest stream time seen (for untimed events)
-        self._chunk_wall: float | None = None  # monotonic time of the open chunk's first message
-        self._chunk_t0 = 0.0  # stream time of the open chunk's first message
+        late = LATE_S * self.chunk_s / CHUNK_S if late_s is None else float(late_s)
+        self._chunker = TimeChunker(self.chunk_s, late, monotonic)
         self._last_source_event: SourceEvent | None = None
+        self._gating_log = foxglove.GatingLog()
         self._closed = False
         # on_can_frames comes from the acquisition thread, everything else from the
         # processing thread: one lock around the writer
         self._lock = threading.Lock()
+
+    @property
+    def origin_ns(self) -> int:
+        """Log time of stream time 0, ns (fixed by :meth:`start`)."""
+        return self._origin_ns
 
     # -- lifecycle ------------------------------------------------------------------------
     def start(self, context: Any) -> None:
@@ -192,7 +216,8 @@ class McapRecorder:
                 if final is not None:
                     # the final estimate also counts the frames rejected after the last used one
                     data = results_codec.encode_estimate(self._t_last, math.nan, final, final=True)
-                    self._add_locked(TOPIC_ESTIMATE, self._t_last, data)
+                    self._add_locked(TOPIC_ESTIMATE, self._t_last, data, "result")
+                self._write_chunks(self._chunker.drain())
                 end = {
                     "status": "finished",
                     "closed_utc": datetime.now(UTC).isoformat(timespec="seconds"),
@@ -219,14 +244,15 @@ class McapRecorder:
         if isinstance(item, SampleBlock):
             group = layout.group(item.group)
             t = stream_codec.sample_time(item, group)
-            self._add(raw_topic(item.group), t, stream_codec.encode_samples(item, group))
+            self._add(raw_topic(item.group), t, stream_codec.encode_samples(item, group), "raw")
         elif isinstance(item, EdgeBlock):
             t = float(item.times_s[0]) if len(item.times_s) else self._t_last
-            self._add(edge_topic(item.channel), t, stream_codec.encode_edges(item, t))
+            self._add(edge_topic(item.channel), t, stream_codec.encode_edges(item, t), "raw")
         elif isinstance(item, SourceEvent):
             self._last_source_event = item
             t = self._t_last if item.time_s is None else item.time_s
-            self._add(TOPIC_EVENTS, t, stream_codec.encode_event(item, "source", t))
+            self._add(TOPIC_EVENTS, t, stream_codec.encode_event(item, "source", t), "raw")
+            self._log_event(item, "source", t)
         else:
             raise TypeError(f"not a stream item: {type(item).__name__}")
 
@@ -237,17 +263,41 @@ class McapRecorder:
             return
         self._require_started()
         t = self._t_last if event.time_s is None else event.time_s
-        self._add(TOPIC_EVENTS, t, stream_codec.encode_event(event, "dsp", t))
+        self._add(TOPIC_EVENTS, t, stream_codec.encode_event(event, "dsp", t), "result")
+        self._log_event(event, "dsp", t)
 
     def on_frame(self, frame: OrderFrame, outcome: FrameOutcome) -> None:
         self._require_started()
-        self._add(TOPIC_ORDERS, frame.time_s, results_codec.encode_frame(frame))
-        self._add(TOPIC_GATING, outcome.time_s, results_codec.encode_outcome(outcome))
+        self._add(TOPIC_ORDERS, frame.time_s, results_codec.encode_frame(frame), "result")
+        self._add(TOPIC_GATING, outcome.time_s, results_codec.encode_outcome(outcome), "result")
+        change = self._gating_log.update(outcome.reason, outcome.rpm)
+        if change is not None:
+            self._log(outcome.time_s, *change, "gating")
 
     def on_estimate(self, update: EstimateUpdate) -> None:
         self._require_started()
         data = results_codec.encode_estimate(update.time_s, update.rpm, update.estimate)
-        self._add(TOPIC_ESTIMATE, update.time_s, data)
+        self._add(TOPIC_ESTIMATE, update.time_s, data, "result")
+
+    def write_view(self, topic: str, t: float, data: bytes) -> None:
+        """A message on one of the Foxglove view topics (``replay.foxglove.TOPICS``) at stream
+        time ``t`` (s): what a scene sink running beside the recorder draws."""
+        if topic not in foxglove.TOPICS:
+            raise ValueError(
+                f"write_view: {topic} is not a view topic ({', '.join(foxglove.TOPICS)})"
+            )
+        self._require_started()
+        self._add(topic, t, data, "result")
+
+    def _log_event(self, event: SourceEvent, origin: str, t: float) -> None:
+        repeat = f" (x{event.count})" if event.count > 1 else ""
+        level = "info" if event.kind in foxglove.INFO_EVENTS else "warning"
+        self._log(t, level, f"{event.kind}: {event.message}{repeat}", origin)
+
+    def _log(self, t: float, level: str, message: str, name: str) -> None:
+        t = t if math.isfinite(t) else self._t_last
+        t_ns = max(0, self._origin_ns + round(t * 1e9))
+        self._add(foxglove.TOPIC_LOG, t, foxglove.log_line(t_ns, level, message, name), "result")
 
     def on_backlog(self, seconds: float) -> None:
         """Not recorded: the backlog says how the live run kept up, not what it measured."""
@@ -262,7 +312,7 @@ class McapRecorder:
             return
         t = self._t_last  # frames carry host/log clock times; stream time is what we know
         # a late batch after close (the acquisition thread stops last) is dropped, not an error
-        self._add(TOPIC_CAN, t, stream_codec.encode_can(frames, t), late_ok=True)
+        self._add(TOPIC_CAN, t, stream_codec.encode_can(frames, t), "raw", late_ok=True)
 
     # -- internals ------------------------------------------------------------------------
     def _require_started(self) -> StreamLayout:
@@ -272,48 +322,51 @@ class McapRecorder:
             raise RuntimeError("McapRecorder: message after close()")
         return self._layout
 
-    def _add(self, topic: str, t: float, data: bytes, late_ok: bool = False) -> None:
+    def _add(self, topic: str, t: float, data: bytes, kind: str, late_ok: bool = False) -> None:
         with self._lock:
             if self._closed:
                 if late_ok:
                     return
                 raise RuntimeError("McapRecorder: message after close()")
-            self._add_locked(topic, t, data)
+            self._add_locked(topic, t, data, kind)
 
-    def _add_locked(self, topic: str, t: float, data: bytes) -> None:
-        assert self._writer is not None
+    def _add_locked(self, topic: str, t: float, data: bytes, kind: str) -> None:
+        """File a message in its stream-time chunk; write the chunks that are complete.
+
+        ``kind`` is ``"raw"`` (the stream, kept in its order) or ``"result"``.
+        """
         if not math.isfinite(t):
             t = self._t_last
         self._t_last = max(self._t_last, t)
         log_time = max(0, self._origin_ns + round(t * 1e9))
-        self._writer.add_message(self._channels[topic], log_time, data, time.time_ns())
+        publish_time = max(log_time, self._origin_ns + round(self._t_last * 1e9))
+        message = (self._channels[topic], log_time, data, publish_time)
         self.stats.messages[topic] += 1
         self.stats.payload_bytes[topic] += len(data)
-        wall = self._monotonic()
-        if self._chunk_wall is None:
-            self._chunk_wall, self._chunk_t0 = wall, t
-        elif wall - self._chunk_wall >= self.chunk_s or t - self._chunk_t0 >= self.chunk_s:
-            self._flush_locked()
+        self._write_chunks(self._chunker.add(kind, log_time - self._origin_ns, message))
 
-    def flush(self) -> None:
-        """Close the open chunk and wait until everything is in the file, flushed to the OS."""
-        with self._lock:
-            self._flush_locked()
-            if self._writer is not None and not self._closed:
-                try:
-                    self._writer.sync()
-                except OSError as err:
-                    raise self._write_error(err) from err
-
-    def _flush_locked(self) -> None:
-        """Close the open chunk; the writer thread compresses and writes it."""
-        if self._writer is not None and not self._closed and self._chunk_wall is not None:
-            self._chunk_wall = None
+    def _write_chunks(self, chunks: list[list[Pending]]) -> None:
+        """Hand complete chunks to the writer, which compresses and writes them on its thread."""
+        assert self._writer is not None
+        for chunk in chunks:
+            for channel_id, log_time, data, publish_time in chunk:
+                self._writer.add_message(channel_id, log_time, data, publish_time)
             try:
                 self._writer.flush()  # raises what the writer thread met, if anything
             except OSError as err:
                 raise self._write_error(err) from err
+        if chunks:
             self.stats.chunks = self._writer.chunks
+
+    def flush(self) -> None:
+        """Write every open chunk and wait until everything is in the file, flushed to the OS."""
+        with self._lock:
+            if self._writer is not None and not self._closed:
+                self._write_chunks(self._chunker.drain())
+                try:
+                    self._writer.sync()
+                except OSError as err:
+                    raise self._write_error(err) from err
 
     def _write_error(self, err: OSError) -> LogError:
         return LogError(f"cannot write the recording {self.path}: {err.strerror or err}")

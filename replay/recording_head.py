@@ -21,7 +21,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 
 from acquisition.files.csvwriter import json_default
 from acquisition.stream import StreamLayout
-from replay import stream_codec
+from replay import foxglove, stream_codec
 from replay.errors import LogError
 from replay.mcapwriter import ThreadedWriter
 from replay.schemas import (
@@ -101,8 +101,9 @@ def write_head(writer: ThreadedWriter, context: Any, origin_ns: int) -> dict[str
     # topics; /raw/can always, so a reader finds every topic up front
     for topic, kind in {**stream_topics(layout), **TOPIC_TYPES}.items():
         if kind not in schema_ids:
+            data = foxglove.schema_data(kind) if topic in foxglove.TOPICS else schema_data()
             schema_ids[kind] = writer.register_schema(
-                name=full_name(kind), encoding=SchemaEncoding.Protobuf, data=schema_data()
+                name=full_name(kind), encoding=SchemaEncoding.Protobuf, data=data
             )
         channels[topic] = writer.register_channel(
             topic=topic, message_encoding=MessageEncoding.Protobuf, schema_id=schema_ids[kind]

@@ -29,6 +29,7 @@ from google.protobuf.descriptor_pool import DescriptorPool
 from google.protobuf.message_factory import GetMessageClass
 
 from acquisition.stream import StreamLayout
+from replay.foxglove import TOPICS as FOXGLOVE_TOPICS
 
 PACKAGE = "ptinertia.log"
 FILE_NAME = "ptinertia/log.proto"
@@ -232,8 +233,9 @@ def wire_class(name: str) -> Any:
 
 
 def full_name(name: str) -> str:
-    """Schema name in the recording (``ptinertia.log.SampleBlock``)."""
-    return f"{PACKAGE}.{name}"
+    """Schema name in the recording (``ptinertia.log.SampleBlock``); a name with a package
+    (``foxglove.Log``) is already one."""
+    return name if "." in name else f"{PACKAGE}.{name}"
 
 
 def proto_text() -> str:
@@ -270,6 +272,8 @@ TOPIC_TYPES = {
     TOPIC_GATING: "Gating",
     TOPIC_ESTIMATE: "Estimate",
     TOPIC_CAN: "CanFrames",
+    # Foxglove's well-known schemas (:mod:`replay.foxglove`), named in full
+    **FOXGLOVE_TOPICS,
 }
 
 # metadata record names and the key that marks a ptinertia recording

@@ -31,6 +31,7 @@ from acquisition.stream import EdgeBlock, SampleBlock, StreamItem, StreamLayout
 from ptinertia.config import Bench, load_bench
 from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
+from ptinertia.progress import work_bar
 from ptinertia.sources import open_source
 from ptinertia.to_can import can_plan
 
@@ -163,8 +164,13 @@ def simulate_to_bus(
     sim_overrides: dict[str, Any] | None = None,
     bitrate: int | None = None,
     data_bitrate: int | None = None,
+    progress: bool = False,
 ) -> dict[str, Any]:
-    """Run the simulated DAQ on ``bus`` (and/or ``log_frame``); return the summary."""
+    """Run the simulated DAQ on ``bus`` (and/or ``log_frame``); return the summary.
+
+    ``progress``: a bar on stderr by seconds of sweep (a log of a long sweep takes a
+    while even unpaced; a paced run takes its duration).
+    """
     source = open_source("sim", bench, block_s=0.02, **(sim_overrides or {}))
     encoder = FrameEncoder(plan, source.layout)
     profile = getattr(source, "profile", None)
@@ -193,6 +199,7 @@ def simulate_to_bus(
         for f in ready:
             sender.send(f)
 
+    bar = work_bar(duration, "can-sim") if progress else None
     with source:
         for item in source:
             push(encoder.encode(item))
@@ -200,6 +207,10 @@ def simulate_to_bus(
             if t_item is not None:
                 push(encoder.status(t_item))
                 pop_until(t_item)
+                if bar is not None and t_item > bar.n:
+                    bar.update(min(t_item, duration) - bar.n)
+    if bar is not None:
+        bar.close()
     push(encoder.finish(duration))
     pop_until(float("inf"))
     if faults is not None:
@@ -285,6 +296,7 @@ def run(args: argparse.Namespace) -> int:
             sim_overrides=overrides,
             bitrate=args.bitrate,
             data_bitrate=args.data_bitrate,
+            progress=True,
         )
     finally:
         if writer is not None:

@@ -38,7 +38,9 @@ def run(args: argparse.Namespace) -> int:
     if not out.parent.is_dir():
         raise UsageError(f"--out {out}: directory {out.parent} does not exist")
     t0 = time.perf_counter()
-    report = make_report(src, out, bench=args.bench, png_dir=args.png, reprocess=reprocess_log)
+    report = make_report(
+        src, out, bench=args.bench, png_dir=args.png, reprocess=reprocess_log, progress=True
+    )
     for line in report.headline:
         print(line)
     size = out.stat().st_size / 1e6

@@ -17,6 +17,7 @@ from ptinertia.paths import DEFAULT_BENCH
 from ptinertia.runner import RunOptions, print_table, run_source, write_json
 from ptinertia.sinks import Sink
 from ptinertia.sources import REALISTIC_SIMULATION, open_source
+from ptinertia.viewer.foxglove_scene import FoxgloveScene
 from replay.recorder import McapRecorder
 
 CORRECTIONS = (
@@ -151,9 +152,12 @@ def viewer_sinks(mode: str | None, record: str | None) -> list[Sink]:
 
 
 def recorder_sinks(path: str | None) -> list[Sink]:
+    """The recorder, then the Foxglove 3D scene it also writes (the recorder stays first:
+    its ``on_can_frames`` is the CAN source's listener)."""
     if path is None:
         return []
-    return [McapRecorder(path)]
+    recorder = McapRecorder(path)
+    return [recorder, FoxgloveScene(recorder)]
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,9 +1,11 @@
-"""``ptinertia simulate``: synthesise a bench run and write it as CSV or MF4.
+"""``ptinertia simulate``: synthesise a bench run and write it as CSV, MF4 or MCAP.
 
 The simulated bench (``ptinertia.sources.open_source("sim", ...)``) streams
 straight into the writer chosen by the output extension: ``.csv`` (one file per
-sample group plus one per edge channel and a ``.meta.json`` with the truth) or
-``.mf4`` (one file). The files read back through ``file:PATH`` sources.
+sample group plus one per edge channel and a ``.meta.json`` with the truth),
+``.mf4`` (one file) or ``.mcap`` (a raw-only recording with the bench file in
+it, which ``replay`` and ``report`` run the chain on). The files read back
+through ``file:PATH`` sources.
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
     p.add_argument(
         "--tacho", choices=("edges", "sampled"), help="tacho delivery (default: the bench's)"
     )
-    p.add_argument("--out", required=True, help="output file, .csv or .mf4")
+    p.add_argument("--out", required=True, help="output file, .csv, .mf4 or .mcap")
     return p
 
 

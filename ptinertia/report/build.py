@@ -11,12 +11,14 @@ settings. :func:`build_report` is pure (data in, HTML and PNGs out);
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
-from ptinertia.report import plots, sections
+from ptinertia.progress import work_bar
+from ptinertia.report import gating, plots, sections
 from ptinertia.report.data import ReportData, Reprocess, load
 from ptinertia.report.html import esc, image, page, verdict
 from ptinertia.report.stats import (
@@ -130,8 +132,18 @@ def _residual_section(data: ReportData, figures: dict[str, bytes]) -> str:
     return head + image("residual", figures["residual"], caption)
 
 
-def build_report(data: ReportData) -> Report:
-    """Render the report (pure: no file is written)."""
+SECTIONS = ("estimate", "convergence", "orders", "residual", "modes", "gating")
+
+
+def _no_step(name: str) -> None:
+    """Where a progress bar is not wanted."""
+
+
+def build_report(data: ReportData, step: Callable[[str], None] = _no_step) -> Report:
+    """Render the report (pure: no file is written).
+
+    ``step(name)`` is called before each section of :data:`SECTIONS` (a progress bar's hook).
+    """
     try:
         ver = version("ptinertia")
     except PackageNotFoundError:  # pragma: no cover - run from a source tree
@@ -145,6 +157,7 @@ def build_report(data: ReportData) -> Report:
         f'<p class="small">Input {esc(data.source_path.name)} ({esc(data.kind)}), source '
         f"{esc(data.source_spec or 'unknown')}; ptinertia {esc(ver)}; generated {esc(stamp)}.</p>",
     ]
+    step("estimate")
     pc = parameter_covariance(doc, data.final) if doc is not None else None
     check = _resim(data)
     headline: list[str] = []
@@ -163,15 +176,18 @@ def build_report(data: ReportData) -> Report:
         headline.append(check.summary())
         summary.append(verdict(check.passed, check.summary()))
     summary.append("</div>")
-    body = [
-        estimate,
-        _convergence_section(data, figures),
-        _orders_section(data, check, figures),
-        _residual_section(data, figures),
-        sections.modes_section(data, pc, figures),
-        sections.gating_section(data, figures),
-        sections.settings_section(data),
+    makers: list[tuple[str, Callable[[], str]]] = [
+        ("convergence", lambda: _convergence_section(data, figures)),
+        ("orders", lambda: _orders_section(data, check, figures)),
+        ("residual", lambda: _residual_section(data, figures)),
+        ("modes", lambda: sections.modes_section(data, pc, figures)),
+        ("gating", lambda: gating.gating_section(data, figures)),
     ]
+    body = [estimate]
+    for name, make in makers:
+        step(name)
+        body.append(make())
+    body.append(sections.settings_section(data))
     return Report(page(title, [*head, "".join(summary), *body]), figures, check, headline)
 
 
@@ -198,9 +214,28 @@ def make_report(
     bench: str | None = None,
     png_dir: str | Path | None = None,
     reprocess: Reprocess | None = None,
+    progress: bool = False,
 ) -> Report:
     """Load, render and write: what ``ptinertia report`` does (``reprocess``: runs the chain
-    on a recording that needs it, see :func:`ptinertia.report.data.load_recording`)."""
-    report = build_report(load(path, bench, reprocess))
-    write_report(report, out, png_dir)
+    on a recording that needs it, see :func:`ptinertia.report.data.load_recording`).
+
+    ``progress``: a bar on stderr, by stage, when the work takes more than a second
+    (a 60 s run's report: about 5 s, most of it drawing the figures).
+    """
+    bar = work_bar(2 + len(SECTIONS), "report", unit="step") if progress else None
+
+    def step(name: str) -> None:
+        if bar is not None:
+            bar.set_postfix_str(name, refresh=False)
+            bar.update(1)
+
+    try:
+        step("reading the input")
+        data = load(path, bench, reprocess)
+        report = build_report(data, step)
+        step("writing")
+        write_report(report, out, png_dir)
+    finally:
+        if bar is not None:
+            bar.close()
     return report

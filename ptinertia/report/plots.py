@@ -1,26 +1,37 @@
 """The report's figures, drawn with matplotlib (Agg) and returned as PNG bytes.
 
 One function per figure; each takes plain arrays or the report's dataclasses and
-never reads files. PNGs are small (80 dpi, no transparency) so a 60 s sweep's
+never reads files. PNGs are small (100 dpi, no transparency) so a 60 s sweep's
 report stays well under a few MB with every figure embedded.
+
+Text size. An 11 in figure at 100 dpi is 1100 px wide, shown unscaled in the
+report's 1150 px column; no text is smaller than ``MIN_FONT`` (7 pt = 9.7 px
+there: at 80 dpi and 6 pt, legends were 6.7 px, hard to read). :func:`png`
+writes the smallest text's pixel size into the PNG (``tEXt`` key
+``ptinertia:smallest-text-px``), which the browser test checks against the
+size the page shows the image at.
 """
 
 from __future__ import annotations
 
 import io
+import math
 from typing import Any
 
 import numpy as np
 
 # Figure objects without pyplot: no global backend switch, no figure registry to leak.
 from matplotlib.figure import Figure
+from matplotlib.text import Text
 
 from estimator.result import Z95
 from ptinertia.report.data import ConvergenceSeries, FrameSeries, GatingSeries
 from ptinertia.report.stats import ModeStats
 from ptinertia.resim_compare import ResimCheck
 
-DPI = 80
+DPI = 100
+MIN_FONT = 7.0  # pt: 9.7 px at DPI 100
+SMALLEST_TEXT_KEY = "ptinertia:smallest-text-px"
 MARGINS = {"left": 0.07, "right": 0.98, "top": 0.9, "bottom": 0.1, "hspace": 0.3, "wspace": 0.25}
 AXIS_COLORS = ("tab:blue", "tab:orange", "tab:green")
 ORDER_COLORS = ("tab:blue", "tab:red", "tab:green", "tab:purple", "tab:brown", "tab:olive")
@@ -31,10 +42,28 @@ ORDER_COLORS = ("tab:blue", "tab:red", "tab:green", "tab:purple", "tab:brown", "
 
 
 def png(fig: Figure) -> bytes:
-    """The figure as PNG bytes (rendered by the Agg canvas)."""
+    """The figure as PNG bytes (rendered by the Agg canvas), with its smallest text size in px."""
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=DPI)
+    fig.savefig(
+        buf, format="png", dpi=DPI, metadata={SMALLEST_TEXT_KEY: f"{smallest_text_px(fig):.2f}"}
+    )
     return buf.getvalue()
+
+
+def smallest_text_px(fig: Figure) -> float:
+    """Font size in px of the smallest visible, non-empty text of the figure (at ``DPI``)."""
+    sizes = [
+        float(t.get_fontsize())
+        for t in fig.findobj(Text)
+        if t.get_visible() and t.get_text().strip() and _drawn(t)
+    ]
+    return min(sizes, default=math.inf) * DPI / 72.0
+
+
+def _drawn(text: Text) -> bool:
+    """Tick labels exist for every tick position; only those on a visible tick are drawn."""
+    parent = text.axes
+    return parent is None or parent.get_visible()
 
 
 def _subplots(
@@ -104,7 +133,7 @@ def convergence(
         ax.set_visible(False)
     for ax in np.ravel(axes)[max(0, n - cols) : n]:
         ax.set_xlabel("rpm")
-    np.ravel(axes)[0].legend(fontsize=7, loc="best")
+    np.ravel(axes)[0].legend(fontsize=MIN_FONT, loc="best")
     return fig
 
 
@@ -140,7 +169,7 @@ def orders_figure(
     fig, axes = _subplots(
         2,
         len(groups),
-        figsize=(3.9 * len(groups), 5.0),
+        figsize=(min(11.0, 3.9 * len(groups)), 5.0),  # at most the page column
         sharex=True,
         squeeze=False,
     )
@@ -171,7 +200,7 @@ def orders_figure(
                 ph[1:][np.abs(np.diff(ph)) > 180] = np.nan  # no vertical line at the wrap
                 ax_p.plot(rpm, ph, "--", color="k", lw=0.8, alpha=0.8)
         ax_a.set_title(gname, fontsize=9, y=1.0)
-        ax_a.legend(fontsize=6, loc="lower right")
+        ax_a.legend(fontsize=MIN_FONT, loc="lower right")
         ax_p.set_ylim(-180, 180)
         ax_p.set_yticks([-180, -90, 0, 90, 180])
         ax_p.set_xlabel("rpm")
@@ -222,7 +251,7 @@ def resim_difference(check: ResimCheck) -> Figure:
         ax_db.set_ylabel(f"H{h:g}: dB")
         ax_deg.set_ylabel(f"H{h:g}: deg")
         if np.any(check.assessable[k]):
-            ax_db.legend(fontsize=6, ncol=3, loc="upper right")
+            ax_db.legend(fontsize=MIN_FONT, ncol=3, loc="upper right")
     axes[0, 0].set_title("amplitude: 20 log10 |re-simulated / measured|", fontsize=9, y=1.0)
     axes[0, 1].set_title("phase: arg(re-simulated / measured)", fontsize=9, y=1.0)
     axes[-1, 0].set_xlabel("rpm")
@@ -248,37 +277,49 @@ def residual(frames: FrameSeries, gating: GatingSeries, gate: float | None) -> F
     ax.set_xlabel("rpm")
     ax.set_ylabel("residual / signal")
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=7, ncol=4)
+    ax.legend(fontsize=MIN_FONT, ncol=4)
     ax.set_title(
         "rigidity residual: what a rigid body cannot explain in the 9 channels", fontsize=9, y=1.0
     )
     return fig
 
 
-def gating(frames: FrameSeries, gating: GatingSeries) -> Figure | None:
-    """Rejected frames and orders by reason against rpm (None when nothing was rejected)."""
-    rows: list[tuple[str, np.ndarray]] = []
+def gating(
+    frames: FrameSeries, gating: GatingSeries, skipped: tuple[str, ...] = ()
+) -> Figure | None:
+    """Rejected frames and orders by reason against rpm (None when nothing was left out).
+
+    ``skipped`` are frame reasons that leave a frame out without rejecting it
+    (``overlapping``): drawn in grey, labelled ``skipped``, below the rejections.
+    """
+    rows: list[tuple[str, np.ndarray, str]] = []  # label, rpm, colour
     reasons = np.array(gating.reason, dtype=object)
-    for r in sorted({x for x in gating.reason if x}):
-        rows.append((f"frame: {r}", frames.rpm[reasons == r]))
+    for r in sorted({x for x in gating.reason if x and x not in skipped}):
+        rows.append((f"frame: {r}", frames.rpm[reasons == r], "tab:red"))
     for k, h in enumerate(frames.orders):
         col = gating.order_reason[:, k]
         for r in sorted({x for x in col if x}):
-            rows.append((f"H{h:g}: {r}", frames.rpm[col == r]))
+            rows.append((f"H{h:g}: {r}", frames.rpm[col == r], "tab:red"))
+    for r in sorted({x for x in gating.reason if x in skipped}):
+        rows.append((f"skipped: {r}", frames.rpm[reasons == r], "0.55"))
     if not rows:
         return None
     h = 0.9 + 0.35 * len(rows)
     fig, ax = _subplots(
         figsize=(11, h), margins={"left": 0.22, "top": 1 - 0.35 / h, "bottom": 0.5 / h}
     )
-    for i, (_, rpm) in enumerate(rows):
-        ax.plot(rpm, np.full(rpm.size, i), "|", ms=8, color="tab:red")
-    ax.set_yticks(range(len(rows)), [f"{name} ({rpm.size})" for name, rpm in rows], fontsize=7)
+    for i, (_, rpm, color) in enumerate(rows):
+        ax.plot(rpm, np.full(rpm.size, i), "|", ms=8, color=color)
+    ax.set_yticks(
+        range(len(rows)), [f"{name} ({rpm.size})" for name, rpm, _ in rows], fontsize=MIN_FONT
+    )
+    for label, (_, _, color) in zip(ax.get_yticklabels(), rows, strict=True):
+        label.set_color("tab:red" if color == "tab:red" else "0.35")
     ax.set_ylim(-0.8, len(rows) - 0.2)
     ax.set_xlim(np.nanmin(frames.rpm), np.nanmax(frames.rpm))
     ax.set_xlabel("rpm")
     ax.grid(alpha=0.3, axis="x")
-    ax.set_title("what was gated out, where", fontsize=9, y=1.0)
+    ax.set_title("what was left out, where", fontsize=9, y=1.0)
     return fig
 
 
@@ -306,7 +347,7 @@ def campbell(
             f"{j + 1}: {f:.1f} Hz {modes.dominant[j]}",
             va="bottom",
             ha="right",
-            fontsize=6.5,
+            fontsize=MIN_FONT,
             transform=ax.get_yaxis_transform(),
         )
     for k, h in enumerate(orders):
@@ -321,7 +362,7 @@ def campbell(
     ax.set_xlabel("rpm")
     ax.set_ylabel("Hz")
     ax.grid(alpha=0.3, which="both")
-    ax.legend(fontsize=7, loc="upper left")
+    ax.legend(fontsize=MIN_FONT, loc="upper left")
     ax.set_title(
         "rigid-body modes with the estimated properties, and the engine orders", fontsize=9, y=1.0
     )

@@ -8,6 +8,7 @@ already computed from it) and returns HTML; figures it draws are added to the
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -26,18 +27,6 @@ from ptinertia.report.stats import (
 from ptinertia.resim import estimated_properties, resim_model
 from ptinertia.resim_compare import ResimCheck
 from ptinertia.to_physics import build_model
-
-REASONS = {
-    "rpm_unsteady": "speed changed too much across the analysis window (order leakage)",
-    "rpm_out_of_range": "outside the estimator's rpm range",
-    "near_rigid_modes": "order frequency too close to the rigid-body modes (below the mass line)",
-    "non_rigid": "the 9 channels do not move as a rigid body (elastic mode, bad channel)",
-    "no_excitation": "the engine does not excite this order",
-    "too_few_channels": "fewer than 6 valid channels",
-    "tacho": "no valid crank angle (tacho lost or re-synchronised)",
-    "no_rpm": "no speed",
-    "sensor_geometry": "the valid channels cannot resolve a rigid motion",
-}
 
 
 def reference(data: ReportData) -> tuple[dict[str, float], str]:
@@ -172,9 +161,7 @@ def estimate_section(data: ReportData, pc: ParameterCovariance) -> str:
     extra = []
     unb = doc.get("unbalance")
     if unb:
-        extra.append(
-            f"residual static unbalance {1e3 * unb['mr_kgm']['value']:.3f} g m (std {1e3 * (unb['mr_kgm']['std'] or math.nan):.3f}) at {unb['angle_deg']['value']:.1f} deg (std {unb['angle_deg']['std'] or math.nan:.1f})"
-        )
+        extra.append(unbalance_line(unb))
     off = doc.get("crank_offset_deg")
     if off:
         extra.append(
@@ -191,6 +178,22 @@ def estimate_section(data: ReportData, pc: ParameterCovariance) -> str:
         + "".join(f'<p class="small">{esc(n)}</p>' for n in notes)
         + ("<ul>" + "".join(f"<li>{esc(e)}</li>" for e in extra) + "</ul>" if extra else "")
     )
+
+
+def unbalance_line(unb: dict[str, Any]) -> str:
+    """The residual unbalance as the run's table prints it: an angle only when it is detected.
+
+    Detected means ``m r > 2 std(m r)`` (``ptinertia.runner.print_table``'s rule); below
+    that, ``m r`` is noise around zero and its angle is undefined (its std runs to 1e7 deg).
+    """
+    mr, mr_std = unb["mr_kgm"]["value"], unb["mr_kgm"]["std"] or 0.0
+    if mr > 2 * mr_std:
+        angle = unb["angle_deg"]
+        return (
+            f"residual static unbalance {1e3 * mr:.3f} g m (std {1e3 * mr_std:.3f}) at "
+            f"{angle['value']:.1f} deg (std {angle['std'] or math.nan:.1f})"
+        )
+    return f"residual static unbalance not detected (below {1e3 * 2 * mr_std:.3f} g m)"
 
 
 PANELS = [*((n, f"{n}, kg m^2", 1.0) for n in TERMS), *((n, f"{n}, mm", 1e3) for n in COG)]
@@ -314,46 +317,6 @@ def modes_section(
             "Mode frequencies (grey: 95 % bands) and engine orders; green: the mass-line region the estimator uses",
         )
     )
-
-
-def gating_section(data: ReportData, figures: dict[str, bytes]) -> str:
-    out = ["<h2>6. What was gated out, and why</h2>"]
-    doc = data.result
-    counts: dict[str, int] = {}
-    order_counts: dict[str, int] = {}
-    if doc is not None:
-        counts = dict(doc["frames"]["rejected"])
-        order_counts = dict(doc["frames"].get("orders_rejected", {}))
-    elif data.gating is not None:
-        for r in data.gating.reason:
-            if r:
-                counts[r] = counts.get(r, 0) + 1
-    total = len(data.frames) if data.frames is not None else None
-    used = doc["frames"]["used"] if doc is not None else 0
-    out.append(f"<p>Frames: {'' if total is None else f'{total} tracked, '}{used} used.</p>")
-    rows = [
-        ["frame", r, str(n), REASONS.get(r, "")]
-        for r, n in sorted(counts.items(), key=lambda kv: -kv[1])
-    ]
-    rows += [
-        ["order", r, str(n), REASONS.get(r, "")]
-        for r, n in sorted(order_counts.items(), key=lambda kv: -kv[1])
-    ]
-    out.append(
-        table(["what", "reason", "count", "meaning"], rows, left=2)
-        if rows
-        else "<p>Nothing was rejected.</p>"
-    )
-    if data.frames is not None and data.gating is not None:
-        fig = plots.gating(data.frames, data.gating)
-        if fig is not None:
-            figures["gating"] = plots.png(fig)
-            out.append(
-                image(
-                    "gating", figures["gating"], "Rejected frames and orders by reason against rpm"
-                )
-            )
-    return "".join(out)
 
 
 def settings_section(data: ReportData) -> str:

@@ -7,6 +7,13 @@ most every ``flush_period_s`` of wall time; the 3D scene is sampled every
 ``scene_period_s`` of *stream* time (so a replay at 100x real time draws the
 same scene as the live run) and batched the same way.
 
+A saved recording (``--rerun save``) has no one watching live, so it is sent
+once at the end, or every ``max_rows`` frames (4096, Rerun's own chunk row
+limit), whichever comes first: each ``send_columns`` is a chunk of the file,
+and a 60 s run's ``.rrd`` held 284 chunks where ``rerun rrd optimize``
+compacts it to 63; sent this way it holds as many as the compacted one
+(``tests/ptinertia/viewer/test_viewer.py`` checks with ``rerun rrd optimize``).
+
 What is shown, and where, is listed in ``docs/viewer.md``; the option parsing
 lives in :mod:`ptinertia.viewer.options`, the entity paths and blueprint in
 :mod:`ptinertia.viewer.layout` (static part: :mod:`ptinertia.viewer.static`), the
@@ -120,7 +127,9 @@ class RerunSink(Sink):
     mode : where the view goes (:func:`parse_rerun_option`); not ``off``.
     scene_period_s : stream time between two samples of the animated motion (s).
     body_period_s : stream time between two redraws of the estimated box and cog ellipsoid (s).
-    flush_period_s : wall time between two batches sent to Rerun (s).
+    flush_period_s : wall time between two batches sent to Rerun (s); None: 0.5 s for a
+        live view, only at the end (or every ``max_rows`` frames) for a saved file.
+    max_rows : frames buffered at most before a batch is sent.
     exaggeration : motion scale of the animated powertrain; None picks a 1-2-5
         factor from the first fitted motion (then fixed, so amplitudes compare along the sweep).
     animation_steps : scene samples per animated engine cycle (720 deg).
@@ -134,7 +143,8 @@ class RerunSink(Sink):
         *,
         scene_period_s: float = 0.1,
         body_period_s: float = 0.5,
-        flush_period_s: float = 0.5,
+        flush_period_s: float | None = None,
+        max_rows: int = 4096,
         exaggeration: float | None = None,
         animation_steps: int = 24,
         close_timeout_s: float = 10.0,
@@ -146,7 +156,10 @@ class RerunSink(Sink):
         self.mode = mode
         self.scene_period_s = scene_period_s
         self.body_period_s = body_period_s
+        if flush_period_s is None:
+            flush_period_s = math.inf if mode.kind == "save" else 0.5
         self.flush_period_s = flush_period_s
+        self.max_rows = max_rows
         self.exaggeration = exaggeration
         self.animation_steps = animation_steps
         self.close_timeout_s = close_timeout_s
@@ -246,7 +259,10 @@ class RerunSink(Sink):
             self._motion = (outcome.motion.origin, u_o, theta, tuple(frame.orders))
         if self._t - self._last_scene_t >= self.scene_period_s:
             self._scene_tick()
-        if self.clock() - self._flush_clock >= self.flush_period_s:
+        if (
+            len(self._frames) >= self.max_rows
+            or self.clock() - self._flush_clock >= self.flush_period_s
+        ):
             self._flush()
 
     def on_estimate(self, update: EstimateUpdate) -> None:

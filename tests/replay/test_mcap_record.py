@@ -103,6 +103,8 @@ def test_message_counts_per_topic(recorded: tuple[Path, list[StreamItem], Stream
         else:
             want["/raw/edges/tacho" if isinstance(item, EdgeBlock) else "/events"] += 1
     want.update({"/orders": 0, "/gating": 0, "/estimate": 0, "/raw/can": 0})
+    # every event is also a foxglove.Log line; the 3D scene comes from a scene sink (none here)
+    want.update({"/foxglove/log": want["/events"], "/foxglove/scene": 0, "/foxglove/tf": 0})
     assert open_log(path).message_counts == want
 
 
@@ -139,6 +141,7 @@ def test_third_party_reader_decodes_every_topic(
         "/raw/slow": len(items) - len(acc) - len(edges) - len(events),
         "/raw/edges/tacho": len(edges),
         "/events": len(events),
+        "/foxglove/log": len(events),  # decoded from its embedded schema, as the others
     }
     for msg, block in zip(decoded["/raw/acc"], acc, strict=True):
         data = np.array(msg.data, dtype=np.float32).reshape(len(msg.channels), msg.n_samples)

@@ -24,9 +24,11 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from support.png_text import png_text
 from support.report_logs import no_estimate_log, realistic_log
 
 from ptinertia.report.build import make_report
+from ptinertia.report.plots import SMALLEST_TEXT_KEY
 
 ARTIFACTS = Path(__file__).resolve().parents[3] / "test-artifacts"
 CHROMIUM = next((p for p in (shutil.which(n) for n in ("chromium", "chromium-browser")) if p), None)
@@ -158,9 +160,15 @@ def render(html_path: Path, screenshot: Path) -> dict[str, Any]:
                 "Runtime.evaluate",
                 {
                     "expression": "JSON.stringify(Array.from(document.images).map(i => "
-                    "({ok: i.complete && i.naturalWidth > 0, w: i.naturalWidth, alt: i.alt})))",
+                    "({ok: i.complete && i.naturalWidth > 0, w: i.naturalWidth, alt: i.alt, "
+                    "shown: i.getBoundingClientRect().width, id: i.parentElement.id})))",
                     "returnByValue": True,
                 },
+                session=sid,
+            )["result"]["value"]
+            text = dt.send(
+                "Runtime.evaluate",
+                {"expression": "document.body.innerText", "returnByValue": True},
                 session=sid,
             )["result"]["value"]
             metrics = dt.send("Page.getLayoutMetrics", session=sid)
@@ -202,7 +210,7 @@ def render(html_path: Path, screenshot: Path) -> dict[str, Any]:
         for e in events
         if e.get("method") == "Network.requestWillBeSent"
     ]
-    return {"images": json.loads(images), "errors": errors, "urls": urls}
+    return {"images": json.loads(images), "errors": errors, "urls": urls, "text": text}
 
 
 @pytest.mark.parametrize("which", ["realistic", "no-estimate"])
@@ -223,6 +231,16 @@ def test_report_renders_in_chromium(tmp_path_factory: pytest.TempPathFactory, wh
     outside = [u for u in seen["urls"] if not (u.startswith("file:") or u.startswith("data:"))]
     assert not outside, f"the report asked the network for {outside}"
     assert shot.stat().st_size > 20_000
+    # text in the figures as the page shows them: the smallest font the figure was drawn
+    # with (written into its PNG), scaled by the shown / natural width
+    for img in seen["images"]:
+        name = img["id"].removeprefix("fig-")
+        drawn_px = float(png_text(report.figures[name])[SMALLEST_TEXT_KEY])
+        assert drawn_px * img["shown"] / img["w"] >= 9.0, (name, drawn_px, img)
+    # an unbalance the estimator did not detect is shown without an angle
+    for line in seen["text"].splitlines():
+        if "unbalance" in line and "not detected" in line:
+            assert "deg" not in line, line
 
 
 def test_a_broken_image_would_be_caught(tmp_path: Path) -> None:

@@ -1,0 +1,61 @@
+"""What a user sees first: ``--help`` in plain text, ``--version`` with the dependencies."""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+
+import pytest
+
+from ptinertia.cli import COMMANDS, KEY_DEPENDENCIES, build_parser, main, plain_help
+
+
+def _command_parser(name: str) -> argparse.ArgumentParser:
+    parser, _ = build_parser([name])
+    subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return subparsers.choices[name]
+
+
+def test_plain_help_drops_the_rst_markup() -> None:
+    doc = "``ptinertia run``: acquire, see :mod:`ptinertia.runner`.\n\nUse ``--json`` or :func:`~x.y`."
+    assert plain_help(doc) == "Acquire, see ptinertia.runner.\n\nUse --json or x.y."
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_every_command_help_is_plain_text(name: str) -> None:
+    text = _command_parser(name).format_help()
+    assert "``" not in text and ":mod:`" not in text and ":func:`" not in text, text
+    description = text.split("\n\n")[1]
+    assert not description.lower().startswith("ptinertia"), description
+    assert description[:1].isupper(), description
+
+
+def test_simulate_help_names_every_output_format() -> None:
+    text = _command_parser("simulate").format_help()
+    assert ".mcap" in text and ".mf4" in text and ".csv" in text
+
+
+def test_version_lists_the_key_dependencies(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as stop:
+        main(["--version"])
+    assert stop.value.code == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("ptinertia ")
+    named = {line.split()[0] for line in lines[1:]}
+    assert {"Python", *KEY_DEPENDENCIES} == named
+    numpy_line = next(line for line in lines if line.split()[0] == "numpy")
+    import numpy
+
+    assert numpy_line.split()[1] == numpy.__version__
+
+
+def test_python_dash_m_runs_the_cli() -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "ptinertia", "--version"],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("ptinertia ")
