@@ -6,7 +6,8 @@ Prints figures; asserts nothing. Times are CPU seconds of this process with
 BLAS pinned to one thread, so a busy machine does not flatter or penalise
 the figures much (wall-clock is printed beside them).
 
-1. Throughput: 10 channels at 25.6 kHz, orders 1, 1.5, 2 (plus the internal
+1. Throughput (numpy path, and the compiled segment sums of dsp.kernels beside it when
+   numba is installed): 10 channels at 25.6 kHz, orders 1, 1.5, 2 (plus the internal
    orders of the leakage correction), a 1500 -> 4500 rpm sweep, 60-2 wheel
    as edge timestamps and as a 200 kHz square wave, blocks of 0.1 s, 0.5 s
    and 1 s (best of five runs: on a shared machine other work only ever adds
@@ -42,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from acquisition.stream import EdgeBlock, SampleBlock
+from dsp import kernels
 from dsp.config import OrderTrackerConfig
 from dsp.orders import OrderTracker
 from dsp.synthetic import OrderContent, Ramp, SyntheticBench
@@ -82,8 +84,19 @@ def _config(delivery: str = "edges", **kw) -> OrderTrackerConfig:
     )
 
 
-def _timed(layout, config, items, repeat: int = 1) -> tuple[float, float, list]:
-    """Best CPU and wall time over ``repeat`` fresh trackers (a shared machine only adds time)."""
+def _timed(
+    layout, config, items, repeat: int = 1, compiled: bool = False
+) -> tuple[float, float, list]:
+    """Best CPU and wall time over ``repeat`` fresh trackers (a shared machine only adds time).
+
+    ``compiled``: the segment sums by the numba kernel (dsp.kernels), warmed up first so
+    that its one-off compile or cache load is not counted; else the numpy path.
+    """
+    kernels.USE = compiled and kernels.AVAILABLE
+    if kernels.USE:
+        tracker = OrderTracker.from_layout(layout, config)
+        for item in items[:20]:
+            tracker.process(item)
     best_cpu, best_wall, frames = math.inf, math.inf, []
     for _ in range(repeat):
         tracker = OrderTracker.from_layout(layout, config)
@@ -108,9 +121,11 @@ def throughput(duration: float) -> None:
         for block in (0.1, 0.5, 1.0):
             items = list(bench.items(duration, block_s=block))  # generated before the clock starts
             cpu, wall, frames = _timed(bench.layout, _config(delivery), items, repeat=5)
+            cpu_c, _, _ = _timed(bench.layout, _config(delivery), items, repeat=5, compiled=True)
             print(
                 f"   tacho {delivery:7s} block {block:3.1f} s: {duration / cpu:6.0f}x real time "
-                f"(CPU {cpu:5.3f} s, wall {wall:5.3f} s, best of 5), {len(frames)} frames"
+                f"(CPU {cpu:5.3f} s, wall {wall:5.3f} s, best of 5), {len(frames)} frames; "
+                f"compiled sums {_factor(duration, cpu_c)}"
             )
             del items
     # the live pipeline: 9 accelerometers + the cylinder pressure as the cycle reference
@@ -126,18 +141,25 @@ def throughput(duration: float) -> None:
         rpm_max=6000.0,
     )
     cpu, wall, frames = _timed(bench.layout, config, items, repeat=5)
+    cpu_c, _, _ = _timed(bench.layout, config, items, repeat=5, compiled=True)
     print(
         f"   9 accel + pressure reference, edges, block 0.5 s: {duration / cpu:6.0f}x real time "
-        f"(CPU {cpu:5.3f} s, wall {wall:5.3f} s, best of 5), {len(frames)} frames"
+        f"(CPU {cpu:5.3f} s, wall {wall:5.3f} s, best of 5), {len(frames)} frames; "
+        f"compiled sums {_factor(duration, cpu_c)}"
     )
     # the same, with the pressure's full half-order spectrum (orders 0 .. 6) in every frame
     spectrum = replace(config, spectrum_channel="p_cyl1", spectrum_max_order=6.0)
     cpu_s, wall_s, frames = _timed(bench.layout, spectrum, items, repeat=5)
+    cpu_sc, _, _ = _timed(bench.layout, spectrum, items, repeat=5, compiled=True)
     print(
         f"   ... + pressure spectrum 0 .. 6 (+2 internal): {duration / cpu_s:6.0f}x real time "
         f"(CPU {cpu_s:5.3f} s, wall {wall_s:5.3f} s, best of 5; {100 * (cpu_s / cpu - 1):+.0f} % "
-        f"CPU), {len(frames)} frames"
+        f"CPU), {len(frames)} frames; compiled sums {_factor(duration, cpu_sc)}"
     )
+
+
+def _factor(duration: float, cpu: float) -> str:
+    return f"{duration / cpu:.0f}x" if kernels.AVAILABLE else "n/a (numba not installed)"
 
 
 def memory(minutes: float) -> None:
@@ -256,6 +278,7 @@ def comparison() -> None:
     config = tracker_config(bench, ORDERS)
     cpu_live, _, frames = _timed(src.layout, config, items, repeat=3)
     cpu_1s, _, _ = _timed(src.layout, config, _regroup(items, 1.0), repeat=3)
+    cpu_c, _, frames_c = _timed(src.layout, config, items, repeat=3, compiled=kernels.AVAILABLE)
     frames = [f for f in frames if not f.flags - {"cycle_ambiguous"}]
     t_frames = np.array([f.time_s for f in frames])
     # offline methods have edge effects: every method is judged 1 s away from both ends
@@ -268,6 +291,10 @@ def comparison() -> None:
         ("ptinertia dsp, 0.1 s blocks as streamed", *_errors(ours, exact), cpu_live),
         ("ptinertia dsp, 1 s blocks", *_errors(ours, exact), cpu_1s),
     ]
+    if kernels.AVAILABLE:
+        kept = [f for f in frames_c if not f.flags - {"cycle_ambiguous"}]
+        ours_c = np.array([f.amplitudes for f in kept])[keep]
+        rows.append(("ptinertia dsp, 0.1 s blocks, compiled sums", *_errors(ours_c, exact), cpu_c))
     try:
         from rota import angle as rangle
         from rota import extract as rextract

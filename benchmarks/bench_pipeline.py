@@ -9,7 +9,11 @@ Prints:
 4. each stage on its own, per minute of data (simulator, MCAP reader, dsp, estimator): CPU
    seconds, and the best real-time factor live and replay could reach if the stages overlapped
    perfectly on two cores (the budget against the 100x / 300x targets);
-5. RSS over a long sweep (``--hours``, default 1 h at 5120 Hz, recording on): growth.
+5. RSS over a long sweep (``--hours``, default 1 h at 5120 Hz, recording on): growth;
+6. the cold start of a short CLI run, ``ptinertia run --duration 5``: wall and CPU, with the
+   numpy segment sums (the default) and with the compiled ones (``PTINERTIA_NUMBA=1``), the
+   latter with an empty numba cache (the first run after an install) and a filled one;
+7. the figures side by side: order tracking, estimator, replay, live with recording, simulator.
 
 Usage: python benchmarks/bench_pipeline.py [--hours 1.0] [--skip-long]
 """
@@ -20,6 +24,8 @@ import argparse
 import json
 import os
 import resource
+import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -58,6 +64,9 @@ def _bench(fs: float, duration: float, paced: bool = False) -> tuple[Any, Any, s
     return bench, source, text
 
 
+FIGURES: dict[str, str] = {}  # name -> figure, printed side by side at the end
+
+
 def live_and_replay(tmp: Path) -> Path:
     from ptinertia.runner import RunOptions, run_source
     from replay.recorder import McapRecorder
@@ -83,6 +92,8 @@ def live_and_replay(tmp: Path) -> Path:
     print(
         f"replay: {rep:.1f} s = {60 / rep:.0f}x real time; result identical to the live run: {same}"
     )
+    FIGURES["live with recording"] = f"{60 / live:.0f}x (wall)"
+    FIGURES["replay"] = f"{60 / rep:.0f}x (wall), identical to live: {same}"
     return log
 
 
@@ -113,6 +124,7 @@ def stage_budget(log: Path) -> None:
         batches.append(tracker.finish()[0])
 
     dsp, _ = _cpu_s(track)
+    dsp_compiled = _compiled_dsp(bench, source.layout, items)
 
     def estimate() -> None:
         published = -float("inf")
@@ -127,6 +139,13 @@ def stage_budget(log: Path) -> None:
 
     est, _ = _cpu_s(estimate)
     used = estimator.stats.used
+    FIGURES["order tracking (dsp stage)"] = (
+        f"{60 / dsp:.0f}x numpy"
+        + ("" if dsp_compiled is None else f", {60 / dsp_compiled:.0f}x compiled sums")
+        + " (CPU, one core)"
+    )
+    FIGURES["estimator"] = f"{1e6 * est / max(used, 1):.0f} us per used frame (CPU)"
+    FIGURES["simulator"] = f"{60 / sim:.0f}x (CPU)"
     print("each stage alone, CPU seconds per minute of data (10 ch at 25.6 kHz):")
     print(
         f"  simulator {sim:.2f}  MCAP reader {reader:.2f}  dsp {dsp:.2f}  estimator {est:.2f}"
@@ -144,6 +163,67 @@ def stage_budget(log: Path) -> None:
         f"replay {replay_cores:.0f}x; all CPU split evenly over both cores: live {live_any:.0f}x, "
         f"replay {replay_any:.0f}x (targets 100x, 300x)"
     )
+
+
+def _compiled_dsp(bench: Any, layout: Any, items: list[Any]) -> float | None:
+    """CPU seconds of the dsp stage with the compiled segment sums (warmed up), or None."""
+    from acquisition.stream import SourceEvent
+    from dsp import kernels
+    from ptinertia.runner import processing_chain
+
+    if not kernels.AVAILABLE:
+        return None
+    kernels.USE = True
+    try:
+        best = float("inf")
+        for _ in range(3):  # the first loads (or compiles) the kernel: best of three
+            tracker, _ = processing_chain(bench, layout)
+
+            def track() -> None:
+                for item in items:
+                    if not isinstance(item, SourceEvent):
+                        tracker.feed(item)  # noqa: B023 - called at once
+                tracker.finish()  # noqa: B023
+
+            best = min(best, _cpu_s(track)[0])
+        return best
+    finally:
+        kernels.USE = False
+
+
+def cold_start(repeat: int = 3) -> None:
+    """``ptinertia run --duration 5`` as a user starts it: wall and CPU of the whole process."""
+    exe = Path(sys.executable).parent / "ptinertia"
+    cmd = [str(exe), "run", "--duration", "5", "--rerun", "off", "--quiet"]
+
+    def once(env: dict[str, str]) -> tuple[float, float]:
+        t0 = time.perf_counter()
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        subprocess.run(cmd, env={**os.environ, **env}, check=True, capture_output=True)
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+        return time.perf_counter() - t0, cpu
+
+    def best(env: dict[str, str]) -> str:
+        runs = [once(env) for _ in range(repeat)]
+        return f"wall {min(w for w, _ in runs):.2f} s, CPU {min(c for _, c in runs):.2f} s"
+
+    print(f"cold start of `ptinertia run --duration 5` (best of {repeat}):")
+    numpy_path = best({"PTINERTIA_NUMBA": "0"})
+    print(f"  numpy segment sums (default): {numpy_path}")
+    FIGURES["cold start, run --duration 5"] = f"{numpy_path} (numpy sums, the default)"
+    from dsp import kernels
+
+    if not kernels.AVAILABLE:
+        print("  numba is not installed: no compiled figure")
+        return
+    with tempfile.TemporaryDirectory() as cache:
+        env = {"PTINERTIA_NUMBA": "1", "NUMBA_CACHE_DIR": cache}
+        wall, cpu = once(env)
+        print(
+            f"  compiled sums, empty numba cache (first run after an install): wall {wall:.2f} s, CPU {cpu:.2f} s"
+        )
+        print(f"  compiled sums, numba cache filled: {best(env)}")
 
 
 def paced_latency(tmp: Path) -> None:
@@ -205,13 +285,24 @@ def main() -> None:
     ap.add_argument("--hours", type=float, default=1.0)
     ap.add_argument("--skip-long", action="store_true")
     a = ap.parse_args()
+    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (a shared machine)")
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         log = live_and_replay(tmp)
         paced_latency(tmp)
         stage_budget(log)
+        cold_start()
         if not a.skip_long:
             long_run(tmp, a.hours)
+    print("side by side (targets of issue 24: order tracking >= 500x on one core, estimator")
+    print(
+        "<= 60 us per used frame, replay >= 300x, live with recording >= 100x, simulator >= 500x;"
+    )
+    print(
+        "rota-order's figure on the same kind of signal: benchmarks/bench_order_tracking.py, 4.):"
+    )
+    for name, figure in FIGURES.items():
+        print(f"  {name:32s} {figure}")
 
 
 if __name__ == "__main__":

@@ -220,3 +220,6 @@ def centre_phase(k2: np.ndarray, m: int, frames_per_rev: int) -> np.ndarray:
 _TABLE = rise(_S)
 _TABLE = 0.5 * (_TABLE + 1.0 - _TABLE[::-1])  # exactly antisymmetric about (1/2, 1/2)
 _SLOPE = (_TABLE[1:] - _TABLE[:-1]) / (_S[1:] - _S[:-1])  # as np.interp computes it
+
+# rise_table's grid, values and slopes, for the compiled sums (dsp.kernels) that repeat its arithmetic
+RISE_GRID, RISE_TABLE, RISE_SLOPE = _S, _TABLE, _SLOPE

@@ -28,7 +28,8 @@ from dsp.state import (
     chains_at,
     set_group,
 )
-from dsp.sums import SumSet, add_sample_sets
+from dsp.sum_sets import SumSet
+from dsp.sums import add_sample_sets
 
 CHUNK = 16384
 

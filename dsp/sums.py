@@ -8,7 +8,7 @@ the flat stretch after it. For each segment the tracker keeps
 * ``d``: the same over the zone, weighted by the falling taper ``1 - rise``,
 * ``wa``, ``wd``: ``sum q`` and ``sum q (1 - rise)`` (the normalisation),
 * ``s2``, ``n2``: ``sum x^2`` and the sample count over the samples whose grid
-  index is a multiple of :data:`POWER_STRIDE` (the mean square behind the
+  index is a multiple of :data:`dsp.sum_sets.POWER_STRIDE` (the mean square behind the
   ``leakage`` figure: a quarter of the samples estimate it well and cost a quarter),
 * ``clip``: a sample at or above the clip level,
 
@@ -22,14 +22,12 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
-from dsp.frames import rise_table
+from dsp import kernels
 from dsp.sum_rows import Row, row_size, unpack
-
-POWER_STRIDE = 4
+from dsp.sum_sets import Segments, SumSet, numpy_sums
 
 
 def add_samples(
@@ -72,25 +70,6 @@ def add_samples(
     return out
 
 
-@dataclass(frozen=True)
-class SumSet:
-    """Channels of one group summed with one set of orders (:func:`add_sample_sets`).
-
-    ``tracked`` sets are summed as the tracked channels always were (the zone sums
-    from gathered carrier rows: BLAS rounds each layout its own way, and the frames
-    stay bit for bit what they were), with the mean square and the clip count.
-    A set with ``tracked=False`` is one channel (the spectrum channel): a matrix-vector
-    product per segment with the taper applied to the samples, no gather, and neither
-    mean square nor clip count (zeros): 1.6x faster for one channel.
-    """
-
-    rows: dict[int, Row]  # segment m -> Row, as in add_samples
-    x: Sequence[np.ndarray]  # (n_ch, n_i) pieces; (1, n_i) unless tracked
-    k2: np.ndarray  # (n_orders,) int64, ascending
-    clip_level: float | None = None
-    tracked: bool = True
-
-
 def add_sample_sets(
     sets: Sequence[SumSet],
     phi: np.ndarray,
@@ -99,17 +78,21 @@ def add_sample_sets(
     rate_hz: float,
     frames_per_rev: int,
     taper_deg: float,
+    compiled: bool | None = None,
 ) -> list[dict[int, Row]]:
     """:func:`add_samples` for several sets of channels and orders on the same samples.
 
     The segments, the carriers (up to the highest order of any set) and the taper
     weights are computed once; each set gets the rows it would get from a call of
     its own, bit for bit (its carriers and zone weights laid out as in that call).
+    ``compiled``: the carriers and sums by :func:`dsp.kernels.piece_sums` (one pass,
+    the orders of each set only; within 1e-12 of this numpy reference, see there);
+    None: :data:`dsp.kernels.USE`.
     """
+    compiled = kernels.USE if compiled is None else compiled
     spacing = 2.0 * math.pi / frames_per_rev
     half = 0.5 * math.radians(taper_deg)
     cuts = np.cumsum([0] + [xi.shape[1] for xi in sets[0].x]).tolist()  # where each piece begins
-    n = cuts[-1]
     # each piece cut into segments as a call of its own would: a segment split between
     # two pieces appears twice, and its parts are added in order at the end
     parts = [_segments(phi, p0, p1, spacing, half) for p0, p1 in itertools.pairwise(cuts)]
@@ -122,70 +105,22 @@ def add_sample_sets(
     q = omega * (1.0 / rate_hz)
     # carriers about each segment's own frame angle c_m (exact rotation applied below): the
     # same sample gets the same carrier whatever the block cut, and the angle stays small
-    carriers = _carriers(phi - np.repeat(c, ends - starts), q, [s.k2 for s in sets])
-    # every zone's samples at once: falling-taper weights
-    z_len = zone_end - starts
-    z_off = np.zeros(mu.size + 1, dtype=np.int64)
-    np.cumsum(z_len, out=z_off[1:])
-    z = np.repeat(starts - z_off[:-1], z_len) + np.arange(z_off[-1])  # sample indices
-    tw = 2.0 * half
-    r = phi[z] - np.repeat(c - half, z_len)
-    fall = 1.0 - rise_table(r / tw)
-    wd = np.zeros(mu.size)
-    has_zone = z_len > 0
-    if has_zone.any():
-        wd[has_zone] = np.add.reduceat(q[z] * fall, z_off[:-1][has_zone])
-    wa = np.add.reduceat(q, starts) if n else np.zeros(mu.size)
-    wa[starts == ends] = 0.0  # reduceat gives the next element for an empty segment
+    delta = phi - np.repeat(c, ends - starts)
+    seg = Segments(mu, starts, ends, zone_end, cuts, per_piece, c, half)
+    if compiled:
+        sums, wa, wd = kernels.compiled_sums(sets, seg, phi, q, delta, first_index)
+    else:
+        sums, wa, wd = numpy_sums(sets, seg, phi, q, delta, first_index)
     period = 2 * frames_per_rev
     outs = []
-    for st, (e, re, im) in zip(sets, carriers, strict=True):
-        k2, x = st.k2, st.x
+    for st, (a, d, s2, n2, clip, re, im) in zip(sets, sums, strict=True):
+        k2 = st.k2
         no = k2.size
-        n_ch = x[0].shape[0]
-        a = np.zeros((mu.size, n_ch, 2 * no))
-        d = np.zeros_like(a)
-        s2 = np.zeros((mu.size, n_ch))
-        n2 = np.zeros(mu.size, dtype=np.int64)
-        clip = np.zeros((mu.size, n_ch), bool)
-        if st.tracked:
-            assert re == list(range(no)), "a tracked set keeps the Re-then-Im row layout"
-            # (zone samples, 2 n_orders) in C order: the layout the zone sums were always
-            # taken in, and a row gather is 3x faster than e[:, z]
-            ezt = e.T[z]
-            ezt *= fall[:, None]
-            i = 0
-            for xp, p0, count in zip(x, cuts[:-1], per_piece, strict=True):
-                seg = slice(i, i + count)
-                local = zip(
-                    (starts[seg] - p0).tolist(), (ends[seg] - p0).tolist(), z_len[seg].tolist(),
-                    z_off[seg].tolist(), strict=True,
-                )  # fmt: skip
-                for s0, s1, zl, zo in local:
-                    if s1 > s0:
-                        np.matmul(xp[:, s0:s1], e[:, p0 + s0 : p0 + s1].T, out=a[i])
-                    if zl:
-                        np.matmul(xp[:, s0 : s0 + zl], ezt[zo : zo + zl], out=d[i])
-                    i += 1
-                s2[seg], n2[seg] = _power(xp, first_index + p0, starts[seg] - p0)
-                if st.clip_level is not None:
-                    clip[seg] = _clipped(xp, starts[seg] - p0, ends[seg] - p0, st.clip_level)
-        else:
-            # one channel: e (2 no, n) @ x (n,) per segment; the zone's taper goes on the samples
-            x1 = x[0][0] if len(x) == 1 else np.concatenate([xp[0] for xp in x])
-            xz = x1[z] * fall
-            bounds = zip(
-                starts.tolist(), ends.tolist(), z_len.tolist(), z_off[:-1].tolist(), strict=True
-            )
-            for i, (s0, s1, zl, zo) in enumerate(bounds):
-                if s1 > s0:
-                    np.matmul(e[:, s0:s1], x1[s0:s1], out=a[i, 0])
-                if zl:
-                    np.matmul(e[:, s0 : s0 + zl], xz[zo : zo + zl], out=d[i, 0])
+        n_ch = a.shape[1]
         # back to complex, rotated by the frame angle: exp(-i h c_m), reduced exactly with
         # integers (the carriers hold exp(-i h (phi - c_m)))
         rot = np.exp(-2j * np.pi * ((mu[:, None] * k2[None, :]) % period) / period)[:, None, :]
-        if st.tracked:
+        if re == list(range(no)):  # Re rows then Im rows
             ac = (a[..., :no] + 1j * a[..., no:]) * rot
             dc = (d[..., :no] + 1j * d[..., no:]) * rot
         else:  # the rows of the orders in the carriers shared with the tracked channels
@@ -205,30 +140,6 @@ def add_sample_sets(
             out[mm] = out[mm] + row if mm in out else row
         outs.append(out)
     return outs
-
-
-def _power(x: np.ndarray, first_index: int, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``sum x^2`` (s, n_ch) and count (s,) over the samples of segments beginning at
-    ``starts`` whose grid index is a multiple of POWER_STRIDE (``x``: one piece)."""
-    off = (-first_index) % POWER_STRIDE
-    sub = x[:, off::POWER_STRIDE]
-    sub_starts = (starts - off + POWER_STRIDE - 1) // POWER_STRIDE
-    sub_ends = np.append(sub_starts[1:], sub.shape[1])
-    n2 = np.maximum(sub_ends - sub_starts, 0)
-    s2 = np.zeros((starts.size, x.shape[0]))
-    has = np.flatnonzero(n2)
-    if has.size:
-        s2[has] = np.add.reduceat(np.square(sub), sub_starts[has], axis=1).T
-    return s2, n2
-
-
-def _clipped(x: np.ndarray, starts: np.ndarray, ends: np.ndarray, level: float) -> np.ndarray:
-    """Whether a segment of one piece ``x`` holds a sample at or above ``level``: (s, n_ch)."""
-    big = np.abs(x) >= level
-    clip = np.zeros((starts.size, x.shape[0]), bool)
-    full = np.flatnonzero(ends > starts)
-    clip[full] = np.logical_or.reduceat(big, starts[full], axis=1).T
-    return clip
 
 
 def _segments(
@@ -256,71 +167,3 @@ def _segments(
     np.maximum(zone_end, starts, out=zone_end)
     np.minimum(zone_end, ends, out=zone_end)
     return mu, starts, ends, zone_end
-
-
-def _carriers(
-    delta: np.ndarray, q: np.ndarray, k2s: Sequence[np.ndarray]
-) -> list[tuple[np.ndarray, list[int], list[int]]]:
-    """``q exp(-i k delta / 2)`` for every ``k`` in each ``k2`` of ``k2s``.
-
-    Returns, per ``k2``, ``(e, re, im)``: ``e`` (rows, n_samples) holds the real part of
-    order ``k2[j]`` in row ``re[j]``, its imaginary part in row ``im[j]``. The first ``k2``
-    gets rows ``Re`` then ``Im`` (2 n, n_samples), the tracked channels' layout. A later
-    ``k2`` that holds all the first's orders (the spectrum channel's) puts its other
-    orders after those rows, and the first's array is a view of its top: each carrier
-    is written once.
-
-    ``cos`` and ``sin`` of ``delta / 2`` in single precision (vectorised: 15x faster
-    than double here, half the carrier cost), then a running product in double
-    (each ``k2`` ascending; one product serves them all, so an order's carrier is the
-    same whatever else is tracked). The single-precision error, ~1e-7 rad per sample and a
-    fixed function of the sample's angle, shows as leakage of about 1e-7 of the
-    strongest order into the others (-140 dB; measured on the simulated i3 at
-    3000 rpm: 7e-8, against 1e-10 in double): 80 dB below the 60 dB specified,
-    and far below any noise a bench has.
-    """
-    half = (0.5 * delta).astype(np.float32)
-    base = np.empty(delta.size, complex)
-    base.real = np.cos(half)
-    base.imag = np.sin(half)
-    np.negative(base.imag, out=base.imag)
-    first = k2s[0].tolist()
-    n0 = len(first)
-    out: list[tuple[np.ndarray, list[int], list[int]]] = []
-    writes: list[tuple[np.ndarray, list[int], list[int], list[int]]] = []  # (e, k, re, im)
-    sharer = None
-    for j, k2 in enumerate(k2s):
-        ks = k2.tolist()
-        if j and sharer is None and set(first) <= set(ks):
-            sharer = j
-            top = {k: r for r, k in enumerate(first)}
-            extra = [k for k in ks if k not in top]
-            below = {k: r for r, k in enumerate(extra)}
-            n_e = len(extra)
-            re = [top[k] if k in top else 2 * n0 + below[k] for k in ks]
-            im = [top[k] + n0 if k in top else 2 * n0 + n_e + below[k] for k in ks]
-        else:
-            re = list(range(len(ks)))
-            im = [len(ks) + r for r in re]
-        e = np.empty((2 * len(ks), delta.size))
-        out.append((e, re, im))
-        writes.append((e, ks, re, im))
-    if sharer is not None:
-        e = out[sharer][0]
-        out[0] = (e[: 2 * n0], out[0][1], out[0][2])
-        del writes[0]
-    rows: dict[int, list[tuple[np.ndarray, int, int]]] = {}
-    for e, ks, re, im in writes:
-        for k, r, i in zip(ks, re, im, strict=True):
-            rows.setdefault(k, []).append((e, r, i))
-    for e, r, i in rows.get(0, []):
-        e[r] = q  # order 0: the plain weight
-        e[i] = 0.0
-    p = base * q
-    for k in range(1, max(int(k2.max()) for k2 in k2s) + 1):
-        if k > 1:
-            p *= base
-        for e, r, i in rows.get(k, []):
-            e[r] = p.real
-            e[i] = p.imag
-    return out

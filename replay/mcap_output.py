@@ -40,6 +40,23 @@ from mcap.records import (
 from replay.chunks import MAGIC
 
 COMPRESSIONS = ("zstd", "lz4", "")
+# zstandard.compress's (and so mcap's) default level; the recorder chooses its own
+# (replay.recorder.ZSTD_LEVEL, docs/recording-format.md)
+ZSTD_LEVEL = 3
+# zstd's fastest (negative: less search, more literal blocks) to its strongest level
+ZSTD_LEVELS = range(-50, 23)
+
+
+def check_level(level: int) -> int:
+    """``level`` if it is a zstd level this writer accepts, else ValueError naming it."""
+    if isinstance(level, bool) or not isinstance(level, int) or level not in ZSTD_LEVELS:
+        raise ValueError(
+            f"zstd level: expected an integer from {ZSTD_LEVELS[0]} to {ZSTD_LEVELS[-1]}, "
+            f"got {level!r}"
+        )
+    return level
+
+
 OP_MESSAGE = int(Opcode.MESSAGE)
 # opcode, record length, channel id, sequence, log time, publish time
 MESSAGE_HEADER = struct.Struct("<BQHIQQ")
@@ -55,9 +72,10 @@ Records = list[tuple[bytes, bytes]]
 class McapOutput:
     """The file side: what the writer thread does, and the indexes it keeps."""
 
-    def __init__(self, stream: IO[bytes], compression: str) -> None:
+    def __init__(self, stream: IO[bytes], compression: str, level: int = ZSTD_LEVEL) -> None:
         self.stream = stream
         self.compression = compression
+        self.level = check_level(level)
         self.pos = 0
         self.chunk_indexes: list[ChunkIndex] = []
         self.attachment_indexes: list[AttachmentIndex] = []
@@ -212,8 +230,7 @@ class McapOutput:
     def _compressed(self, payload: bytes) -> bytes:
         if self._compress is None:
             if self.compression == "zstd":
-                # level 3 is zstandard.compress's (and so mcap's) default
-                self._compress = zstandard.ZstdCompressor(level=3).compress
+                self._compress = zstandard.ZstdCompressor(level=self.level).compress
             elif self.compression == "lz4":
                 self._compress = lz4.frame.compress
             else:

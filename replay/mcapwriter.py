@@ -38,7 +38,14 @@ from typing import IO, Any
 from mcap.data_stream import RecordBuilder
 from mcap.records import Channel, Schema
 
-from replay.mcap_output import COMPRESSIONS, MESSAGE_HEADER, OP_MESSAGE, McapOutput, Records
+from replay.mcap_output import (
+    COMPRESSIONS,
+    MESSAGE_HEADER,
+    OP_MESSAGE,
+    ZSTD_LEVEL,
+    McapOutput,
+    Records,
+)
 
 
 class ThreadedWriter:
@@ -57,6 +64,8 @@ class ThreadedWriter:
     chunk_size : int
         A chunk is closed once its records exceed this many bytes.
     compression : ``"zstd"``, ``"lz4"`` or ``""``.
+    level : int
+        The zstd level (3, mcap's default; the recorder passes its own).
     backlog : int
         Jobs (chunks, metadata, ...) queued for the writer thread before the caller waits.
     """
@@ -67,11 +76,12 @@ class ThreadedWriter:
         chunk_size: int = 1024 * 1024,
         compression: str = "zstd",
         backlog: int = 16,
+        level: int = ZSTD_LEVEL,
     ) -> None:
         if compression not in COMPRESSIONS:
             raise ValueError(f"compression: expected one of {COMPRESSIONS}, got {compression!r}")
         self.chunk_size = int(chunk_size)
-        self._out = McapOutput(stream, compression)
+        self._out = McapOutput(stream, compression, level)
         self._records: Records = []  # the open chunk
         self._size = 0  # bytes of the open chunk's records
         self._messages = 0  # messages in the open chunk

@@ -65,6 +65,6 @@ def test_every_third_party_import_is_declared() -> None:
     packages = [
         ROOT / p for p in ("acquisition", "dsp", "estimator", "replay", "powertrain", "ptinertia")
     ]
-    # lz4 is optional (an extra) and imported only when chosen
-    assert undeclared(_imported_top_modules(packages), runtime | {"lz4"}) == []
+    # lz4 and numba are optional (extras) and imported only when chosen
+    assert undeclared(_imported_top_modules(packages), runtime | {"lz4", "numba"}) == []
     assert undeclared(_imported_top_modules([ROOT / "tests"]), runtime | extras) == []

@@ -1,0 +1,233 @@
+"""Compiled per-sample work of the order tracker: carriers and segment sums in one pass.
+
+:func:`dsp.sums.add_sample_sets` needs, for each segment, ``sum x e`` over its samples
+and ``sum x e (1 - rise)`` over its taper zone, ``e`` the carriers ``q exp(-i k delta / 2)``
+of the orders summed, and the weights, mean squares and clip flags beside them. In numpy
+that is a carrier array for every order up to the highest (written once, read by a BLAS
+product per segment) and a dozen passes over the samples. :func:`piece_sums` makes each
+carrier in registers from the sample's base ``exp(-i delta / 2)`` by the same running
+product, keeps only the orders of the set, and adds them, the taper weights, the mean
+square and the clip flags to the segment's sums as it goes: one pass, no temporaries.
+
+Measured (issue 24; 2-core machine shared with other work, best of several runs, 10
+channels at 25.6 kHz, orders 1, 1.5, 2 and the leakage correction's: 8 half-orders): the
+kernel alone runs at about 1200x real time on one core; the sums in numpy take 53 ms per
+30 s of data, compiled 42 ms, and the whole tracker goes from about 290x to 320x real
+time: the rest of the tracker (frame assembly, leakage correction, angle lookup, the
+per-block Python) is now most of its time. numba (well kept, NumPy's release cadence)
+over hand-written C: no build step, and ``cache=True`` keeps the machine code beside
+this module (or in numba's user cache when the package is read-only), so only the
+first use after an install compiles (about 3 s of CPU). But importing numba and loading
+the cached code cost about 0.5 s of CPU per process, while the kernel saves about 0.4 ms
+per second of 10-channel data: it pays for itself after some 20 minutes of data. So the
+tracker uses it only when asked (``PTINERTIA_NUMBA=1``: hour-long runs, campaigns and
+studies, whose worker processes pay the import once), and numba is imported on first
+use; a short ``ptinertia run`` never loads it. ``nogil=True``: the kernel releases the
+GIL, so a tracker on its own thread leaves the others running.
+
+What stays identical and what does not: the base ``exp(-i delta / 2)`` is still made by
+numpy in single precision (its SIMD ``cos``/``sin`` round differently from libm's), the
+taper weights repeat :func:`dsp.frames.rise_table`'s arithmetic, so the carriers are
+those of the numpy path to the last bit of the complex product; the sums are taken
+sample by sample in time order, where BLAS and ``reduceat`` group them their own way.
+The rows agree with the numpy reference (:func:`dsp.sums.add_sample_sets` with
+``compiled=False``) within 1e-12 relative to the segment's largest sum (measured: under
+1e-15; ``tests/dsp/test_kernels.py``).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import os
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from dsp.frames import RISE_GRID, RISE_SLOPE, RISE_TABLE
+from dsp.sum_sets import POWER_STRIDE, Segments, SetSums, SumSet, base
+
+# numba is optional and imported on first use only: its import and the cached machine
+# code cost about 0.5 s of CPU per process, more than the kernel saves on a short run
+AVAILABLE = importlib.util.find_spec("numba") is not None
+# PTINERTIA_NUMBA=1: the tracker uses the kernel (long runs, campaigns and studies); the
+# benchmarks and tests switch it per call
+USE = AVAILABLE and os.environ.get("PTINERTIA_NUMBA", "0") == "1"
+_compiled: Callable[..., None] | None = None
+
+
+def piece_sums(*args: Any) -> None:
+    """:func:`_piece_sums` compiled (on the first call; numba's cache keeps the machine code)."""
+    global _compiled
+    if _compiled is None:
+        from numba import njit  # heavy (0.3 s): only where the kernel is used
+
+        _compiled = njit(cache=True, nogil=True)(_piece_sums)
+    _compiled(*args)
+
+
+def compiled_sums(
+    sets: Sequence[SumSet],
+    seg: Segments,
+    phi: np.ndarray,
+    q: np.ndarray,
+    delta: np.ndarray,
+    first_index: int,
+) -> tuple[list[SetSums], np.ndarray, np.ndarray]:
+    """Every set's sums and the weights ``wa``, ``wd`` by :func:`piece_sums`."""
+    base_re, base_im = base(delta)
+    c_lo = seg.c - seg.half
+    n_seg = seg.mu.size
+    wa, wd = np.zeros(n_seg), np.zeros(n_seg)
+    out: list[SetSums] = []
+    for st in sets:
+        no, n_ch = st.k2.size, st.x[0].shape[0]
+        a = np.zeros((n_seg, n_ch, 2 * no))
+        d = np.zeros_like(a)
+        s2 = np.zeros((n_seg, n_ch))
+        n2 = np.zeros(n_seg, dtype=np.int64)
+        clip = np.zeros((n_seg, n_ch), bool)
+        level = math.nan if st.clip_level is None else st.clip_level
+        i = 0
+        pieces = zip(st.x, seg.cuts[:-1], seg.cuts[1:], seg.per_piece, strict=True)
+        for xp, p0, p1, count in pieces:
+            s = slice(i, i + count)
+            piece_sums(
+                xp, phi[p0:p1], q[p0:p1], base_re[p0:p1], base_im[p0:p1], c_lo[s],
+                seg.starts[s] - p0, seg.ends[s] - p0, seg.zone_end[s] - p0, 2.0 * seg.half,
+                st.k2, st.tracked, (-(first_index + p0)) % POWER_STRIDE, POWER_STRIDE, level,
+                RISE_GRID, RISE_TABLE, RISE_SLOPE, (a[s], d[s], s2[s], n2[s], clip[s], wa[s], wd[s]),
+            )  # fmt: skip
+            i += count
+        out.append((a, d, s2, n2, clip, list(range(no)), list(range(no, 2 * no))))
+    return out, wa, wd
+
+
+def _piece_sums(
+    x: np.ndarray,
+    phi: np.ndarray,
+    q: np.ndarray,
+    base_re: np.ndarray,
+    base_im: np.ndarray,
+    c_lo: np.ndarray,
+    starts: np.ndarray,
+    ends: np.ndarray,
+    zone_end: np.ndarray,
+    taper_rad: float,
+    k2: np.ndarray,
+    tracked: bool,
+    power_from: int,
+    power_stride: int,
+    clip_level: float,
+    grid: np.ndarray,
+    table: np.ndarray,
+    slope: np.ndarray,
+    out: tuple[np.ndarray, ...],
+) -> None:
+    """Add the sums of the segments of one piece (one set of channels) to ``out``.
+
+    ``x`` (n_ch, n) the piece's samples, ``phi`` (rad) and ``q = omega dt`` (rad) (n,);
+    ``base_re``, ``base_im`` (n,) the carriers' base ``exp(-i delta / 2)``; per segment
+    (seg,): ``c_lo`` the start of its zone ``c_m - tau / 2`` (rad), ``starts``, ``ends``,
+    ``zone_end`` sample indices within the piece. ``taper_rad`` the zone's width,
+    ``k2`` (no,) ascending (0 the mean). ``tracked``: the zone weight multiplies the
+    carrier, and the mean square (samples ``power_from + power_stride * i``) and the
+    clip flags (``|x| >= clip_level``; NaN for none) are summed; else it multiplies the
+    sample (the spectrum channel's layout, as :func:`dsp.sums.add_sample_sets` does).
+    ``grid``, ``table``, ``slope``: :func:`dsp.frames.rise_table`'s, whose arithmetic is
+    repeated here. ``out`` = (a, d (seg, n_ch, 2 no), s2 (seg, n_ch), n2 (seg,), clip
+    (seg, n_ch), wa, wd (seg,)): row ``j`` of a and d's last axis holds the real part of
+    order ``k2[j]``, row ``no + j`` its imaginary part.
+    """
+    a, d, s2, n2, clip, wa, wd = out
+    no = k2.size
+    n_ch = x.shape[0]
+    k_max = k2[no - 1]
+    n_grid = grid.size - 1
+    longest = 0
+    for i in range(starts.size):
+        if ends[i] - starts[i] > longest:
+            longest = ends[i] - starts[i]
+    # the carriers of one segment, a sample per row (Re rows, then Im rows), and its zone's
+    # weights; then its sums channel by channel, the accumulators in registers
+    e = np.empty((longest, 2 * no))
+    fall = np.empty(longest)
+    acc_a = np.empty((n_ch, 2 * no))
+    acc_d = np.empty((n_ch, 2 * no))
+    for i in range(starts.size):
+        s0 = starts[i]
+        n = ends[i] - s0
+        nz = zone_end[i] - s0
+        total = 0.0
+        for s in range(n):
+            br = base_re[s0 + s]
+            bi = base_im[s0 + s]
+            qs = q[s0 + s]
+            total += qs
+            j = 0
+            if k2[0] == 0:
+                e[s, 0] = qs
+                e[s, no] = 0.0
+                j = 1
+            pr = br * qs
+            pi = bi * qs
+            for k in range(1, k_max + 1):
+                if k > 1:
+                    t = pr * br - pi * bi
+                    pi = pr * bi + pi * br
+                    pr = t
+                if j < no and k == k2[j]:
+                    e[s, j] = pr
+                    e[s, no + j] = pi
+                    j += 1
+        wa[i] = total
+        total = 0.0
+        for s in range(nz):
+            u = (phi[s0 + s] - c_lo[i]) / taper_rad
+            if u >= 1.0:
+                rise = table[n_grid]
+            elif u < 0.0:
+                rise = table[0]
+            else:
+                g = min(math.floor(u * n_grid), n_grid - 1)
+                rise = slope[g] * (u - grid[g]) + table[g]
+            fall[s] = 1.0 - rise
+            total += q[s0 + s] * fall[s]
+        wd[i] = total
+        # sample by sample, each channel's sums in turn (one pass over the carriers; each
+        # sum still adds its terms in time order)
+        acc_a[:] = 0.0
+        acc_d[:] = 0.0
+        for s in range(n):
+            for ch in range(n_ch):
+                xv = x[ch, s0 + s]
+                for r in range(2 * no):
+                    acc_a[ch, r] += xv * e[s, r]
+                if s < nz:
+                    if tracked:
+                        f = fall[s]
+                        for r in range(2 * no):
+                            acc_d[ch, r] += xv * (e[s, r] * f)
+                    else:
+                        xf = xv * fall[s]
+                        for r in range(2 * no):
+                            acc_d[ch, r] += xf * e[s, r]
+        for ch in range(n_ch):
+            for r in range(2 * no):
+                a[i, ch, r] += acc_a[ch, r]
+                d[i, ch, r] += acc_d[ch, r]
+        if tracked:
+            p0 = s0 + (power_from - s0) % power_stride
+            for ch in range(n_ch):
+                total = 0.0
+                count = 0
+                for s in range(p0, s0 + n, power_stride):
+                    total += x[ch, s] * x[ch, s]
+                    count += 1
+                s2[i, ch] = total
+                n2[i] = count
+                hit = False
+                for s in range(s0, s0 + n):
+                    hit |= abs(x[ch, s]) >= clip_level
+                clip[i, ch] = hit
