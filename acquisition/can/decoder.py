@@ -141,6 +141,8 @@ class FrameDecoder:
                     self.stats.unknown_ids[f.arbitration_id] = (
                         self.stats.unknown_ids.get(f.arbitration_id, 0) + 1
                     )
+                    if f.is_extended_id:
+                        self.stats.unknown_extended.add(f.arbitration_id)
             elif len(f.data) != plan.length:
                 self._streams[plan.name].stats.bad_length += 1
             else:
@@ -245,19 +247,27 @@ class FrameDecoder:
     # -- output --------------------------------------------------------------------------------
 
     def _collect(self, final: bool) -> list[StreamItem]:
-        items: list[tuple[float, int, StreamItem]] = []
+        # Items are cut on a grid of ``emit_chunk_s`` of data time and given out chunk by
+        # chunk, every group's samples and every edge channel's edges of one chunk together:
+        # a big batch (a CAN log read 5000 frames at a time) must not hand over seconds of
+        # samples before the edges that give them their crank angle.
+        chunk = self.options.emit_chunk_s
+        items: list[tuple[int, int, StreamItem]] = []
         for gi, g in enumerate(self._groups.values()):
+            step = max(1, round(chunk * g.rate))
             for blk in self._emit_group(g, final):
-                items.append((blk.first_index / g.rate, gi, blk))
+                for piece in _cut_samples(blk, step):
+                    items.append((piece.first_index // step, gi, piece))
         for s in self._streams.values():
             if s.plan.kind == "edges":
                 eb = self._emit_edges(s, final)
                 if eb is not None:
-                    items.append((float(eb.times_s[0]), 100, eb))
+                    for k, piece in _cut_edges(eb, chunk):
+                        items.append((k, 100, piece))
         items.sort(key=lambda it: (it[0], it[1]))
         out: list[StreamItem] = [it[2] for it in items]
         if items:
-            self._data_time = max(self._data_time, items[-1][0])
+            self._data_time = max(self._data_time, items[-1][0] * chunk)
         if not final:
             out += self._gaps.due(self._data_time)
         return out
@@ -361,6 +371,32 @@ def _split_on_holes(group: str, i0: int, data: np.ndarray) -> list[SampleBlock]:
     for a, b in zip(edges[::2], edges[1::2], strict=True):
         out.append(SampleBlock(group, i0 + int(a), data[:, a:b]))
     return out
+
+
+def _cut_samples(blk: SampleBlock, step: int) -> list[SampleBlock]:
+    """``blk`` cut at the sample indices that are multiples of ``step``."""
+    a, b = blk.first_index, blk.first_index + blk.n_samples
+    cuts = list(range((a // step + 1) * step, b, step))
+    if not cuts:
+        return [blk]
+    bounds = [a, *cuts, b]
+    return [
+        SampleBlock(blk.group, i0, blk.data[:, i0 - a : i1 - a])
+        for i0, i1 in zip(bounds[:-1], bounds[1:], strict=True)
+    ]
+
+
+def _cut_edges(eb: EdgeBlock, chunk_s: float) -> list[tuple[int, EdgeBlock]]:
+    """``eb`` cut at the multiples of ``chunk_s``, each piece with its chunk number."""
+    k = np.floor(eb.times_s / chunk_s).astype(np.int64)
+    if k[0] == k[-1]:
+        return [(int(k[0]), eb)]
+    starts = np.flatnonzero(np.diff(np.concatenate([[k[0] - 1], k])))
+    ends = np.append(starts[1:], k.size)
+    return [
+        (int(k[i0]), EdgeBlock(eb.channel, eb.times_s[i0:i1]))
+        for i0, i1 in zip(starts.tolist(), ends.tolist(), strict=True)
+    ]
 
 
 def decode_frames(

@@ -13,6 +13,7 @@ column ``L`` the DLC code), which python-can's reader understands.
 
 from __future__ import annotations
 
+import gzip
 from collections.abc import Iterable, Iterator, Sequence
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -25,15 +26,26 @@ from acquisition.can.plan import CanPlan
 from acquisition.can.reorder import DecoderOptions
 from acquisition.can.source import CanFrameSource, CanSettings
 from acquisition.channels import ChannelNeed
-from acquisition.stream import SourceError
+from acquisition.stream import SourceError, StreamItem
 
-CAN_LOG_SUFFIXES = (".blf", ".asc", ".trc", ".log")
+CAN_LOG_SUFFIXES = (".blf", ".asc", ".trc", ".log")  # and the same gzip-compressed (.asc.gz)
+
+
+def log_suffix(path: str | Path) -> str:
+    """The format suffix of a log: ``.asc`` for ``run.asc`` and ``run.asc.gz`` alike."""
+    suffixes = [s.lower() for s in Path(path).suffixes]
+    if len(suffixes) >= 2 and suffixes[-1] == ".gz":
+        return suffixes[-2]
+    return suffixes[-1] if suffixes else ""
 
 
 def is_can_log(path: str | Path) -> bool:
-    """A CAN log by its extension, or an MF4 file holding raw CAN frames (``CAN_DataFrame``)."""
+    """A CAN log by its extension (gzip-compressed too, as python-can reads them: ``.asc.gz``),
+    or an MF4 file holding raw CAN frames (``CAN_DataFrame``)."""
     p = Path(path)
     suffix = p.suffix.lower()
+    if suffix == ".gz":
+        return log_suffix(p) in CAN_LOG_SUFFIXES
     if suffix in CAN_LOG_SUFFIXES:
         return True
     if suffix != ".mf4" or not p.is_file():
@@ -110,6 +122,15 @@ class CanLogSource(CanFrameSource):
             yield batch
         self.decoder.stats.bus_errors = self._errors[0]
 
+    def _iter_items(self) -> Iterator[StreamItem]:
+        yield from super()._iter_items()
+        # a log from another bench (a vendor's demo file): say what was expected and what came
+        mismatch = self.decoder.stats.nothing_matched(
+            self.decoder.plan.describe(), f"CAN log {str(self.path)!r}"
+        )
+        if mismatch is not None:
+            raise SourceError(mismatch)
+
 
 def open_can_log(
     path: str | Path, settings: CanSettings, needs: Sequence[ChannelNeed], **overrides: Any
@@ -144,12 +165,17 @@ class FrameLogWriter:
         import can  # on use: python-can loads its interfaces
 
         self.path = Path(path)
-        suffix = self.path.suffix.lower()
+        suffix = log_suffix(self.path)
         self._trc: IO[str] | None = None
         self._logger: Any = None
         self.count = 0
         if suffix == ".trc":
-            self._trc = self.path.open("w", encoding="ascii")
+            gz = self.path.suffix.lower() == ".gz"
+            self._trc = (
+                gzip.open(self.path, "wt", encoding="ascii")
+                if gz
+                else self.path.open("w", encoding="ascii")
+            )
             self._t0: float | None = None
         elif suffix in (".blf", ".asc", ".log", ".mf4"):
             try:
@@ -158,7 +184,8 @@ class FrameLogWriter:
                 raise SourceError(f"cannot write CAN log {str(self.path)!r}: {err}") from None
         else:
             raise SourceError(
-                f"CAN log {str(self.path)!r}: expected .blf, .asc, .trc, .log or .mf4"
+                f"CAN log {str(self.path)!r}: expected .blf, .asc, .trc, .log or .mf4 "
+                "(the first four also gzip-compressed, .asc.gz)"
             )
 
     def write(self, frame: RawFrame) -> None:
