@@ -26,6 +26,8 @@ def can_settings(can: Can) -> CanSettings:
         bitrate=int(can.bitrate),
         data_bitrate=int(can.data_bitrate),
         fd=bool(can.fd),
+        bus_options=dict(can.bus_options),
+        start_timeout_s=can.start_timeout_s,
     )
 
 

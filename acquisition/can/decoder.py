@@ -24,6 +24,7 @@ padded samples after it are cut.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterable, Sequence
 from typing import Any
@@ -382,7 +383,7 @@ def _cut_samples(blk: SampleBlock, step: int) -> list[SampleBlock]:
     bounds = [a, *cuts, b]
     return [
         SampleBlock(blk.group, i0, blk.data[:, i0 - a : i1 - a])
-        for i0, i1 in zip(bounds[:-1], bounds[1:], strict=True)
+        for i0, i1 in itertools.pairwise(bounds)
     ]
 
 

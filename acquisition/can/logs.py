@@ -14,7 +14,7 @@ column ``L`` the DLC code), which python-can's reader understands.
 from __future__ import annotations
 
 import gzip
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import IO, Any
@@ -106,9 +106,11 @@ class CanLogSource(CanFrameSource):
         plan: CanPlan,
         options: DecoderOptions | None = None,
         batch_frames: int = 5000,
+        frame_listener: Callable[[list[RawFrame]], None] | None = None,
     ) -> None:
         self.path = Path(path)
         self._errors = [0]
+        self.frame_listener = frame_listener  # the recorder: a recording keeps the raw frames
         super().__init__(
             plan,
             self._batches_with_errors(batch_frames),
@@ -119,6 +121,8 @@ class CanLogSource(CanFrameSource):
     def _batches_with_errors(self, batch_frames: int) -> Iterator[list[RawFrame]]:
         for batch in read_frames(self.path, batch_frames, self._errors):
             self.decoder.stats.bus_errors = self._errors[0]
+            if self.frame_listener is not None:
+                self.frame_listener(batch)
             yield batch
         self.decoder.stats.bus_errors = self._errors[0]
 
@@ -140,13 +144,15 @@ def open_can_log(
     The DBC is ``settings.dbc`` (the bench file's ``[can] dbc``) unless the override
     ``dbc`` names another.
 
-    Overrides: ``dbc``, ``reorder_window_s``, ``block_s`` (ignored: a log's
-    batches are frames, not seconds).
+    Overrides: ``dbc``, ``reorder_window_s``, ``frame_listener`` (called with every
+    batch of raw frames: the recorder), ``block_s`` (ignored: a log's batches are
+    frames, not seconds).
     """
-    bad = sorted(set(overrides) - {"dbc", "reorder_window_s", "block_s"})
+    known = {"dbc", "reorder_window_s", "block_s", "frame_listener"}
+    bad = sorted(set(overrides) - known)
     if bad:
         raise SourceError(
-            f"source 'file:{path}': unknown option {bad[0]!r}; known: block_s, dbc, reorder_window_s"
+            f"source 'file:{path}': unknown option {bad[0]!r}; known: {', '.join(sorted(known))}"
         )
     if not Path(path).is_file():
         raise SourceError(f"CAN log {str(path)!r} not found")
@@ -155,7 +161,7 @@ def open_can_log(
     opts = DecoderOptions(
         reorder_window_s=float(overrides.get("reorder_window_s", DecoderOptions.reorder_window_s))
     )
-    return CanLogSource(path, plan, opts)
+    return CanLogSource(path, plan, opts, frame_listener=overrides.get("frame_listener"))
 
 
 class FrameLogWriter:

@@ -130,7 +130,9 @@ def test_virtual_bus_estimate_equals_the_sim_estimate(live, sim_doc):
 
 
 @pytest.mark.parametrize("fmt", ["blf", "asc", "trc", "mf4"])
-def test_a_can_log_gives_exactly_what_the_live_bus_gave(tmp_path, bench_path, bench, plan, live, fmt):
+def test_a_can_log_gives_exactly_what_the_live_bus_gave(
+    tmp_path, bench_path, bench, plan, live, fmt
+):
     """The same stream written to a log by can-sim's writer: the same frames, the same estimate."""
     log = tmp_path / f"run.{fmt}"
     with FrameLogWriter(log) as writer:
@@ -155,7 +157,9 @@ def test_can_sim_log_gives_the_same_estimate(tmp_path, bench_path, sim_doc):
     log = tmp_path / "run.blf"
     real_bench = realistic_bench(tmp_path, bench_path)
     args = ["can-sim", "--bench", str(real_bench), "--interface", "none", "--log", str(log)]
-    assert cli.main([*args, "--json", "--duration", "8", "--sweep", "1500:4500", "--seed", "3"]) == 0
+    assert (
+        cli.main([*args, "--json", "--duration", "8", "--sweep", "1500:4500", "--seed", "3"]) == 0
+    )
     doc = estimate(real_bench, open_source(f"file:{log}", load_bench(real_bench)), f"file:{log}")
     assert_same_estimate(doc, sim_doc, 0.01)
 

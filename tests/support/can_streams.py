@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import queue
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -26,8 +28,47 @@ def can_bench_file(tmp_path: Path, name: str = "i3-bench.toml", dbc: Path | str 
     head, sep, _ = text.partition("\n[can]\n")
     assert sep, f"{name} has no [can] table"
     path = tmp_path / f"can-{name}"
-    path.write_text(head + f'\n[can]\ndbc = "{Path(dbc).resolve()}"\ninterface = "virtual"\n')
+    path.write_text(
+        head
+        + f'\n[can]\ndbc = "{Path(dbc).resolve()}"\ninterface = "virtual"\nchannel = "ptinertia"\n'
+    )
     return path
+
+
+class VirtualClock:
+    """The live CAN source's clock in virtual time: it advances only when the source waits
+    for frames that the (stub) bus will never send, so nothing sleeps and no test depends
+    on how fast the machine is. ``quiet`` tells when the bus has nothing more to give."""
+
+    def __init__(self, quiet=lambda: True):
+        self.t = 0.0
+        self.quiet = quiet
+        self._lock = threading.Lock()
+
+    def now(self):
+        with self._lock:
+            return self.t
+
+    def sleep(self, seconds, stop):
+        with self._lock:
+            self.t += seconds
+        return stop.is_set()
+
+    def get(self, q, timeout):
+        while True:
+            try:
+                return q.get_nowait()
+            except queue.Empty:
+                pass
+            if self.quiet():
+                with self._lock:
+                    self.t += timeout
+                raise queue.Empty
+            # more is coming from the receive thread: wait for it (an event, not a time)
+            try:
+                return q.get(timeout=1.0)
+            except queue.Empty:
+                continue
 
 
 def assemble(items, layout):
