@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import os
-import random
+import socket
 import subprocess
 import sys
 import threading
@@ -382,26 +382,152 @@ def test_no_dbc_and_dbc_without_the_channels_exit_2(tmp_path, capsys):
 # -- two processes ---------------------------------------------------------------------------------
 
 
+def _free_loopback_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class _Server:
+    """``python -m can_remote`` on loopback, its log lines watched for client connections."""
+
+    def __init__(self, port: int) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "can_remote", "--interface", "virtual", "--channel", "0",
+             "--host", "127.0.0.1", "--port", str(port)],
+            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        self.listening = threading.Event()
+        self.clients = threading.Semaphore(0)
+        self.lines: list[str] = []
+        threading.Thread(target=self._watch, daemon=True).start()
+
+    def _watch(self) -> None:
+        assert self.proc.stderr is not None
+        for line in self.proc.stderr:
+            self.lines.append(line)
+            if "Server listening" in line:
+                self.listening.set()
+            if "Got connection" in line:
+                self.clients.release()
+        self.listening.set()  # the server died: let the waiter see it
+
+    def stop(self) -> None:
+        self.proc.terminate()
+        self.proc.wait(timeout=30)
+
+
 @pytest.mark.slow
-def test_two_processes_over_udp_multicast(tmp_path, bench_path, sim_doc):
-    """``can-sim`` in one process, ``run --source can:udp_multicast:...`` in another, paced in real time."""
+def test_two_processes_over_the_loopback_remote_bus(tmp_path, bench_path, live):
+    """``can-sim`` and ``run --source can:remote:ws://127.0.0.1:PORT/`` as two processes, through
+    python-can-remote's server on loopback: the in-process run's frames and estimate."""
+    port = _free_loopback_port()
+    url = f"ws://127.0.0.1:{port}/"
     real_bench = realistic_bench(tmp_path, bench_path)
-    group = f"239.74.{random.randint(1, 250)}.{random.randint(1, 250)}"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     result = tmp_path / "result.json"
-    run = subprocess.Popen(
-        [sys.executable, "-m", "ptinertia", "run", "--bench", str(real_bench), "--source", f"can:udp_multicast:{group}",
-         "--quiet", "--rerun", "off", "--json", str(result)],
-        env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
-    sim = subprocess.run(
-        [sys.executable, "-m", "ptinertia", "can-sim", "--bench", str(real_bench), "--interface", "udp_multicast",
-         "--channel", group, "--duration", "8", "--sweep", "1500:4500", "--seed", "3", "--start-delay", "2", "--json"],
-        env=env, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
-    _, err = run.communicate(timeout=120)
+    server = _Server(port)
+    try:
+        assert server.listening.wait(60) and server.proc.poll() is None, server.lines
+        run = subprocess.Popen(
+            [sys.executable, "-m", "ptinertia", "run", "--bench", str(real_bench), "--source",
+             f"can:remote:{url}", "--quiet", "--rerun", "off", "--json", str(result)],
+            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        # can-sim starts once the run is connected (the server logs it), so nothing is missed
+        assert server.clients.acquire(timeout=120), server.lines
+        sim = subprocess.run(
+            [sys.executable, "-m", "ptinertia", "can-sim", "--bench", str(real_bench),
+             "--interface", "remote", "--channel", url, "--duration", "8", "--sweep",
+             "1500:4500", "--seed", "3", "--no-pace", "--json"],
+            env=env, capture_output=True, text=True, timeout=300,
+        )  # fmt: skip
+        _, err = run.communicate(timeout=300)  # ends by itself at can-sim's stop frame
+    finally:
+        server.stop()
     assert sim.returncode == 0, sim.stderr
     assert run.returncode == 0, err
     doc = json.loads(result.read_text())
-    assert_realistic(doc, sim_doc["truth"])
-    assert_same_estimate(doc, sim_doc, 0.05)
+    live_doc, _ = live
+    assert doc["frames"] == live_doc["frames"]
+    for k in TERMS:
+        a, b = doc["inertia_kgm2"]["value"][k], live_doc["inertia_kgm2"]["value"][k]
+        assert abs(a - b) <= 1e-10 * abs(b), (k, a, b)
+    assert np.allclose(doc["cog_m"]["value"], live_doc["cog_m"]["value"], rtol=1e-10, atol=0)
+
+
+def test_a_run_that_hears_nothing_says_what_to_check_and_exits_1(bench_path, capsys):
+    # nothing listens on this loopback address: the bus cannot even open (exit 2); a server
+    # that nobody sends through is the silent case
+    port = _free_loopback_port()
+    server = _Server(port)
+    try:
+        assert server.listening.wait(60), server.lines
+        argv = ["run", "--bench", str(bench_path), "--source", f"can:remote:ws://127.0.0.1:{port}/"]
+        code = cli.main([*argv, "--quiet", "--rerun", "off", "--start-timeout", "0.5"])
+    finally:
+        server.stop()
+    err = capsys.readouterr().err
+    assert code == 1
+    assert f"no CAN frame on remote:ws://127.0.0.1:{port}/ within 0.5 s: check" in err, err
+
+
+def test_bus_options_reach_the_bus(tmp_path, bench_path, plan, capsys):
+    from ptinertia.commands.run import parse_bus_options
+
+    assert parse_bus_options(["receive_own_messages=true", "n=3", "x=0.5", "name=a=b"]) == {
+        "receive_own_messages": True, "n": 3, "x": 0.5, "name": "a=b",
+    }  # fmt: skip
+    bench = load_bench(bench_path)
+    seen = {}
+    bench = bench.model_copy(
+        update={"can": bench.can.model_copy(update={"bus_options": {"preserve_timestamps": True}})}
+    )
+    src = open_source(
+        "can:virtual:opts", bench, bus_kwargs={"rx_queue_size": 7}, idle_timeout_s=0.1
+    )
+    try:
+        seen.update(src._rx.bus.__dict__)
+    finally:
+        src.close()
+    assert seen["preserve_timestamps"] is True and seen["queue"].maxsize == 7
+    assert cli.main(["run", "--bench", str(bench_path), "--source", "can:virtual:x",
+                     "--bus-option", "novalue", "--quiet", "--rerun", "off"]) == 2  # fmt: skip
+    assert "--bus-option: expected KEY=VALUE, got 'novalue'" in capsys.readouterr().err
+
+
+def test_a_recording_of_a_can_log_run_keeps_the_dbc_and_the_raw_frames(
+    tmp_path, bench_path, bench, plan
+):
+    from replay.reader import open_log
+
+    log = tmp_path / "run.blf"
+    with FrameLogWriter(log) as writer:
+        short = {**RUN, "duration_s": 3.0}
+        simulate_to_bus(
+            bench, plan, bus=None, log_frame=writer.write, pace=False, sim_overrides=short
+        )
+    rec = tmp_path / "run.mcap"
+    argv = [
+        "run",
+        "--bench",
+        str(bench_path),
+        "--source",
+        f"file:{log}",
+        "--quiet",
+        "--rerun",
+        "off",
+    ]
+    assert cli.main([*argv, "--record", str(rec), "--json", str(tmp_path / "run.json")]) == 0
+    recorded = open_log(rec)
+    assert recorded.attachments[DBC.name] == DBC.read_bytes()
+    assert sum(len(b) for b in recorded.can_frames()) == writer.count
+    plain, again = tmp_path / "plain.json", tmp_path / "again.json"
+    replay = ["replay", str(rec), "--quiet"]
+    assert cli.main([*replay, "--json", str(plain)]) == 0
+    assert cli.main([*replay, "--dbc", str(DBC), "--json", str(again)]) == 0
+    a, b = json.loads(plain.read_text()), json.loads(again.read_text())
+    assert a["frames"] == b["frames"]
+    for k in TERMS:
+        x, y = a["inertia_kgm2"]["value"][k], b["inertia_kgm2"]["value"][k]
+        assert abs(x - y) <= 1e-10 * abs(y), (k, x, y)
