@@ -263,8 +263,8 @@ class FrameDecoder:
             if s.plan.kind == "edges":
                 eb = self._emit_edges(s, final)
                 if eb is not None:
-                    for k, piece in _cut_edges(eb, chunk):
-                        items.append((k, 100, piece))
+                    for k, edges in _cut_edges(eb, chunk):
+                        items.append((k, 100, edges))
         items.sort(key=lambda it: (it[0], it[1]))
         out: list[StreamItem] = [it[2] for it in items]
         if items:

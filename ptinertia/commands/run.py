@@ -18,6 +18,7 @@ from ptinertia.paths import DEFAULT_BENCH
 from ptinertia.runner import RunOptions, print_table, run_source, write_json
 from ptinertia.sinks import Sink
 from ptinertia.sources import REALISTIC_SIMULATION, open_source
+from ptinertia.to_can import parse_bus_options
 from replay.recorder import McapRecorder
 
 CORRECTIONS = (
@@ -149,27 +150,6 @@ def can_overrides(args: argparse.Namespace) -> dict[str, Any]:
         if not args.start_timeout > 0:
             raise UsageError(f"--start-timeout: expected seconds > 0, got {args.start_timeout:g}")
         out["start_timeout_s"] = args.start_timeout
-    return out
-
-
-def parse_bus_options(items: list[str]) -> dict[str, Any]:
-    """``KEY=VALUE`` pairs as ``can.Bus`` arguments: integers, numbers, true/false, else text."""
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, text = item.partition("=")
-        if not sep or not key.strip():
-            raise UsageError(f"--bus-option: expected KEY=VALUE, got {item!r}")
-        value: Any = text
-        if text.lower() in ("true", "false"):
-            value = text.lower() == "true"
-        else:
-            for kind in (int, float):
-                try:
-                    value = kind(text)
-                    break
-                except ValueError:
-                    continue
-        out[key.strip()] = value
     return out
 
 

@@ -473,7 +473,7 @@ def test_a_run_that_hears_nothing_says_what_to_check_and_exits_1(bench_path, cap
 
 
 def test_bus_options_reach_the_bus(tmp_path, bench_path, plan, capsys):
-    from ptinertia.commands.run import parse_bus_options
+    from ptinertia.to_can import parse_bus_options
 
     assert parse_bus_options(["receive_own_messages=true", "n=3", "x=0.5", "name=a=b"]) == {
         "receive_own_messages": True, "n": 3, "x": 0.5, "name": "a=b",
