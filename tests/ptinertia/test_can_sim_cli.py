@@ -2,7 +2,8 @@
 
 One body (:func:`estimate`) runs the pipeline on the simulated source and on the
 CAN paths fed from the same simulation (virtual bus in process, BLF and ASC logs,
-a bus with lost, duplicated and corrupted frames, two processes on udp_multicast).
+a bus with lost, duplicated and corrupted frames, two processes through python-can-remote on
+loopback).
 Over a clean path the estimates agree to a small fraction of their own standard
 deviation (only the DBC's quantisation differs); every path stays within the
 realistic tolerance of the simulated truth (3 standard deviations per term).
