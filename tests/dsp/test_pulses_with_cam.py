@@ -96,3 +96,14 @@ def test_the_chain_estimates_from_pulses_and_a_cam(i3):
     for k, truth in wheel["truth"]["inertia_kgm2"]["value"].items():
         assert abs(pulses["inertia_kgm2"]["value"][k] - truth) <= 1e-3 * abs(truth), k
     assert np.allclose(pulses["cog_m"]["value"], wheel["truth"]["cog_m"]["value"], atol=1e-5)
+
+
+def test_pulses_with_a_pressure_reference_are_refused_not_misread():
+    from dsp.errors import DspConfigError
+    from dsp.tacho import TachoConfig
+
+    with pytest.raises(
+        DspConfigError, match="4 pulses per revolution need phase_reference = 'cam'"
+    ):
+        TachoConfig(kind="pulses", teeth=4, phase_reference="pressure")
+    TachoConfig(kind="pulses", teeth=1, phase_reference="pressure")  # a TDC pulse: fine
