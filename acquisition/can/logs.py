@@ -62,7 +62,8 @@ def is_can_log(path: str | Path) -> bool:
 def read_frames(
     path: str | Path, batch_frames: int = 5000, errors: list[int] | None = None
 ) -> Iterator[list[RawFrame]]:
-    """The data frames of a CAN log in batches; error frames are counted into ``errors[0]``."""
+    """The data frames of a CAN log in batches; error frames are counted into ``errors[0]``
+    (and remote frames into ``errors[1]``, when the list has two places)."""
     import can  # on use: python-can loads its interfaces; a CSV run never needs it
 
     p = Path(path)
@@ -80,6 +81,8 @@ def read_frames(
                     errors[0] += 1
                 continue
             if msg.is_remote_frame:
+                if errors is not None and len(errors) > 1:
+                    errors[1] += 1
                 continue
             batch.append(message_to_frame(msg))
             if len(batch) >= batch_frames:
@@ -109,7 +112,7 @@ class CanLogSource(CanFrameSource):
         frame_listener: Callable[[list[RawFrame]], None] | None = None,
     ) -> None:
         self.path = Path(path)
-        self._errors = [0]
+        self._errors = [0, 0]  # error frames, remote frames
         self.frame_listener = frame_listener  # the recorder: a recording keeps the raw frames
         super().__init__(
             plan,
@@ -129,9 +132,13 @@ class CanLogSource(CanFrameSource):
     def _iter_items(self) -> Iterator[StreamItem]:
         yield from super()._iter_items()
         # a log from another bench (a vendor's demo file): say what was expected and what came
-        mismatch = self.decoder.stats.nothing_matched(
-            self.decoder.plan.describe(), f"CAN log {str(self.path)!r}"
-        )
+        where = f"CAN log {str(self.path)!r}"
+        if self.decoder.stats.frames_in == 0:
+            raise SourceError(
+                f"{where} holds no CAN data frames ({self._errors[1]} remote frames, "
+                f"{self._errors[0]} error frames)"
+            )
+        mismatch = self.decoder.stats.nothing_matched(self.decoder.plan.describe(), where)
         if mismatch is not None:
             raise SourceError(mismatch)
 

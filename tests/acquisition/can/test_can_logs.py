@@ -220,3 +220,16 @@ def test_big_batches_interleave_samples_and_edges_in_data_time(plan, frames):
             g = next(g for g in plan.layout.groups if g.name == it.group)
             t_end = (it.first_index + it.n_samples) / g.rate_hz
             assert t_end - max(last_edge, 0.0) <= 0.25, (it.group, t_end, last_edge)
+
+
+def test_a_log_without_data_frames_says_so(tmp_path, i3):
+    path = tmp_path / "remote.blf"
+    with can.Logger(str(path)) as log:
+        for i in range(2):
+            log.on_message_received(
+                can.Message(timestamp=1.0 + i, arbitration_id=0x100, is_remote_frame=True, dlc=8)
+            )
+    bench = load_bench(can_bench_file(tmp_path))
+    with pytest.raises(SourceError, match=r"remote\.blf' holds no CAN data frames \(2 remote"):
+        with open_source(f"file:{path}", bench) as src:
+            list(src)
