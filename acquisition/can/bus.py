@@ -53,6 +53,12 @@ def open_bus(interface: str, channel: str, **kwargs: Any) -> Any:
         return can.Bus(interface=interface, channel=channel, **kwargs)
     except (can.CanError, OSError, ImportError, ValueError, TypeError) as err:
         text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        if interface == "remote" and isinstance(err, OSError):
+            # the demo bus of docs/can.md: its server is a process of its own
+            text += (
+                " (is the bus server running? python -m can_remote --interface virtual "
+                "--channel 0 --host 127.0.0.1)"
+            )
         raise SourceError(f"cannot open CAN bus {interface}:{channel}: {text}") from None
 
 

@@ -457,6 +457,15 @@ def test_two_processes_over_the_loopback_remote_bus(tmp_path, bench_path, live):
     assert np.allclose(doc["cog_m"]["value"], live_doc["cog_m"]["value"], rtol=1e-10, atol=0)
 
 
+def test_a_remote_bus_without_its_server_is_one_line_naming_it(bench_path, capsys):
+    url = f"ws://127.0.0.1:{_free_loopback_port()}/"  # nothing listens there
+    argv = ["run", "--bench", str(bench_path), "--source", f"can:remote:{url}", "--quiet"]
+    assert cli.main([*argv, "--rerun", "off"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"cannot open CAN bus remote:{url}" in err
+    assert "python -m can_remote" in err
+
+
 def test_a_run_that_hears_nothing_says_what_to_check_and_exits_1(bench_path, capsys):
     # nothing listens on this loopback address: the bus cannot even open (exit 2); a server
     # that nobody sends through is the silent case
