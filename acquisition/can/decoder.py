@@ -24,7 +24,6 @@ padded samples after it are cut.
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections.abc import Iterable, Sequence
 from typing import Any
@@ -33,6 +32,7 @@ import numpy as np
 
 from acquisition.can.fields import as_rows, frame_crc, raw_fields_slow, read_fields, scale_samples
 from acquisition.can.frames import RawFrame
+from acquisition.can.item_cuts import cut_edges, cut_samples, split_on_holes
 from acquisition.can.plan import STATE_STOPPED, CanPlan, MessagePlan
 from acquisition.can.reorder import DecoderOptions, GapReport, GroupAssembler, MessageStream
 from acquisition.can.stats import DecoderStats, StreamStats
@@ -257,13 +257,13 @@ class FrameDecoder:
         for gi, g in enumerate(self._groups.values()):
             step = max(1, round(chunk * g.rate))
             for blk in self._emit_group(g, final):
-                for piece in _cut_samples(blk, step):
+                for piece in cut_samples(blk, step):
                     items.append((piece.first_index // step, gi, piece))
         for s in self._streams.values():
             if s.plan.kind == "edges":
                 eb = self._emit_edges(s, final)
                 if eb is not None:
-                    for k, edges in _cut_edges(eb, chunk):
+                    for k, edges in cut_edges(eb, chunk):
                         items.append((k, 100, edges))
         items.sort(key=lambda it: (it[0], it[1]))
         out: list[StreamItem] = [it[2] for it in items]
@@ -319,7 +319,7 @@ class FrameDecoder:
                     s.recent.add(n)
             s.forget_before(f0)
         g.next_index = upto
-        return _split_on_holes(g.name, i0, data)
+        return split_on_holes(g.name, i0, data)
 
     def _report_lost(self, s: MessageStream, g: GroupAssembler, n0: int, n1: int) -> None:
         size = s.plan.samples_per_frame
@@ -360,44 +360,6 @@ class FrameDecoder:
         if not parts:
             return None
         return EdgeBlock(ch, np.concatenate(parts))
-
-
-def _split_on_holes(group: str, i0: int, data: np.ndarray) -> list[SampleBlock]:
-    """Blocks of ``data`` without the samples every channel lost (those become index jumps)."""
-    hole = np.all(np.isnan(data), axis=0)
-    if not hole.any():
-        return [SampleBlock(group, i0, data)]
-    edges = np.flatnonzero(np.diff(np.concatenate([[1], hole.astype(np.int8), [1]])))
-    out = []
-    for a, b in zip(edges[::2], edges[1::2], strict=True):
-        out.append(SampleBlock(group, i0 + int(a), data[:, a:b]))
-    return out
-
-
-def _cut_samples(blk: SampleBlock, step: int) -> list[SampleBlock]:
-    """``blk`` cut at the sample indices that are multiples of ``step``."""
-    a, b = blk.first_index, blk.first_index + blk.n_samples
-    cuts = list(range((a // step + 1) * step, b, step))
-    if not cuts:
-        return [blk]
-    bounds = [a, *cuts, b]
-    return [
-        SampleBlock(blk.group, i0, blk.data[:, i0 - a : i1 - a])
-        for i0, i1 in itertools.pairwise(bounds)
-    ]
-
-
-def _cut_edges(eb: EdgeBlock, chunk_s: float) -> list[tuple[int, EdgeBlock]]:
-    """``eb`` cut at the multiples of ``chunk_s``, each piece with its chunk number."""
-    k = np.floor(eb.times_s / chunk_s).astype(np.int64)
-    if k[0] == k[-1]:
-        return [(int(k[0]), eb)]
-    starts = np.flatnonzero(np.diff(np.concatenate([[k[0] - 1], k])))
-    ends = np.append(starts[1:], k.size)
-    return [
-        (int(k[i0]), EdgeBlock(eb.channel, eb.times_s[i0:i1]))
-        for i0, i1 in zip(starts.tolist(), ends.tolist(), strict=True)
-    ]
 
 
 def decode_frames(

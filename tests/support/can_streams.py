@@ -12,10 +12,17 @@ from acquisition.can.frames import RawFrame
 from acquisition.can.plan import CanPlan
 from acquisition.stream import EdgeBlock, SampleBlock, SourceEvent
 from ptinertia.commands.can_sim import simulate_to_bus
+from ptinertia.config import load_bench
 from ptinertia.paths import EXAMPLES_DIR
-from ptinertia.sources import open_source
+from ptinertia.runner import RunOptions, run_source
+from ptinertia.sources import REALISTIC_SIMULATION, open_source
 
 DBC = EXAMPLES_DIR / "bench.dbc"
+
+
+REALISTIC = REALISTIC_SIMULATION
+RUN = {**REALISTIC, "duration_s": 8.0, "rpm_start": 1500.0, "rpm_end": 4500.0, "seed": 3}
+TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 
 
 SIM = {"duration_s": 3.0, "rpm_start": 1500.0, "rpm_end": 4500.0, "noise_snr_db": 40.0}
@@ -136,3 +143,25 @@ def check_same_stream(plan, sim_layout, sim_items, items):
         assert got_e[ch].shape == ref.shape, ch
         assert np.abs(got_e[ch] - ref).max() <= tick / 2 + 1e-12
     assert not [e for e in events if e.kind == "gap"]
+
+
+def realistic_bench(tmp_path: Path, bench_path: Path) -> Path:
+    """The bench file with the realistic imperfections in its ``[simulation]`` (for the CLI)."""
+    keys = "".join(f"{k} = {v}\n" for k, v in REALISTIC.items())
+    path = tmp_path / "realistic.toml"
+    path.write_text(bench_path.read_text().replace("[simulation]\n", "[simulation]\n" + keys))
+    return path
+
+
+def estimate(bench_path: Path, source, spec: str) -> dict:
+    """The result document of the chain on ``source`` (the shared body)."""
+    bench = load_bench(bench_path)
+    summary, doc = run_source(
+        bench,
+        bench_path.read_text(),
+        source,
+        spec,
+        RunOptions(quiet=True, live=spec.startswith("can")),
+    )
+    assert doc is not None and not summary.interrupted
+    return doc
