@@ -22,6 +22,7 @@ import math
 import numpy as np
 
 from dsp import angle as ang
+from dsp import cycle
 from dsp.frames import OrderFrame
 from dsp.immutable import evolve
 from dsp.leakage import ramp_correction
@@ -238,16 +239,19 @@ def _finish(
         known = np.where(corrected, 0.0, absx.sum(axis=1))
         strongest = np.max(absx[:, plan.out, :], axis=1)  # of the output orders
         leak = np.abs(rpm_change)[:, None] / math.pi * (known + rest) / strongest
-    sign = (-1.0) ** (cfg.k2[None, :] * parity[:, None])  # half orders flip with the cycle
-    out = out * sign[:, :, None]
+    # from the wheel angle to the crank angle: half orders flip with the cycle; with N pulses
+    # per revolution every order turns by the offset the cam found (cycle.offset_rotation)
+    steps = cycle.offset_steps(tc.kind, tc.teeth)
+    out = out * cycle.offset_rotation(parity, cfg.k2, steps)[:, :, None]
     if spectrum is None:
         spectra: list[np.ndarray | None] = [None] * js.size
     else:
         k = np.arange(cfg.spectrum_size)
-        spec = spectrum[:, : k.size, 0] * (-1.0) ** (k[None, :] * parity[:, None])
+        spec = spectrum[:, : k.size, 0] * cycle.offset_rotation(parity, k, steps)
         spec[:, 0] = spec[:, 0].real  # the mean: real, its correction is real to rounding
         spectra = list(spec)
-    base = {"angle_ambiguous"} if tc.kind == "pulses" and tc.teeth > 1 else set()
+    # N pulses without a decided reference: phi is only known modulo 360/N deg
+    pulses_unknown = steps > 1
     orders = tuple(float(h) for h in cfg.orders)
     in_range = (rpm >= cfg.rpm_min) & (rpm <= cfg.rpm_max)
     uncorrected = (
@@ -270,9 +274,11 @@ def _finish(
         flags = None if raw_flags else cache.get(key)
         if flags is None:
             is_ambiguous, rebased, in_rpm_range, is_uncorrected = key
-            new = raw_flags | base
+            new = set(raw_flags)
             if is_ambiguous:
                 new.add("cycle_ambiguous")
+                if pulses_unknown:
+                    new.add("angle_ambiguous")
             if rebased:
                 # an unbridged re-sync: revolution count and cycle may differ from the stream start's
                 new.add("angle_rebased")
@@ -288,7 +294,7 @@ def _finish(
             OrderFrame(
                 time_s=t,
                 rpm=r,
-                crank_angle_rad=j * spacing + TWO_PI * p,
+                crank_angle_rad=j * spacing + TWO_PI * p / steps,
                 orders=orders,
                 channels=plan.channels,
                 amplitudes=amp,

@@ -30,12 +30,44 @@ PRESSURE_RATIO = 1.5
 CAM_TOLERANCE_RAD = math.radians(90.0)
 
 
-def cam_parity(phi_w: float, cam_angle_rad: float) -> tuple[int, float]:
-    """Parity implied by a cam edge seen at wheel angle ``phi_w`` (rad), and the residual (rad)."""
+def offset_steps(kind: str, teeth: int) -> int:
+    """In how many equal steps per revolution the wheel angle may be off the crank angle.
+
+    A wheel (its gap) and a once-per-revolution pulse fix phi modulo 360 deg: 1. N equal
+    pulses per revolution fix it only modulo 360/N deg: N. The unknown offset of a chain
+    is then ``phi - phi_w = s 2 pi / N`` with ``s`` in ``0 .. 2N - 1`` over the 720 deg
+    cycle (the *parity* ``s = p`` of the wheel is the case N = 1).
+    """
+    return teeth if kind == "pulses" else 1
+
+
+def cam_parity(phi_w: float, cam_angle_rad: float, steps: int = 1) -> tuple[int, float]:
+    """Offset ``s`` (in steps of ``2 pi / steps``) implied by a cam edge seen at wheel angle
+    ``phi_w`` (rad), and the residual (rad, within half a step)."""
+    step = 2.0 * math.pi / steps
     off = (cam_angle_rad - phi_w) % (4.0 * math.pi)
-    p = round(off / (2.0 * math.pi)) % 2
-    resid = (off - 2.0 * math.pi * p + math.pi) % (2.0 * math.pi) - math.pi
-    return p, resid
+    s = round(off / step) % (2 * steps)
+    resid = (off - step * s + 0.5 * step) % step - 0.5 * step
+    return s, resid
+
+
+def cam_tolerance(steps: int) -> float:
+    """How far (rad) a cam edge may lie from a candidate offset: 90 deg, at most a quarter step
+    of N pulses (halfway between two candidates the cam would pick either)."""
+    return min(CAM_TOLERANCE_RAD, 0.25 * 2.0 * math.pi / steps)
+
+
+def offset_rotation(s: np.ndarray, k2: np.ndarray, steps: int) -> np.ndarray:
+    """``exp(-i h delta)`` for orders ``h = k2 / 2`` and chain offsets ``delta = s 2 pi / steps``:
+    ``(f, n_orders)``, the factor taking amplitudes from the wheel angle to the crank angle.
+
+    For a wheel (``steps == 1``) it is the exact sign ``(-1) ** (k2 s)``: half orders flip
+    with the cycle, integer orders stay (no rounding in the complex exponential).
+    """
+    if steps == 1:
+        return (-1.0) ** (k2[None, :] * s[:, None])
+    m = (k2[None, :] * s[:, None]) % (4 * steps)  # h delta = pi m / steps, period 4 pi h
+    return np.exp(-1j * math.pi * m / steps)
 
 
 def pressure_sums(

@@ -248,8 +248,9 @@ def _resolve_cam(st: TrackerState, events: list[SourceEvent]) -> TrackerState:
     for phi_c, run_c, good, t_c in zip(phi, run, ok, t[ready], strict=True):
         if not good:
             continue
-        p, resid = cycle.cam_parity(float(phi_c), math.radians(tc.cam_angle_deg))
-        if abs(resid) > cycle.CAM_TOLERANCE_RAD:
+        steps = cycle.offset_steps(tc.kind, tc.teeth)
+        p, resid = cycle.cam_parity(float(phi_c), math.radians(tc.cam_angle_deg), steps)
+        if abs(resid) > cycle.cam_tolerance(steps):
             events.append(
                 SourceEvent(
                     "cam_mismatch",

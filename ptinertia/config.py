@@ -171,11 +171,14 @@ class Can(Section):
     """CAN acquisition: the DBC that maps frames to channels, and the bus."""
 
     dbc: str | None = None
-    interface: str = "virtual"
-    channel: str = "ptinertia"
+    # python-can-remote: a bus that crosses processes over loopback (docs/can.md)
+    interface: str = "remote"
+    channel: str = "ws://127.0.0.1:54701/"
     bitrate: Annotated[int, Field(gt=0)] = 500_000
     data_bitrate: Annotated[int, Field(gt=0)] = 2_000_000
     fd: bool = True
+    bus_options: dict[str, str | int | float | bool] = Field(default_factory=dict)
+    start_timeout_s: Annotated[float, Field(gt=0)] | None = 30.0
 
 
 class ChannelMap(Section):

@@ -170,9 +170,8 @@ def open_file(path: str | Path, bench: Bench, **overrides: Any) -> Source:
     ``[channels]`` table and converted to the pipeline's units.
     """
     path = Path(path)
-    kind = file_kind(path.suffix)
-    if kind == "mf4" and is_can_log(path):
-        kind = "can-log"
+    # a CAN log by its extension (also compressed: run.asc.gz) or an MF4 of raw CAN frames
+    kind = "can-log" if is_can_log(path) else file_kind(path.suffix)
     if kind == "can-log":
         log: Source = source_backend(kind)(
             path, can_settings(bench.can), channel_needs(bench), **overrides

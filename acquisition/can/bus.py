@@ -53,7 +53,31 @@ def open_bus(interface: str, channel: str, **kwargs: Any) -> Any:
         return can.Bus(interface=interface, channel=channel, **kwargs)
     except (can.CanError, OSError, ImportError, ValueError, TypeError) as err:
         text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        if interface == "remote" and isinstance(err, OSError):
+            # the demo bus of docs/can.md: its server is a process of its own
+            text += (
+                " (is the bus server running? python -m can_remote --interface virtual "
+                "--channel 0 --host 127.0.0.1)"
+            )
         raise SourceError(f"cannot open CAN bus {interface}:{channel}: {text}") from None
+
+
+class Clock:
+    """Real time, as the live source waits: the receive thread's back-off, the consumer's
+    wait for frames, the idle, start and stop-grace timeouts. Tests pass a virtual clock
+    (the same three methods) so that nothing in them sleeps or reads the wall clock."""
+
+    def now(self) -> float:
+        """Seconds, monotonic."""
+        return time.monotonic()
+
+    def sleep(self, seconds: float, stop: threading.Event) -> bool:
+        """Wait ``seconds`` or until ``stop`` is set; True if it was."""
+        return stop.wait(seconds)
+
+    def get(self, q: queue.SimpleQueue[Any], timeout: float) -> Any:
+        """The next queue item, waiting at most ``timeout`` s (:class:`queue.Empty` if none)."""
+        return q.get(timeout=timeout)
 
 
 _LOST = "lost"
@@ -72,8 +96,10 @@ class _Receiver(threading.Thread):
         q: queue.SimpleQueue[Any],
         backoff: tuple[float, float],
         max_outage_s: float,
+        clock: Clock,
     ) -> None:
         super().__init__(name="can-rx", daemon=True)
+        self.clock = clock
         self.factory = factory
         self.bus = bus
         self.q = q
@@ -89,7 +115,7 @@ class _Receiver(threading.Thread):
         while not self.stop.is_set():
             try:
                 msg = self.bus.recv(0.05)
-                now = time.monotonic()
+                now = self.clock.now()
                 if now >= next_poll:
                     next_poll = now + 0.5
                     state = _bus_state(self.bus)
@@ -120,24 +146,25 @@ class _Receiver(threading.Thread):
                 self.q.put(msg)
 
     def _reopen(self) -> bool:
-        t0 = time.monotonic()
+        t0 = self.clock.now()
         delay = self.backoff[0]
         try:
             self.bus.shutdown()
         except Exception:  # a dead bus may fail to shut down; we are replacing it anyway
             pass
         while not self.stop.is_set():
-            if time.monotonic() - t0 > self.max_outage_s:
+            if self.clock.now() - t0 > self.max_outage_s:
                 self.q.put((_LOST, f"gave up re-opening after {self.max_outage_s:g} s", None))
                 self.q.put(None)
                 return False
-            self.stop.wait(delay)
+            if self.clock.sleep(delay, self.stop):
+                return False
             try:
                 self.bus = self.factory()
             except Exception:  # any driver error means "not back yet": keep trying with back-off
                 delay = min(self.backoff[1], 2 * delay)
                 continue
-            self.q.put((_REOPENED, time.monotonic() - t0, time.time()))
+            self.q.put((_REOPENED, self.clock.now() - t0, time.time()))
             return True
         return False
 
@@ -168,6 +195,10 @@ class CanBusSource(Source):
     backoff_s : (first, longest) delay between re-open attempts
     max_outage_s : give up re-opening after this long
     frame_listener : called with every batch of raw frames (the recorder)
+    start_timeout_s : end, saying what to check, when no frame came this long after opening
+        (None: wait for ever)
+    clock : Clock
+        What the source waits with (a virtual one in tests).
     """
 
     def __init__(
@@ -185,8 +216,15 @@ class CanBusSource(Source):
         max_outage_s: float = 60.0,
         frame_listener: Callable[[list[RawFrame]], None] | None = None,
         poll_s: float = 0.05,
+        start_timeout_s: float | None = None,
+        clock: Clock | None = None,
     ) -> None:
         super().__init__()
+        self.clock = clock or Clock()
+        self.start_timeout_s = start_timeout_s
+        self.where = f"{interface}:{channel}"
+        #: why nothing was received, once the start timeout passed without a frame
+        self.no_data_reason: str | None = None
         kwargs = dict(bus_kwargs or {})
         self._factory = bus_factory or (lambda: open_bus(interface, channel, **kwargs))
         self.decoder = FrameDecoder(plan, options)
@@ -199,7 +237,7 @@ class CanBusSource(Source):
         self._layout = StreamLayout(plan.layout.groups, plan.layout.edge_channels, meta)
         self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         bus = self._factory()
-        self._rx = _Receiver(self._factory, bus, self._q, backoff_s, max_outage_s)
+        self._rx = _Receiver(self._factory, bus, self._q, backoff_s, max_outage_s, self.clock)
         self._rx.start()
 
     @property
@@ -215,7 +253,7 @@ class CanBusSource(Source):
         events: list[SourceEvent] = []
         ended = False
         try:
-            first = self._q.get(timeout=timeout)
+            first = self.clock.get(self._q, timeout)
         except queue.Empty:
             return frames, events, ended
         item = first
@@ -258,13 +296,13 @@ class CanBusSource(Source):
         last_frame = None
         stop_seen = None
         warned = False
-        t_open = time.monotonic()
+        t_open = self.clock.now()
         while True:
             if self._closed:  # closed from another thread while nothing arrives
                 return
             frames, events, ended = self._drain(self.poll_s)
             yield from events
-            now = time.monotonic()
+            now = self.clock.now()
             if frames:
                 last_frame = now
                 if self.frame_listener is not None:
@@ -288,6 +326,19 @@ class CanBusSource(Source):
             if last_frame is None and not warned and now - t_open > 2.0:
                 warned = True
                 yield SourceEvent("waiting", "no CAN frame yet; waiting for the DAQ to start")
+            if (
+                last_frame is None
+                and self.start_timeout_s is not None
+                and now - t_open > self.start_timeout_s
+            ):
+                self.no_data_reason = (
+                    f"no CAN frame on {self.where} within {self.start_timeout_s:g} s: check that "
+                    "the DAQ (or ptinertia can-sim) sends on this interface and channel, that "
+                    "both name the same bus (for 'remote', that the python -m can_remote server "
+                    "runs on that address), and the bit rates and CAN FD setting"
+                )
+                yield SourceEvent("no_data", self.no_data_reason)
+                break
         yield from self.decoder.finish()
         yield SourceEvent(
             "can_stats", self.decoder.stats.summary(), None, self.decoder.stats.total("lost")
@@ -295,6 +346,7 @@ class CanBusSource(Source):
 
     def _shutdown(self) -> None:
         self._rx.stop.set()
+        self._q.put(None)  # wakes a consumer waiting for frames (closed from another thread)
         self._rx.join(timeout=2.0)
         try:
             self._rx.bus.shutdown()

@@ -32,6 +32,7 @@ import numpy as np
 
 from acquisition.can.fields import as_rows, frame_crc, raw_fields_slow, read_fields, scale_samples
 from acquisition.can.frames import RawFrame
+from acquisition.can.item_cuts import cut_edges, cut_samples, split_on_holes
 from acquisition.can.plan import STATE_STOPPED, CanPlan, MessagePlan
 from acquisition.can.reorder import DecoderOptions, GapReport, GroupAssembler, MessageStream
 from acquisition.can.stats import DecoderStats, StreamStats
@@ -141,6 +142,8 @@ class FrameDecoder:
                     self.stats.unknown_ids[f.arbitration_id] = (
                         self.stats.unknown_ids.get(f.arbitration_id, 0) + 1
                     )
+                    if f.is_extended_id:
+                        self.stats.unknown_extended.add(f.arbitration_id)
             elif len(f.data) != plan.length:
                 self._streams[plan.name].stats.bad_length += 1
             else:
@@ -245,19 +248,27 @@ class FrameDecoder:
     # -- output --------------------------------------------------------------------------------
 
     def _collect(self, final: bool) -> list[StreamItem]:
-        items: list[tuple[float, int, StreamItem]] = []
+        # Items are cut on a grid of ``emit_chunk_s`` of data time and given out chunk by
+        # chunk, every group's samples and every edge channel's edges of one chunk together:
+        # a big batch (a CAN log read 5000 frames at a time) must not hand over seconds of
+        # samples before the edges that give them their crank angle.
+        chunk = self.options.emit_chunk_s
+        items: list[tuple[int, int, StreamItem]] = []
         for gi, g in enumerate(self._groups.values()):
+            step = max(1, round(chunk * g.rate))
             for blk in self._emit_group(g, final):
-                items.append((blk.first_index / g.rate, gi, blk))
+                for piece in cut_samples(blk, step):
+                    items.append((piece.first_index // step, gi, piece))
         for s in self._streams.values():
             if s.plan.kind == "edges":
                 eb = self._emit_edges(s, final)
                 if eb is not None:
-                    items.append((float(eb.times_s[0]), 100, eb))
+                    for k, edges in cut_edges(eb, chunk):
+                        items.append((k, 100, edges))
         items.sort(key=lambda it: (it[0], it[1]))
         out: list[StreamItem] = [it[2] for it in items]
         if items:
-            self._data_time = max(self._data_time, items[-1][0])
+            self._data_time = max(self._data_time, items[-1][0] * chunk)
         if not final:
             out += self._gaps.due(self._data_time)
         return out
@@ -308,7 +319,7 @@ class FrameDecoder:
                     s.recent.add(n)
             s.forget_before(f0)
         g.next_index = upto
-        return _split_on_holes(g.name, i0, data)
+        return split_on_holes(g.name, i0, data)
 
     def _report_lost(self, s: MessageStream, g: GroupAssembler, n0: int, n1: int) -> None:
         size = s.plan.samples_per_frame
@@ -349,18 +360,6 @@ class FrameDecoder:
         if not parts:
             return None
         return EdgeBlock(ch, np.concatenate(parts))
-
-
-def _split_on_holes(group: str, i0: int, data: np.ndarray) -> list[SampleBlock]:
-    """Blocks of ``data`` without the samples every channel lost (those become index jumps)."""
-    hole = np.all(np.isnan(data), axis=0)
-    if not hole.any():
-        return [SampleBlock(group, i0, data)]
-    edges = np.flatnonzero(np.diff(np.concatenate([[1], hole.astype(np.int8), [1]])))
-    out = []
-    for a, b in zip(edges[::2], edges[1::2], strict=True):
-        out.append(SampleBlock(group, i0 + int(a), data[:, a:b]))
-    return out
 
 
 def decode_frames(

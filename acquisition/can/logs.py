@@ -13,7 +13,8 @@ column ``L`` the DLC code), which python-can's reader understands.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Sequence
+import gzip
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import IO, Any
@@ -25,15 +26,26 @@ from acquisition.can.plan import CanPlan
 from acquisition.can.reorder import DecoderOptions
 from acquisition.can.source import CanFrameSource, CanSettings
 from acquisition.channels import ChannelNeed
-from acquisition.stream import SourceError
+from acquisition.stream import SourceError, StreamItem
 
-CAN_LOG_SUFFIXES = (".blf", ".asc", ".trc", ".log")
+CAN_LOG_SUFFIXES = (".blf", ".asc", ".trc", ".log")  # and the same gzip-compressed (.asc.gz)
+
+
+def log_suffix(path: str | Path) -> str:
+    """The format suffix of a log: ``.asc`` for ``run.asc`` and ``run.asc.gz`` alike."""
+    suffixes = [s.lower() for s in Path(path).suffixes]
+    if len(suffixes) >= 2 and suffixes[-1] == ".gz":
+        return suffixes[-2]
+    return suffixes[-1] if suffixes else ""
 
 
 def is_can_log(path: str | Path) -> bool:
-    """A CAN log by its extension, or an MF4 file holding raw CAN frames (``CAN_DataFrame``)."""
+    """A CAN log by its extension (gzip-compressed too, as python-can reads them: ``.asc.gz``),
+    or an MF4 file holding raw CAN frames (``CAN_DataFrame``)."""
     p = Path(path)
     suffix = p.suffix.lower()
+    if suffix == ".gz":
+        return log_suffix(p) in CAN_LOG_SUFFIXES
     if suffix in CAN_LOG_SUFFIXES:
         return True
     if suffix != ".mf4" or not p.is_file():
@@ -50,7 +62,8 @@ def is_can_log(path: str | Path) -> bool:
 def read_frames(
     path: str | Path, batch_frames: int = 5000, errors: list[int] | None = None
 ) -> Iterator[list[RawFrame]]:
-    """The data frames of a CAN log in batches; error frames are counted into ``errors[0]``."""
+    """The data frames of a CAN log in batches; error frames are counted into ``errors[0]``
+    (and remote frames into ``errors[1]``, when the list has two places)."""
     import can  # on use: python-can loads its interfaces; a CSV run never needs it
 
     p = Path(path)
@@ -68,6 +81,8 @@ def read_frames(
                     errors[0] += 1
                 continue
             if msg.is_remote_frame:
+                if errors is not None and len(errors) > 1:
+                    errors[1] += 1
                 continue
             batch.append(message_to_frame(msg))
             if len(batch) >= batch_frames:
@@ -94,9 +109,11 @@ class CanLogSource(CanFrameSource):
         plan: CanPlan,
         options: DecoderOptions | None = None,
         batch_frames: int = 5000,
+        frame_listener: Callable[[list[RawFrame]], None] | None = None,
     ) -> None:
         self.path = Path(path)
-        self._errors = [0]
+        self._errors = [0, 0]  # error frames, remote frames
+        self.frame_listener = frame_listener  # the recorder: a recording keeps the raw frames
         super().__init__(
             plan,
             self._batches_with_errors(batch_frames),
@@ -107,8 +124,23 @@ class CanLogSource(CanFrameSource):
     def _batches_with_errors(self, batch_frames: int) -> Iterator[list[RawFrame]]:
         for batch in read_frames(self.path, batch_frames, self._errors):
             self.decoder.stats.bus_errors = self._errors[0]
+            if self.frame_listener is not None:
+                self.frame_listener(batch)
             yield batch
         self.decoder.stats.bus_errors = self._errors[0]
+
+    def _iter_items(self) -> Iterator[StreamItem]:
+        yield from super()._iter_items()
+        # a log from another bench (a vendor's demo file): say what was expected and what came
+        where = f"CAN log {str(self.path)!r}"
+        if self.decoder.stats.frames_in == 0:
+            raise SourceError(
+                f"{where} holds no CAN data frames ({self._errors[1]} remote frames, "
+                f"{self._errors[0]} error frames)"
+            )
+        mismatch = self.decoder.stats.nothing_matched(self.decoder.plan.describe(), where)
+        if mismatch is not None:
+            raise SourceError(mismatch)
 
 
 def open_can_log(
@@ -119,13 +151,15 @@ def open_can_log(
     The DBC is ``settings.dbc`` (the bench file's ``[can] dbc``) unless the override
     ``dbc`` names another.
 
-    Overrides: ``dbc``, ``reorder_window_s``, ``block_s`` (ignored: a log's
-    batches are frames, not seconds).
+    Overrides: ``dbc``, ``reorder_window_s``, ``frame_listener`` (called with every
+    batch of raw frames: the recorder), ``block_s`` (ignored: a log's batches are
+    frames, not seconds).
     """
-    bad = sorted(set(overrides) - {"dbc", "reorder_window_s", "block_s"})
+    known = {"dbc", "reorder_window_s", "block_s", "frame_listener"}
+    bad = sorted(set(overrides) - known)
     if bad:
         raise SourceError(
-            f"source 'file:{path}': unknown option {bad[0]!r}; known: block_s, dbc, reorder_window_s"
+            f"source 'file:{path}': unknown option {bad[0]!r}; known: {', '.join(sorted(known))}"
         )
     if not Path(path).is_file():
         raise SourceError(f"CAN log {str(path)!r} not found")
@@ -134,7 +168,7 @@ def open_can_log(
     opts = DecoderOptions(
         reorder_window_s=float(overrides.get("reorder_window_s", DecoderOptions.reorder_window_s))
     )
-    return CanLogSource(path, plan, opts)
+    return CanLogSource(path, plan, opts, frame_listener=overrides.get("frame_listener"))
 
 
 class FrameLogWriter:
@@ -144,12 +178,17 @@ class FrameLogWriter:
         import can  # on use: python-can loads its interfaces
 
         self.path = Path(path)
-        suffix = self.path.suffix.lower()
+        suffix = log_suffix(self.path)
         self._trc: IO[str] | None = None
         self._logger: Any = None
         self.count = 0
         if suffix == ".trc":
-            self._trc = self.path.open("w", encoding="ascii")
+            gz = self.path.suffix.lower() == ".gz"
+            self._trc = (
+                gzip.open(self.path, "wt", encoding="ascii")
+                if gz
+                else self.path.open("w", encoding="ascii")
+            )
             self._t0: float | None = None
         elif suffix in (".blf", ".asc", ".log", ".mf4"):
             try:
@@ -158,7 +197,8 @@ class FrameLogWriter:
                 raise SourceError(f"cannot write CAN log {str(self.path)!r}: {err}") from None
         else:
             raise SourceError(
-                f"CAN log {str(self.path)!r}: expected .blf, .asc, .trc, .log or .mf4"
+                f"CAN log {str(self.path)!r}: expected .blf, .asc, .trc, .log or .mf4 "
+                "(the first four also gzip-compressed, .asc.gz)"
             )
 
     def write(self, frame: RawFrame) -> None:

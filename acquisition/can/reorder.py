@@ -33,11 +33,15 @@ class DecoderOptions:
         The same for edge frames, in frames (they come at the rate of the edges).
     event_interval_s : float
         Gap events of one stream are merged over this much data time.
+    emit_chunk_s : float
+        Items are given out in chunks of this much data time, all groups and edge
+        channels of a chunk together (whatever the size of the batch fed).
     """
 
     reorder_window_s: float = 0.05
     edge_window_frames: int = 16
     event_interval_s: float = 1.0
+    emit_chunk_s: float = 0.1
 
 
 class MessageStream:

@@ -10,7 +10,7 @@ is in :mod:`acquisition.can.decoder`, the live bus in :mod:`acquisition.can.bus`
 from __future__ import annotations
 
 from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from acquisition.can.bus import CanBusSource
@@ -38,6 +38,10 @@ class CanSettings:
         Arbitration and CAN FD data bit rates, bit/s.
     fd : bool
         CAN FD.
+    bus_options : dict
+        Interface-specific ``can.Bus`` arguments (as python-can's own tools pass them).
+    start_timeout_s : float or None
+        A live run that receives no frame this long after opening ends and says what to check.
     """
 
     dbc: str | None
@@ -46,6 +50,8 @@ class CanSettings:
     bitrate: int
     data_bitrate: int
     fd: bool
+    bus_options: dict[str, Any] = field(default_factory=dict)
+    start_timeout_s: float | None = 30.0
 
 
 class CanFrameSource(Source):
@@ -102,6 +108,8 @@ CAN_OPTIONS = (
     "max_outage_s",
     "frame_listener",
     "block_s",
+    "start_timeout_s",
+    "clock",
 )
 
 
@@ -112,9 +120,9 @@ def open_can(
 
     Either part of ``arg`` defaults to ``settings`` (the bench file's ``[can]``).
 
-    Overrides: ``dbc``, ``bitrate``, ``data_bitrate``, ``fd``, ``bus_kwargs``,
-    ``reorder_window_s``, ``idle_timeout_s``, ``stop_grace_s``, ``max_outage_s``,
-    ``frame_listener``.
+    Overrides: ``dbc``, ``bitrate``, ``data_bitrate``, ``fd``, ``bus_kwargs`` (added to
+    ``settings.bus_options``), ``reorder_window_s``, ``idle_timeout_s``, ``stop_grace_s``,
+    ``max_outage_s``, ``frame_listener``, ``start_timeout_s``, ``clock``.
     """
     bad = sorted(set(overrides) - set(CAN_OPTIONS))
     if bad:
@@ -137,6 +145,7 @@ def open_can(
     kwargs: dict[str, Any] = {"fd": fd, "bitrate": int(overrides.get("bitrate", cfg.bitrate))}
     if fd:
         kwargs["data_bitrate"] = int(overrides.get("data_bitrate", cfg.data_bitrate))
+    kwargs.update(cfg.bus_options)
     kwargs.update(overrides.get("bus_kwargs") or {})
     opts = DecoderOptions(
         reorder_window_s=float(overrides.get("reorder_window_s", DecoderOptions.reorder_window_s))
@@ -151,4 +160,6 @@ def open_can(
         stop_grace_s=float(overrides.get("stop_grace_s", 0.2)),
         max_outage_s=float(overrides.get("max_outage_s", 60.0)),
         frame_listener=overrides.get("frame_listener"),
+        start_timeout_s=overrides.get("start_timeout_s", cfg.start_timeout_s),
+        clock=overrides.get("clock"),
     )

@@ -26,6 +26,11 @@ class StreamStats:
     before_start: int = 0
 
     @property
+    def malformed_any(self) -> int:
+        """Frames of this message that were received but unusable (malformed or late)."""
+        return self.malformed + self.late + self.duplicate
+
+    @property
     def malformed(self) -> int:
         return self.bad_length + self.bad_crc + self.bad_counter + self.bad_payload
 
@@ -36,6 +41,7 @@ class DecoderStats:
 
     streams: dict[str, StreamStats] = field(default_factory=dict)
     unknown_ids: dict[int, int] = field(default_factory=dict)
+    unknown_extended: set[int] = field(default_factory=set)  # of those, the 29-bit ids
     frames_in: int = 0
     ignored: int = 0
     bus_errors: int = 0
@@ -57,6 +63,27 @@ class DecoderStats:
                 n: {f.name: getattr(s, f.name) for f in fields(s)} for n, s in self.streams.items()
             },
         }
+
+    def nothing_matched(self, expected: list[str], where: str) -> str | None:
+        """One line when frames came but none of them is a message the plan needs, else None.
+
+        ``expected`` describes the plan's messages (``CanPlan.describe``), ``where``
+        names the input (``CAN log 'run.blf'``).
+        """
+        if self.frames_in == 0 or self.total("frames") or self.total("malformed_any"):
+            return None
+        held = sorted(self.unknown_ids.items())
+        ids = ", ".join(
+            f"0x{k:08X} extended ({n})" if k in self.unknown_extended else f"0x{k:X} ({n})"
+            for k, n in held[:12]
+        )
+        more = f" and {len(held) - 12} more" if len(held) > 12 else ""
+        names = "; ".join(expected)
+        return (
+            f"{where}: none of its {self.frames_in} frames is a DBC message the bench needs "
+            f"(expected {names}); it holds ids {ids or '(none unknown)'}{more}"
+            f"{f', and {self.ignored} frames of DBC messages this bench does not use' if self.ignored else ''}"
+        )
 
     def summary(self) -> str:
         """One line for the user."""

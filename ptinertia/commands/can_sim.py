@@ -33,7 +33,7 @@ from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
 from ptinertia.progress import work_bar
 from ptinertia.sources import open_source
-from ptinertia.to_can import can_plan
+from ptinertia.to_can import can_plan, parse_bus_options
 
 
 def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentParser:
@@ -48,6 +48,13 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
         help="python-can interface, or 'none' to only write --log (default: [can] interface)",
     )
     p.add_argument("--channel", default=None, help="bus channel (default: [can] channel)")
+    p.add_argument(
+        "--bus-option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="interface-specific can.Bus argument (repeatable; beside [can] bus_options)",
+    )
     p.add_argument(
         "--bitrate",
         type=int,
@@ -282,6 +289,8 @@ def run(args: argparse.Namespace) -> int:
         kwargs: dict[str, Any] = {"fd": fd, "bitrate": args.bitrate or cfg.bitrate}
         if fd:
             kwargs["data_bitrate"] = args.data_bitrate or cfg.data_bitrate
+        kwargs.update(cfg.bus_options)
+        kwargs.update(parse_bus_options(args.bus_option))
         bus = open_bus(interface, channel, **kwargs)
     writer = FrameLogWriter(args.log) if args.log else None
     try:

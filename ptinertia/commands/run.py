@@ -11,12 +11,14 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from acquisition.can.logs import is_can_log
 from ptinertia.config import load_bench
 from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
 from ptinertia.runner import RunOptions, print_table, run_source, write_json
 from ptinertia.sinks import Sink
 from ptinertia.sources import REALISTIC_SIMULATION, open_source
+from ptinertia.to_can import parse_bus_options
 from ptinertia.viewer.foxglove_scene import FoxgloveScene
 from replay.recorder import ZSTD_LEVEL, McapRecorder
 
@@ -90,6 +92,20 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
     can.add_argument("--bitrate", type=int, help="nominal bit rate, bit/s")
     can.add_argument("--data-bitrate", type=int, help="CAN FD data bit rate, bit/s")
     can.add_argument("--fd", action=argparse.BooleanOptionalAction, default=None, help="CAN FD bus")
+    can.add_argument(
+        "--bus-option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="interface-specific can.Bus argument (repeatable; beside [can] bus_options)",
+    )
+    can.add_argument(
+        "--start-timeout",
+        type=float,
+        metavar="S",
+        help="end, saying what to check, when no frame came within S s (default: [can] "
+        "start_timeout_s)",
+    )
 
 
 def parse_orders(text: str | None) -> tuple[float, ...] | None:
@@ -140,7 +156,24 @@ def can_overrides(args: argparse.Namespace) -> dict[str, Any]:
         out["data_bitrate"] = args.data_bitrate
     if args.fd is not None:
         out["fd"] = args.fd
+    if args.bus_option:
+        out["bus_kwargs"] = parse_bus_options(args.bus_option)
+    if args.start_timeout is not None:
+        if not args.start_timeout > 0:
+            raise UsageError(f"--start-timeout: expected seconds > 0, got {args.start_timeout:g}")
+        out["start_timeout_s"] = args.start_timeout
     return out
+
+
+def dbc_attachment(dbc: str | None) -> dict[str, bytes]:
+    """The DBC a CAN run decodes with, as a recording attachment (name -> bytes)."""
+    if not dbc:
+        return {}
+    path = Path(dbc)
+    try:
+        return {path.name: path.read_bytes()}
+    except OSError:
+        return {}  # the source names an unreadable DBC in its own one-line error
 
 
 def viewer_sinks(mode: str | None, record: str | None) -> list[Sink]:
@@ -189,14 +222,21 @@ def run(args: argparse.Namespace) -> int:
     if args.source == "sim":
         overrides["bench_text"] = bench_text
     is_can = args.source.startswith("can:")
+    kind, _, arg = args.source.partition(":")
+    is_can_file = kind == "file" and is_can_log(arg)
     can = can_overrides(args)
     if can and args.source == "sim":
-        raise UsageError("--dbc/--bitrate/--data-bitrate/--fd apply to CAN sources only")
+        raise UsageError(
+            "--dbc/--bitrate/--data-bitrate/--fd/--bus-option/--start-timeout apply to CAN "
+            "sources only"
+        )
     overrides.update(can)
     recorders = recorder_sinks(args.record, args.record_level)
-    if is_can and recorders:
-        # the raw frames go into the log too, so it can be decoded again with a corrected DBC
+    attachments: dict[str, bytes] = {}
+    if (is_can or is_can_file) and recorders:
+        # the raw frames and the DBC go into the log, so it can be decoded again (replay --dbc)
         overrides["frame_listener"] = recorders[0].on_can_frames  # type: ignore[attr-defined]
+        attachments = dbc_attachment(args.dbc or bench.can.dbc)
     source = open_source(args.source, bench, **overrides)
     sinks = recorders + viewer_sinks(args.rerun, args.record)
     options = RunOptions(
@@ -205,13 +245,15 @@ def run(args: argparse.Namespace) -> int:
         quiet=args.quiet,
         live=is_can or bool(overrides.get("paced")),
         sinks=tuple(sinks),
+        attachments=attachments,
     )
     summary, doc = run_source(bench, bench_text, source, args.source, options)
     if doc is None or summary.estimate is None:
-        print(
-            f"ptinertia run: no estimate: {no_estimate_reason(summary.rejected, summary.orders_rejected)}",
-            file=sys.stderr,
+        # a live bus that stayed silent says what to check rather than why frames were rejected
+        reason = getattr(source, "no_data_reason", None) or no_estimate_reason(
+            summary.rejected, summary.orders_rejected
         )
+        print(f"ptinertia run: no estimate: {reason}", file=sys.stderr)
         return 1
     print_table(summary.estimate, doc)
     if args.json:

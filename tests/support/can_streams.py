@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import queue
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -10,10 +12,17 @@ from acquisition.can.frames import RawFrame
 from acquisition.can.plan import CanPlan
 from acquisition.stream import EdgeBlock, SampleBlock, SourceEvent
 from ptinertia.commands.can_sim import simulate_to_bus
+from ptinertia.config import load_bench
 from ptinertia.paths import EXAMPLES_DIR
-from ptinertia.sources import open_source
+from ptinertia.runner import RunOptions, run_source
+from ptinertia.sources import REALISTIC_SIMULATION, open_source
 
 DBC = EXAMPLES_DIR / "bench.dbc"
+
+
+REALISTIC = REALISTIC_SIMULATION
+RUN = {**REALISTIC, "duration_s": 8.0, "rpm_start": 1500.0, "rpm_end": 4500.0, "seed": 3}
+TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 
 
 SIM = {"duration_s": 3.0, "rpm_start": 1500.0, "rpm_end": 4500.0, "noise_snr_db": 40.0}
@@ -26,8 +35,47 @@ def can_bench_file(tmp_path: Path, name: str = "i3-bench.toml", dbc: Path | str 
     head, sep, _ = text.partition("\n[can]\n")
     assert sep, f"{name} has no [can] table"
     path = tmp_path / f"can-{name}"
-    path.write_text(head + f'\n[can]\ndbc = "{Path(dbc).resolve()}"\ninterface = "virtual"\n')
+    path.write_text(
+        head
+        + f'\n[can]\ndbc = "{Path(dbc).resolve()}"\ninterface = "virtual"\nchannel = "ptinertia"\n'
+    )
     return path
+
+
+class VirtualClock:
+    """The live CAN source's clock in virtual time: it advances only when the source waits
+    for frames that the (stub) bus will never send, so nothing sleeps and no test depends
+    on how fast the machine is. ``quiet`` tells when the bus has nothing more to give."""
+
+    def __init__(self, quiet=lambda: True):
+        self.t = 0.0
+        self.quiet = quiet
+        self._lock = threading.Lock()
+
+    def now(self):
+        with self._lock:
+            return self.t
+
+    def sleep(self, seconds, stop):
+        with self._lock:
+            self.t += seconds
+        return stop.is_set()
+
+    def get(self, q, timeout):
+        while True:
+            try:
+                return q.get_nowait()
+            except queue.Empty:
+                pass
+            if self.quiet():
+                with self._lock:
+                    self.t += timeout
+                raise queue.Empty
+            # more is coming from the receive thread: wait for it (an event, not a time)
+            try:
+                return q.get(timeout=1.0)
+            except queue.Empty:
+                continue
 
 
 def assemble(items, layout):
@@ -95,3 +143,25 @@ def check_same_stream(plan, sim_layout, sim_items, items):
         assert got_e[ch].shape == ref.shape, ch
         assert np.abs(got_e[ch] - ref).max() <= tick / 2 + 1e-12
     assert not [e for e in events if e.kind == "gap"]
+
+
+def realistic_bench(tmp_path: Path, bench_path: Path) -> Path:
+    """The bench file with the realistic imperfections in its ``[simulation]`` (for the CLI)."""
+    keys = "".join(f"{k} = {v}\n" for k, v in REALISTIC.items())
+    path = tmp_path / "realistic.toml"
+    path.write_text(bench_path.read_text().replace("[simulation]\n", "[simulation]\n" + keys))
+    return path
+
+
+def estimate(bench_path: Path, source, spec: str) -> dict:
+    """The result document of the chain on ``source`` (the shared body)."""
+    bench = load_bench(bench_path)
+    summary, doc = run_source(
+        bench,
+        bench_path.read_text(),
+        source,
+        spec,
+        RunOptions(quiet=True, live=spec.startswith("can")),
+    )
+    assert doc is not None and not summary.interrupted
+    return doc
