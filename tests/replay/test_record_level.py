@@ -9,7 +9,7 @@ import zstandard
 from mcap.reader import make_reader
 from mcap.records import Chunk
 from mcap.stream_reader import StreamReader
-from test_mcap_writer import drive
+from support.mcap_writer_calls import drive
 
 from replay.errors import LogError
 from replay.mcapwriter import ThreadedWriter
