@@ -5,7 +5,10 @@ the caller submitted them: the magic and the header, metadata and
 attachment records, each closed chunk (its records joined, CRC'd,
 compressed) followed by its message indexes, and at the end the data end
 record, the summary section, the footer and the magic again, as
-``mcap.writer.Writer`` (1.6, default options) writes them. :class:`McapOutput`
+``mcap.writer.Writer`` (1.6, default options and ``enable_data_crcs=True``)
+writes them. The data end record carries the CRC of everything before it, so
+a reader can tell damage outside the chunks (the run metadata, a record
+header), which no other CRC covers. :class:`McapOutput`
 keeps the indexes and statistics the summary needs.
 """
 
@@ -66,10 +69,13 @@ class McapOutput:
         self.start_time = 0
         self.end_time = 0
         self._compress: Callable[[bytes], bytes] | None = None
+        self.data_crc: int | None = 0  # CRC of the data section so far; None after it
 
     def write(self, data: bytes | bytearray | memoryview) -> None:
         self.stream.write(data)
         self.pos += len(data)
+        if self.data_crc is not None:
+            self.data_crc = zlib.crc32(data, self.data_crc)
 
     def flush(self) -> None:
         self.stream.flush()
@@ -153,7 +159,8 @@ class McapOutput:
 
     def summary(self, schemas: list[Schema], channels: list[Channel]) -> None:
         """Data end, the summary section (as ``mcap.writer.Writer.finish``), footer, magic."""
-        self._record(DataEnd(0))
+        data_crc, self.data_crc = self.data_crc or 0, None
+        self._record(DataEnd(data_crc))
         summary_start = self.pos
         builder = RecordBuilder()
         offsets: list[SummaryOffset] = []

@@ -10,8 +10,8 @@ writer thread, which joins it, computes the CRC, compresses it (zstandard,
 lz4 and file writes release the GIL, so this runs beside the caller),
 indexes it and writes it (:mod:`replay.mcap_output`, the file side).
 
-The file is the one ``mcap.writer.Writer`` (1.6, default options) writes
-for the same calls, byte for byte: the same records in the same order, the
+The file is the one ``mcap.writer.Writer`` (1.6, default options but
+``enable_data_crcs=True``) writes for the same calls, byte for byte: the same records in the same order, the
 schemas and channels inside the first chunk, message indexes after each
 chunk, the same summary section and footer. ``tests/replay/test_mcap_writer.py``
 checks it.

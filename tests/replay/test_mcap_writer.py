@@ -62,7 +62,15 @@ def test_same_bytes_as_the_mcap_writer(compression: str, seed: int) -> None:
         pytest.importorskip("lz4")
     ours, theirs = io.BytesIO(), io.BytesIO()
     drive(ThreadedWriter(ours, chunk_size=50_000, compression=compression), seed)
-    drive(Writer(theirs, chunk_size=50_000, compression=COMPRESSIONS[compression]), seed)
+    drive(
+        Writer(
+            theirs,
+            chunk_size=50_000,
+            compression=COMPRESSIONS[compression],
+            enable_data_crcs=True,
+        ),
+        seed,
+    )
     assert len(theirs.getvalue()) > 100_000
     assert ours.getvalue() == theirs.getvalue()
     summary = make_reader(io.BytesIO(ours.getvalue())).get_summary()
@@ -73,7 +81,7 @@ def test_same_bytes_as_the_mcap_writer(compression: str, seed: int) -> None:
 
 def test_an_empty_file_is_the_mcap_writers_too() -> None:
     ours, theirs = io.BytesIO(), io.BytesIO()
-    for writer in (ThreadedWriter(ours), Writer(theirs)):
+    for writer in (ThreadedWriter(ours), Writer(theirs, enable_data_crcs=True)):
         writer.start(profile="", library="ptinertia test")
         writer.register_channel("/x", "json", writer.register_schema("S", "jsonschema", b"{}"))
         writer.finish()
