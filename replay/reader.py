@@ -129,6 +129,7 @@ def open_log(path: str | Path) -> RecordedLog:
     if scan is None:
         scan = _scan_stream(path)
         report.readable_bytes = scan.readable
+        report.data_complete = scan.data_end
         if scan.chunks == 0:
             raise LogError(
                 f"{path}: truncated before any data ({size} bytes, no complete chunk"

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from google.protobuf.message import DecodeError
 from mcap.reader import NonSeekingReader, SeekingReader
 
 from acquisition.can.frames import RawFrame
@@ -37,6 +38,9 @@ from replay.schemas import (
     stream_topics,
 )
 
+# What decoding one recorded message can raise: the message is skipped and counted.
+DECODE_ERRORS = (BadMessage, ValueError, DecodeError)
+
 
 @dataclass
 class ReadReport:
@@ -51,6 +55,9 @@ class ReadReport:
     recorded_until_s : stream time of the last message of the last complete chunk.
     skipped : messages skipped per topic (unknown topic, wrong schema, bad content).
     notes : one line per problem, for the user.
+    damaged : damaged chunks or records skipped, by byte offset.
+    data_complete : the file is unfinished but its data section is whole.
+    time_origin_ns : log time of stream time 0 (for the times of what was skipped).
     """
 
     finished: bool
@@ -61,6 +68,7 @@ class ReadReport:
     skipped: Counter[str] = field(default_factory=Counter)
     notes: list[str] = field(default_factory=list)
     damaged: dict[int, Skipped] = field(default_factory=dict)  # byte offset -> what was skipped
+    data_complete: bool = False  # an unfinished file whose data section is whole
     time_origin_ns: int = 0
 
     def note(self, line: str) -> None:
@@ -117,7 +125,7 @@ class ReadReport:
                     "reason": skipped.reason,
                 }
             )
-        if not self.finished and self.readable_bytes < self.file_bytes:
+        if not (self.finished or self.data_complete) and self.readable_bytes < self.file_bytes:
             out.append(
                 {
                     "kind": "truncated",
@@ -243,7 +251,7 @@ class RecordedLog:
                     origin, event = stream_codec.decode_event(data)
                     if origin != "dsp":
                         yield event
-            except (BadMessage, ValueError) as err:
+            except DECODE_ERRORS as err:
                 self.report.skipped[topic] += 1
                 self.report.note(f"{topic}: {err}")
 
@@ -279,7 +287,7 @@ class RecordedLog:
         for _, _, _, data in self.messages([topic]):
             try:
                 yield decode(data)
-            except (BadMessage, ValueError) as err:
+            except DECODE_ERRORS as err:
                 self.report.skipped[topic] += 1
                 self.report.note(f"{topic}: {err}")
 
