@@ -180,6 +180,10 @@ def chunk_payload(content: bytes) -> bytes:
     data = view[pos:]
     try:
         if compression == "zstd":
+            # max_output_size binds only frames without a content size: check that first
+            declared = zstandard.frame_content_size(data)
+            if declared not in (-1, size):
+                raise BadChunk(f"zstd frame holds {declared} bytes, the chunk declares {size}")
             payload = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
         elif compression == "lz4":
             payload = lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=size + 1)
