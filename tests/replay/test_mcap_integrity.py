@@ -47,7 +47,7 @@ def replay(log: Path, out: Path, capsys: pytest.CaptureFixture[str], *extra: str
 
 def chunk_offsets(path: Path) -> list[tuple[int, int]]:
     """(content offset, length) of every chunk record."""
-    out = []
+    out: list[tuple[int, int]] = []
     with open(path, "rb") as fh:
         for opcode, offset, length in records(fh):
             if opcode == Opcode.DATA_END:
