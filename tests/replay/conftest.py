@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -17,8 +17,8 @@ class CleanRun:
     """A 4 s simulated sweep recorded to ``log``, and the result of replaying it untouched."""
 
     log: Path
-    data: bytes
-    result: dict[str, Any]
+    data: bytes = field(repr=False)
+    result: dict[str, Any] = field(repr=False)
 
 
 @pytest.fixture(scope="session")
