@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import struct
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -23,8 +24,10 @@ from mcap.stream_reader import CRCValidationError
 from mcap.writer import Writer
 from support.mcap_logs import synthetic_layout
 
-from acquisition.stream import SampleGroup, StreamLayout
+from acquisition.stream import SampleGroup, Source, SourceError, StreamItem, StreamLayout
 from ptinertia.cli import main
+from ptinertia.config import load_bench
+from ptinertia.runner import RunOptions, run_source
 from replay import chunks
 from replay.chunks import BadChunk, chunk_payload, records
 from replay.errors import LogError
@@ -229,3 +232,17 @@ def test_a_recorded_bench_cannot_read_the_users_files(
             continue
         assert code == 2 and len(err) == 1
         assert "not attached to the recording" in err[0] and "root:" not in err[0]
+
+
+def test_a_sidecar_truth_that_is_not_an_object_is_one_line(tmp_path: Path) -> None:
+    """The same check for any source (a CSV's ``meta.json {"truth": 5}``): the runner's."""
+
+    class Crafted(Source):
+        layout = StreamLayout(synthetic_layout().groups, ("tacho",), {"truth": 5})
+
+        def _iter_items(self) -> Iterator[StreamItem]:
+            return iter(())
+
+    bench = load_bench(EXAMPLE_BENCH)
+    with pytest.raises(SourceError, match="'truth': expected a JSON object or null, got int"):
+        run_source(bench, "", Crafted(), "file:run.csv", RunOptions(quiet=True))
