@@ -86,6 +86,7 @@ class _Scan:
     readable: int = 0
     data_end: bool = False  # the data section was complete
     error: str | None = None
+    definitions_error: str | None = None  # the chunk holding the channels was damaged
     chunk_records: list[tuple[int, int]] | None = None  # (offset, length), finished logs
     data_end_offset: int | None = None  # where the data end record starts
     data_crc: int = 0  # the data section's CRC as recorded (0: not written)
@@ -208,7 +209,11 @@ def _scan_stream(path: str | Path) -> _Scan:
             for opcode, offset, length in records(fh):
                 if opcode == Opcode.CHUNK:
                     if not scan.channels:
-                        payload = chunk_payload(read_at(fh, offset, length))
+                        try:
+                            payload = chunk_payload(read_at(fh, offset, length))
+                        except BadChunk as err:  # the walk skips it; definitions may follow
+                            scan.definitions_error = f"chunk at byte {offset - 9}: {err}"
+                            payload = b""
                         for op, content in chunk_records(payload):
                             if op in (Opcode.SCHEMA, Opcode.CHANNEL):
                                 _define(scan, parse_definition(op, content))
@@ -280,6 +285,8 @@ def _build(path: Path, scan: _Scan, report: ReadReport) -> RecordedLog:
         what = [f"missing {t}" for t in missing] + [
             f"{t} has schema {topics[t]!r}, expected {full_name(expected[t])!r}" for t in wrong
         ]
+        if not scan.channels and scan.definitions_error:  # the first chunk holds them
+            what.append(f"no channel definitions read ({scan.definitions_error})")
         raise LogError(f"{path}: raw topics do not match the recorded layout: {'; '.join(what)}")
     known = {**expected, **TOPIC_TYPES}
     for topic, name in topics.items():
