@@ -54,7 +54,8 @@ MessageTuple = tuple[str, str, int, bytes]
 # past 1 MB, so only the largest single message (a sample block) can make one
 # larger; this bound is what keeps a crafted size from exhausting memory.
 MAX_CHUNK_BYTES = 256 * 1024 * 1024
-# What the data section of a recording may hold at its top level.
+# What the data section of a recording may hold at its top level (and its end, see
+# :func:`ends_data`).
 DATA_OPCODES = frozenset(
     int(op)
     for op in (
@@ -66,7 +67,6 @@ DATA_OPCODES = frozenset(
         Opcode.MESSAGE,
         Opcode.CHUNK,
         Opcode.MESSAGE_INDEX,
-        Opcode.DATA_END,
     )
 )
 CHUNK_OPCODES = frozenset(int(op) for op in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE))
@@ -237,6 +237,12 @@ def looks_like_index(head: bytes, length: int) -> bool:
     return 6 + n == length and n % 16 == 0
 
 
+def ends_data(opcode: int, length: int) -> bool:
+    """Whether a top-level record ends the data section: a data end record (4 bytes) or
+    a footer (20 bytes). A damaged opcode that reads as one has another length."""
+    return (opcode == Opcode.DATA_END and length == 4) or (opcode == Opcode.FOOTER and length == 20)
+
+
 def parse_definition(opcode: int, content: bytes | memoryview) -> Schema | Channel:
     """A Schema or Channel record from its content."""
     stream = ReadDataStream(BytesIO(bytes(content)))
@@ -285,15 +291,15 @@ class MessageWalk:
     def __iter__(self) -> Iterator[MessageTuple]:
         with open(self.path, "rb") as fh:
             for opcode, offset, length in self._records(fh):
-                if opcode in (Opcode.DATA_END, Opcode.FOOTER):
+                if ends_data(opcode, length):
                     return  # the summary section repeats what we have seen
                 if opcode == Opcode.CHUNK:
                     try:
                         payload = chunk_payload(read_at(fh, offset, length))
                     except BadChunk as err:
-                        self._skip(offset, str(err))
+                        self._skip(offset - _RECORD.size, str(err))
                         continue
-                    yield from self._chunk(payload, offset)
+                    yield from self._chunk(payload, offset - _RECORD.size)
                 elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
                     self._define(parse_definition(opcode, read_at(fh, offset, length)))
                 elif opcode == Opcode.MESSAGE:
@@ -306,7 +312,10 @@ class MessageWalk:
                     opcode == Opcode.MESSAGE_INDEX
                     and not looks_like_index(read_at(fh, offset, 6), length)
                 ):  # a flipped opcode: most likely a chunk
-                    self._skip(offset, f"damaged record (opcode {opcode:#04x}, {length} bytes)")
+                    self._skip(
+                        offset - _RECORD.size,
+                        f"damaged record (opcode {opcode:#04x}, {length} bytes)",
+                    )
 
     def _records(self, fh: IO[bytes]) -> Iterator[tuple[int, int, int]]:
         if self.chunks is None:

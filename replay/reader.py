@@ -40,6 +40,7 @@ from replay.chunks import (
     chunk_payload,
     chunk_records,
     chunk_times,
+    ends_data,
     parse_definition,
     read_at,
     read_attachment,
@@ -227,8 +228,8 @@ def _scan_stream(path: str | Path) -> _Scan:
                 elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
                     _define(scan, parse_definition(opcode, read_at(fh, offset, length)))
                 scan.readable = offset + length
-                if opcode in (Opcode.DATA_END, Opcode.FOOTER):
-                    if opcode == Opcode.DATA_END and length == 4:
+                if ends_data(opcode, length):
+                    if opcode == Opcode.DATA_END:
                         scan.data_end_offset = offset - 9
                         (scan.data_crc,) = struct.unpack("<I", read_at(fh, offset, 4))
                     scan.data_end = True

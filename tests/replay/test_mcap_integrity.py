@@ -8,6 +8,7 @@ leaves the recording's attachments.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import struct
 import zlib
@@ -24,12 +25,19 @@ from mcap.stream_reader import CRCValidationError
 from mcap.writer import Writer
 from support.mcap_logs import synthetic_layout
 
-from acquisition.stream import SampleGroup, Source, SourceError, StreamItem, StreamLayout
+from acquisition.stream import (
+    SampleBlock,
+    SampleGroup,
+    Source,
+    SourceError,
+    StreamItem,
+    StreamLayout,
+)
 from ptinertia.cli import main
 from ptinertia.config import load_bench
 from ptinertia.runner import RunOptions, run_source
 from replay import chunks
-from replay.chunks import BadChunk, chunk_payload, records
+from replay.chunks import BadChunk, Truncated, chunk_payload, records
 from replay.errors import LogError
 from replay.raw_writer import record_source
 from replay.reader import open_log
@@ -246,3 +254,31 @@ def test_a_sidecar_truth_that_is_not_an_object_is_one_line(tmp_path: Path) -> No
     bench = load_bench(EXAMPLE_BENCH)
     with pytest.raises(SourceError, match="'truth': expected a JSON object or null, got int"):
         run_source(bench, "", Crafted(), "file:run.csv", RunOptions(quiet=True))
+
+
+@pytest.mark.parametrize(("opcode", "bit"), [(Opcode.CHUNK, 2), (Opcode.MESSAGE_INDEX, 3)])
+def test_a_record_flipped_into_an_end_record_does_not_end_the_read(
+    clean_run: CleanRun, tmp_path: Path, opcode: int, bit: int
+) -> None:
+    """Read front to back (no footer), a chunk that became a footer (0x06 -> 0x02) or an
+    index that became a data end (0x07 -> 0x0F) is skipped and said, and the read goes on."""
+    data = clean_run.data[: 3 * len(clean_run.data) // 4]
+    path = tmp_path / "cut.mcap"
+    path.write_bytes(data)
+    starts = []
+    with open(path, "rb") as fh, contextlib.suppress(Truncated):
+        for op, offset, _ in records(fh):
+            if op == opcode:
+                starts.append(offset - 9)
+    log = tmp_path / "flipped.mcap"
+    log.write_bytes(flipped(data, starts[2], bit))
+    cut, damaged = open_log(path), open_log(log)
+    want = [b.first_index for b in cut.items() if isinstance(b, SampleBlock)]
+    got = [b.first_index for b in damaged.items() if isinstance(b, SampleBlock)]
+    assert got[-1] == want[-1]  # read to the same end
+    if opcode == Opcode.CHUNK:
+        assert len(got) < len(want)
+        (entry,) = [s for s in damaged.report.skipped_document() if s["kind"] == "damaged"]
+        assert entry["byte"] == starts[2] and "opcode 0x02" in entry["reason"]
+    else:  # an index is not data: nothing lost
+        assert got == want
