@@ -100,7 +100,8 @@ def decode_samples(data: bytes, layout: StreamLayout) -> SampleBlock:
         )
     if not 0 <= msg.first_index < MAX_INDEX:
         raise BadMessage(f"group {msg.group!r}: first sample index {msg.first_index} out of range")
-    values = np.frombuffer(msg.data, dtype="<f4").reshape(n_ch, n).astype(np.float64)
+    with np.errstate(invalid="ignore"):  # a signalling NaN stays a NaN: a sample known bad
+        values = np.frombuffer(msg.data, dtype="<f4").reshape(n_ch, n).astype(np.float64)
     return SampleBlock(group.name, int(msg.first_index), values)
 
 
