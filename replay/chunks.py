@@ -153,12 +153,13 @@ def chunk_times(fh: IO[bytes], offset: int) -> tuple[int, int]:
     return start, end
 
 
-def chunk_payload(content: bytes) -> bytes:
+def chunk_payload(content: bytes, check_crc: bool = True) -> bytes:
     """The uncompressed records of a chunk record's content, checked; raises :class:`BadChunk`.
 
     The declared uncompressed size bounds the decompression (and may not
     exceed :data:`MAX_CHUNK_BYTES`), the result must have that size, and its
-    CRC (when the writer wrote one, non-zero) must match.
+    CRC (when the writer wrote one, non-zero) must match, unless ``check_crc``
+    is False (a data section CRC vouched for the bytes already).
     """
     view = memoryview(content)
     try:
@@ -195,7 +196,7 @@ def chunk_payload(content: bytes) -> bytes:
         raise BadChunk(f"chunk does not decompress ({type(err).__name__}: {err})") from None
     if len(payload) != size:
         raise BadChunk(f"chunk decompresses to {len(payload)} bytes, declares {size}")
-    if crc and zlib.crc32(payload) != crc:
+    if check_crc and crc and zlib.crc32(payload) != crc:
         raise BadChunk(f"chunk CRC mismatch ({zlib.crc32(payload):#010x}, recorded {crc:#010x})")
     return payload
 
@@ -266,6 +267,7 @@ class MessageWalk:
         record header between them cannot lose the rest. None: front to back.
     channels : channel id -> (topic, schema name) known before the walk (from the
         summary, or the first chunk), so a damaged first chunk does not lose them.
+    check_crcs : check each chunk's CRC (False: the data section's CRC matched).
     """
 
     def __init__(
@@ -275,8 +277,10 @@ class MessageWalk:
         on_skip: Callable[[Skipped], None] = lambda _: None,
         chunks: list[tuple[int, int]] | None = None,
         channels: dict[int, tuple[str, str]] | None = None,
+        check_crcs: bool = True,
     ) -> None:
         self.path = Path(path)
+        self.check_crcs = check_crcs
         self.topics = topics
         self.on_skip = on_skip
         self.chunks = chunks
@@ -295,7 +299,7 @@ class MessageWalk:
                     return  # the summary section repeats what we have seen
                 if opcode == Opcode.CHUNK:
                     try:
-                        payload = chunk_payload(read_at(fh, offset, length))
+                        payload = chunk_payload(read_at(fh, offset, length), self.check_crcs)
                     except BadChunk as err:
                         self._skip(offset - _RECORD.size, str(err))
                         continue
@@ -384,9 +388,10 @@ def walk_messages(
     on_skip: Callable[[Skipped], None] = lambda _: None,
     chunks: list[tuple[int, int]] | None = None,
     channels: dict[int, tuple[str, str]] | None = None,
+    check_crcs: bool = True,
 ) -> Iterator[MessageTuple]:
     """:class:`MessageWalk` that hands a read error to ``on_stop`` and ends instead of raising."""
-    it = iter(MessageWalk(path, topics, on_skip, chunks, channels))
+    it = iter(MessageWalk(path, topics, on_skip, chunks, channels, check_crcs))
     while True:
         try:
             item = next(it)

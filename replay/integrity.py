@@ -45,8 +45,9 @@ def check_data_crc(
     data_crc: int,
     chunks: list[tuple[int, int]] | None,
     explained: bool = False,
-) -> None:
-    """Raise LogError when the data section's CRC fails and no damaged chunk explains it.
+) -> bool:
+    """Whether the data section's CRC matched; raise LogError when it failed and no damaged
+    chunk explains it.
 
     The chunk and attachment CRCs cover the stream and the attached files; the
     run metadata, the record headers and the message indexes only this CRC. A
@@ -60,9 +61,12 @@ def check_data_crc(
     data_crc : the CRC that record holds (0: not written, nothing to check).
     chunks : (offset, length) of the chunk records from the summary, or None to find them.
     explained : a damaged attachment was found already.
+
+    A match vouches for every chunk's bytes, so the walk need not check their
+    CRCs again (decompressing the same bytes gives the same records).
     """
     if data_end_offset is None or data_crc == 0:
-        return
+        return False
     crc = 0
     with open(path, "rb") as fh:
         remaining = data_end_offset
@@ -72,16 +76,20 @@ def check_data_crc(
                 break
             crc = zlib.crc32(block, crc)
             remaining -= len(block)
-        if crc == data_crc or explained:  # a damaged attachment explains it
-            return
+        if crc == data_crc:
+            return True
+        if explained:  # a damaged attachment
+            return False
         for offset, length in chunks or _chunk_records(fh):
             head = read_at(fh, offset, 9)
             if len(head) < 9 or struct.unpack("<BQ", head) != (Opcode.CHUNK, length - 9):
-                return  # a damaged chunk header: the walk reads it by the summary, or skips it
+                return (
+                    False  # a damaged chunk header: the walk reads it by the summary, or skips it
+                )
             try:
                 chunk_payload(read_at(fh, offset + 9, length - 9))
             except BadChunk:
-                return  # the replay skips it and says so
+                return False  # the replay skips it and says so
     raise LogError(
         f"{path}: damaged recording: the data section's CRC does not match and no chunk "
         "or attachment explains it (its metadata or a record header is damaged)"

@@ -88,6 +88,7 @@ class _Scan:
     data_end: bool = False  # the data section was complete
     error: str | None = None
     definitions_error: str | None = None  # the chunk holding the channels was damaged
+    data_verified: bool = False  # the data section's CRC matched
     chunk_records: list[tuple[int, int]] | None = None  # (offset, length), finished logs
     data_end_offset: int | None = None  # where the data end record starts
     data_crc: int = 0  # the data section's CRC as recorded (0: not written)
@@ -142,7 +143,9 @@ def open_log(path: str | Path) -> RecordedLog:
     report.time_origin_ns = _origin(scan)
     for line in scan.notes:
         report.note(line)
-    check_data_crc(path, scan.data_end_offset, scan.data_crc, scan.chunk_records, bool(scan.notes))
+    scan.data_verified = check_data_crc(
+        path, scan.data_end_offset, scan.data_crc, scan.chunk_records, bool(scan.notes)
+    )
     log = _build(path, scan, report)
     if not report.finished:
         until = report.recorded_until_s
@@ -316,6 +319,7 @@ def _build(path: Path, scan: _Scan, report: ReadReport) -> RecordedLog:
         path=path,
         channels=channels,
         chunk_records=scan.chunk_records,
+        data_verified=scan.data_verified,
         bench_text=bench.decode("utf-8", errors="replace") if bench is not None else None,
         attachments=scan.attachments,
         metadata=scan.metadata,

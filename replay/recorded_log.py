@@ -163,6 +163,8 @@ class RecordedLog:
     channels : channel id -> (topic, schema name), as the scan found them.
     chunk_records : (byte offset, length) of each chunk record, from the
         checked summary of a finished log (None: read front to back).
+    data_verified : the data section's CRC matched when the log was opened, which
+        vouches for every chunk (the walk skips their CRCs).
     """
 
     path: Path
@@ -180,6 +182,7 @@ class RecordedLog:
     report: ReadReport
     channels: dict[int, tuple[str, str]] = field(default_factory=dict)
     chunk_records: list[tuple[int, int]] | None = None
+    data_verified: bool = False
 
     @property
     def finished(self) -> bool:
@@ -214,7 +217,13 @@ class RecordedLog:
             self._reference(wanted, stop)
             if reference
             else walk_messages(
-                self.path, wanted, stop, self.report.skip, self.chunk_records, self.channels
+                self.path,
+                wanted,
+                stop,
+                self.report.skip,
+                self.chunk_records,
+                self.channels,
+                check_crcs=not self.data_verified,
             )
         )
         for topic, name, log_time, data in source:
