@@ -29,10 +29,10 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import CleanRun
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from mcap.opcode import Opcode
+from support.clean_run import CleanRun
 from support.mcap_logs import record, synthetic_items, synthetic_layout
 
 from acquisition.stream import EdgeBlock, SampleBlock, SourceEvent, StreamItem

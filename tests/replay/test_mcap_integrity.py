@@ -18,11 +18,11 @@ from typing import Any
 
 import pytest
 import zstandard
-from conftest import CleanRun
 from mcap.opcode import Opcode
 from mcap.reader import NonSeekingReader
 from mcap.stream_reader import CRCValidationError
 from mcap.writer import Writer
+from support.clean_run import CleanRun
 from support.mcap_logs import synthetic_layout
 
 from acquisition.stream import (
