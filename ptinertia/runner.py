@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
-from acquisition.stream import Source, StreamLayout
+from acquisition.stream import Source, SourceError, StreamLayout
 from estimator.result import Z95, Estimate
 from estimator.setup import Corrections, Gates, Tolerances
 from estimator.streaming import InertiaEstimator
@@ -118,10 +118,15 @@ def run_source(
     bench: Bench, bench_text: str, source: Source, source_spec: str, options: RunOptions
 ) -> tuple[RunSummary, dict[str, Any] | None]:
     """Run the chain on ``source``; returns the summary and the result document."""
+    truth = source.layout.metadata.get("truth")
+    if truth is not None and not isinstance(truth, dict):  # a crafted or damaged sidecar
+        raise SourceError(
+            f"{source_spec}: metadata 'truth': expected a JSON object or null, "
+            f"got {type(truth).__name__}"
+        )
     tracker, estimator = processing_chain(
         bench, source.layout, options.orders, options.corrections_off
     )
-    truth = source.layout.metadata.get("truth")
     context = RunContext(
         bench_text=bench_text,
         bench=bench,

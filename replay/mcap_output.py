@@ -4,9 +4,11 @@ Everything here runs on the writer thread, one job at a time, in the order
 the caller submitted them: the magic and the header, metadata and
 attachment records, each closed chunk (its records joined, CRC'd,
 compressed) followed by its message indexes, and at the end the data end
-record (with the data section's CRC), the summary section, the footer and
-the magic again, as ``mcap.writer.Writer(enable_data_crcs=True)`` (1.6)
-writes them. :class:`McapOutput`
+record, the summary section, the footer and the magic again, as
+``mcap.writer.Writer`` (1.6, default options and ``enable_data_crcs=True``)
+writes them. The data end record carries the CRC of everything before it, so
+a reader can tell damage outside the chunks (the run metadata, a record
+header), which no other CRC covers. :class:`McapOutput`
 keeps the indexes and statistics the summary needs.
 """
 
@@ -85,16 +87,12 @@ class McapOutput:
         self.start_time = 0
         self.end_time = 0
         self._compress: Callable[[bytes], bytes] | None = None
-        # CRC-32 of every byte from the magic on, until the data end record carries it
-        # (``mcap.writer.Writer(enable_data_crcs=True)``; 0 would mean "not computed").
-        # crc32 runs at GB/s: ~10 ms per minute of a 10-channel 25.6 kHz recording.
-        self.data_crc = 0
-        self._in_data = True
+        self.data_crc: int | None = 0  # CRC of the data section so far; None after it
 
     def write(self, data: bytes | bytearray | memoryview) -> None:
         self.stream.write(data)
         self.pos += len(data)
-        if self._in_data:
+        if self.data_crc is not None:
             self.data_crc = zlib.crc32(data, self.data_crc)
 
     def flush(self) -> None:
@@ -179,8 +177,8 @@ class McapOutput:
 
     def summary(self, schemas: list[Schema], channels: list[Channel]) -> None:
         """Data end, the summary section (as ``mcap.writer.Writer.finish``), footer, magic."""
-        self._in_data = False
-        self._record(DataEnd(self.data_crc))
+        data_crc, self.data_crc = self.data_crc or 0, None
+        self._record(DataEnd(data_crc))
         summary_start = self.pos
         builder = RecordBuilder()
         offsets: list[SummaryOffset] = []

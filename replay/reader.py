@@ -19,6 +19,8 @@ The log itself, its report and its iterators are :mod:`replay.recorded_log`.
 from __future__ import annotations
 
 import json
+import math
+import struct
 from dataclasses import dataclass, field
 from io import BytesIO
 from pathlib import Path
@@ -27,20 +29,25 @@ from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
-from mcap.records import Attachment, Channel, Metadata, Schema
+from mcap.records import Channel, Metadata, Schema
 
+from acquisition.stream import StreamLayout
 from replay import stream_codec
 from replay.chunks import (
     MAGIC,
     READ_ERRORS,
+    BadChunk,
     chunk_payload,
     chunk_records,
     chunk_times,
+    ends_data,
     parse_definition,
     read_at,
+    read_attachment,
     records,
 )
 from replay.errors import LogError, describe
+from replay.integrity import check_data_crc, check_summary_crc
 from replay.recorded_log import ReadReport, RecordedLog
 from replay.schemas import (
     BENCH_ATTACHMENT,
@@ -52,6 +59,9 @@ from replay.schemas import (
     full_name,
     stream_topics,
 )
+
+# A sample rate no acquisition reaches (Hz): a larger one in a recording is damage.
+MAX_RATE_HZ = 1e9
 
 
 def find_logs(path: str | Path) -> list[Path]:
@@ -77,6 +87,12 @@ class _Scan:
     readable: int = 0
     data_end: bool = False  # the data section was complete
     error: str | None = None
+    definitions_error: str | None = None  # the chunk holding the channels was damaged
+    data_verified: bool = False  # the data section's CRC matched
+    chunk_records: list[tuple[int, int]] | None = None  # (offset, length), finished logs
+    data_end_offset: int | None = None  # where the data end record starts
+    data_crc: int = 0  # the data section's CRC as recorded (0: not written)
+    notes: list[str] = field(default_factory=list)
 
 
 def open_log(path: str | Path) -> RecordedLog:
@@ -116,6 +132,7 @@ def open_log(path: str | Path) -> RecordedLog:
     if scan is None:
         scan = _scan_stream(path)
         report.readable_bytes = scan.readable
+        report.data_complete = scan.data_end
         if scan.chunks == 0:
             raise LogError(
                 f"{path}: truncated before any data ({size} bytes, no complete chunk"
@@ -123,6 +140,12 @@ def open_log(path: str | Path) -> RecordedLog:
                 + ")"
             )
     report.chunks = scan.chunks
+    report.time_origin_ns = _origin(scan)
+    for line in scan.notes:
+        report.note(line)
+    scan.data_verified = check_data_crc(
+        path, scan.data_end_offset, scan.data_crc, scan.chunk_records, bool(scan.notes)
+    )
     log = _build(path, scan, report)
     if not report.finished:
         until = report.recorded_until_s
@@ -139,8 +162,11 @@ def open_log(path: str | Path) -> RecordedLog:
 
 
 def _scan_finished(path: Path) -> _Scan:
+    """Read the summary section, its CRC checked; the attachments, theirs checked."""
     scan = _Scan()
     with open(path, "rb") as fh:
+        summary_start = check_summary_crc(fh)
+        fh.seek(0)
         reader = SeekingReader(fh)
         summary = reader.get_summary()
         if summary is None:
@@ -148,6 +174,7 @@ def _scan_finished(path: Path) -> _Scan:
         scan.schemas = dict(summary.schemas)
         scan.channels = dict(summary.channels)
         scan.chunks = len(summary.chunk_indexes)
+        scan.chunk_records = [(c.chunk_start_offset, c.chunk_length) for c in summary.chunk_indexes]
         if summary.chunk_indexes:
             scan.last_log_time = max(c.message_end_time for c in summary.chunk_indexes)
         if summary.statistics is not None:
@@ -155,9 +182,23 @@ def _scan_finished(path: Path) -> _Scan:
             scan.counts = {ch.topic: int(counts.get(cid, 0)) for cid, ch in scan.channels.items()}
         for meta in reader.iter_metadata():
             scan.metadata[meta.name] = dict(meta.metadata)
-        for att in reader.iter_attachments():
-            scan.attachments[att.name] = bytes(att.data)
+        for index in summary.attachment_indexes:
+            _attach(scan, read_at(fh, index.offset + 9, index.length - 9), index.offset)
+        if summary_start > 13:  # the data end record sits just before the summary
+            head = read_at(fh, summary_start - 13, 13)
+            opcode, length, crc = struct.unpack("<BQI", head)
+            if opcode == Opcode.DATA_END and length == 4:
+                scan.data_end_offset, scan.data_crc = summary_start - 13, crc
     return scan
+
+
+def _attach(scan: _Scan, content: bytes, offset: int) -> None:
+    try:
+        att = read_attachment(content)
+    except BadChunk as err:
+        scan.notes.append(f"{err} (at byte {offset}): attachment ignored")
+        return
+    scan.attachments[att.name] = bytes(att.data)
 
 
 def _scan_stream(path: str | Path) -> _Scan:
@@ -172,24 +213,28 @@ def _scan_stream(path: str | Path) -> _Scan:
             for opcode, offset, length in records(fh):
                 if opcode == Opcode.CHUNK:
                     if not scan.channels:
-                        payload = chunk_payload(read_at(fh, offset, length))
+                        try:
+                            payload = chunk_payload(read_at(fh, offset, length))
+                        except BadChunk as err:  # the walk skips it; definitions may follow
+                            scan.definitions_error = f"chunk at byte {offset - 9}: {err}"
+                            payload = b""
                         for op, content in chunk_records(payload):
                             if op in (Opcode.SCHEMA, Opcode.CHANNEL):
                                 _define(scan, parse_definition(op, content))
                     scan.chunks += 1
                     scan.last_log_time = chunk_times(fh, offset)[1]
-                elif opcode in (Opcode.METADATA, Opcode.ATTACHMENT):
-                    stream = ReadDataStream(BytesIO(read_at(fh, offset, length)))
-                    if opcode == Opcode.METADATA:
-                        meta = Metadata.read(stream)
-                        scan.metadata[meta.name] = dict(meta.metadata)
-                    else:
-                        att = Attachment.read(stream)
-                        scan.attachments[att.name] = bytes(att.data)
+                elif opcode == Opcode.METADATA:
+                    meta = Metadata.read(ReadDataStream(BytesIO(read_at(fh, offset, length))))
+                    scan.metadata[meta.name] = dict(meta.metadata)
+                elif opcode == Opcode.ATTACHMENT:
+                    _attach(scan, read_at(fh, offset, length), offset - 9)
                 elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
                     _define(scan, parse_definition(opcode, read_at(fh, offset, length)))
                 scan.readable = offset + length
-                if opcode in (Opcode.DATA_END, Opcode.FOOTER):
+                if ends_data(opcode, length):
+                    if opcode == Opcode.DATA_END:
+                        scan.data_end_offset = offset - 9
+                        (scan.data_crc,) = struct.unpack("<I", read_at(fh, offset, 4))
                     scan.data_end = True
                     break
         except READ_ERRORS as err:
@@ -226,8 +271,11 @@ def _build(path: Path, scan: _Scan, report: ReadReport) -> RecordedLog:
         settings = json.loads(run.get("settings") or "{}")
         truth = json.loads(run.get("truth") or "null")
         origin = int(run.get("time_origin_ns", "0"))
-    except (KeyError, ValueError, TypeError) as err:
+    except (KeyError, ValueError, TypeError, AttributeError) as err:
         raise LogError(f"{path}: unreadable run metadata ({describe(err)})") from None
+    problem = _metadata_problem(layout, settings, truth)
+    if problem is not None:
+        raise LogError(f"{path}: run metadata: {problem}")
 
     topics: dict[str, str] = {}
     for cid, channel in scan.channels.items():
@@ -241,6 +289,8 @@ def _build(path: Path, scan: _Scan, report: ReadReport) -> RecordedLog:
         what = [f"missing {t}" for t in missing] + [
             f"{t} has schema {topics[t]!r}, expected {full_name(expected[t])!r}" for t in wrong
         ]
+        if not scan.channels and scan.definitions_error:  # the first chunk holds them
+            what.append(f"no channel definitions read ({scan.definitions_error})")
         raise LogError(f"{path}: raw topics do not match the recorded layout: {'; '.join(what)}")
     known = {**expected, **TOPIC_TYPES}
     for topic, name in topics.items():
@@ -262,8 +312,14 @@ def _build(path: Path, scan: _Scan, report: ReadReport) -> RecordedLog:
         except ValueError:
             report.note(f"unreadable '{META_END}' metadata: final result ignored")
     bench = scan.attachments.get(BENCH_ATTACHMENT)
+    channels = {
+        cid: (ch.topic, topics[ch.topic]) for cid, ch in scan.channels.items() if ch.topic in topics
+    }
     return RecordedLog(
         path=path,
+        channels=channels,
+        chunk_records=scan.chunk_records,
+        data_verified=scan.data_verified,
         bench_text=bench.decode("utf-8", errors="replace") if bench is not None else None,
         attachments=scan.attachments,
         metadata=scan.metadata,
@@ -277,3 +333,26 @@ def _build(path: Path, scan: _Scan, report: ReadReport) -> RecordedLog:
         message_counts=scan.counts,
         report=report,
     )
+
+
+def _metadata_problem(layout: StreamLayout, settings: object, truth: object) -> str | None:
+    """What is wrong with the run metadata's values (a crafted or damaged file), or None."""
+    for group in layout.groups:
+        if not (math.isfinite(group.rate_hz) and 0 < group.rate_hz <= MAX_RATE_HZ):
+            return f"group {group.name!r}: rate_hz {group.rate_hz} is not in (0, {MAX_RATE_HZ:g}]"
+        if not math.isfinite(group.t0_s):
+            return f"group {group.name!r}: t0_s {group.t0_s} is not finite"
+    if not isinstance(settings, dict):
+        return f"settings: expected a JSON object, got {type(settings).__name__}"
+    for where, value in (("truth", truth), ("layout truth", layout.metadata.get("truth"))):
+        if value is not None and not isinstance(value, dict):
+            return f"{where}: expected a JSON object or null, got {type(value).__name__}"
+    return None
+
+
+def _origin(scan: _Scan) -> int:
+    """The run's time origin (ns), 0 when the metadata does not say (checked in :func:`_build`)."""
+    try:
+        return int((scan.metadata.get(META_RUN) or {}).get("time_origin_ns", "0"))
+    except ValueError:
+        return 0

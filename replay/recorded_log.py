@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from google.protobuf.message import DecodeError
 from mcap.reader import NonSeekingReader, SeekingReader
 
 from acquisition.can.frames import RawFrame
@@ -25,7 +26,7 @@ from dsp.frames import OrderFrame
 from estimator.result import Estimate, EstimateUpdate
 from estimator.streaming import FrameOutcome
 from replay import results_codec, stream_codec
-from replay.chunks import READ_ERRORS, walk_messages
+from replay.chunks import READ_ERRORS, Skipped, walk_messages
 from replay.errors import BadMessage, LogError, describe
 from replay.schemas import (
     TOPIC_CAN,
@@ -36,6 +37,9 @@ from replay.schemas import (
     full_name,
     stream_topics,
 )
+
+# What decoding one recorded message can raise: the message is skipped and counted.
+DECODE_ERRORS = (BadMessage, ValueError, DecodeError)
 
 
 @dataclass
@@ -51,6 +55,9 @@ class ReadReport:
     recorded_until_s : stream time of the last message of the last complete chunk.
     skipped : messages skipped per topic (unknown topic, wrong schema, bad content).
     notes : one line per problem, for the user.
+    damaged : damaged chunks or records skipped, by byte offset.
+    data_complete : the file is unfinished but its data section is whole.
+    time_origin_ns : log time of stream time 0 (for the times of what was skipped).
     """
 
     finished: bool
@@ -60,16 +67,77 @@ class ReadReport:
     recorded_until_s: float | None = None
     skipped: Counter[str] = field(default_factory=Counter)
     notes: list[str] = field(default_factory=list)
+    damaged: dict[int, Skipped] = field(default_factory=dict)  # byte offset -> what was skipped
+    data_complete: bool = False  # an unfinished file whose data section is whole
+    time_origin_ns: int = 0
 
     def note(self, line: str) -> None:
         if line not in self.notes:
             self.notes.append(line)
 
+    def skip(self, skipped: Skipped) -> None:
+        """A damaged chunk or record, skipped (each walk over the file finds it again)."""
+        known = self.damaged.setdefault(skipped.offset, skipped)
+        if known is not skipped and known.before_ns is None:
+            self.damaged[skipped.offset] = skipped  # this walk may get further
+
+    def span_s(self, skipped: Skipped) -> tuple[float | None, float | None]:
+        """Stream times (s) of the messages read just before and just after ``skipped``."""
+        after, before = skipped.after_ns, skipped.before_ns
+        return (
+            None if after is None else (after - self.time_origin_ns) / 1e9,
+            None if before is None else (before - self.time_origin_ns) / 1e9,
+        )
+
     def lines(self) -> list[str]:
         """Everything the user should hear about, one line each."""
         out = list(self.notes)
+        if self.damaged:
+            spans = []
+            for skipped in self.damaged.values():
+                lo, hi = self.span_s(skipped)
+                where = (
+                    f"t = {'start' if lo is None else f'{lo:.2f}'}"
+                    f"-{'end' if hi is None else f'{hi:.2f}'} s"
+                )
+                spans.append(f"{where} ({skipped.reason}, byte {skipped.offset})")
+            out.append(f"skipped {len(spans)} damaged chunk(s): " + "; ".join(spans))
         for topic, n in sorted(self.skipped.items()):
             out.append(f"skipped {n} message(s) on {topic}")
+        return out
+
+    def skipped_document(self) -> list[dict[str, Any]]:
+        """What was not read, for the result document (``recording_skipped``).
+
+        One entry per damaged chunk (``damaged``, the stream times around it),
+        one for the lost tail of an unfinished recording (``truncated``), one
+        per topic with messages that could not be decoded (``messages``).
+        """
+        out: list[dict[str, Any]] = []
+        for skipped in self.damaged.values():
+            lo, hi = self.span_s(skipped)
+            out.append(
+                {
+                    "kind": "damaged",
+                    "from_s": lo,
+                    "to_s": hi,
+                    "byte": skipped.offset,
+                    "reason": skipped.reason,
+                }
+            )
+        if not (self.finished or self.data_complete) and self.readable_bytes < self.file_bytes:
+            out.append(
+                {
+                    "kind": "truncated",
+                    "from_s": self.recorded_until_s,
+                    "to_s": None,
+                    "byte": self.readable_bytes,
+                    "reason": f"{self.file_bytes - self.readable_bytes} byte(s) after the last "
+                    "complete record not read",
+                }
+            )
+        for topic, n in sorted(self.skipped.items()):
+            out.append({"kind": "messages", "topic": topic, "count": n})
         return out
 
 
@@ -92,6 +160,11 @@ class RecordedLog:
     topics : topic -> schema name, as found.
     message_counts : topic -> messages (finished logs only; None otherwise).
     report : what was recovered and skipped (updated while iterating).
+    channels : channel id -> (topic, schema name), as the scan found them.
+    chunk_records : (byte offset, length) of each chunk record, from the
+        checked summary of a finished log (None: read front to back).
+    data_verified : the data section's CRC matched when the log was opened, which
+        vouches for every chunk (the walk skips their CRCs).
     """
 
     path: Path
@@ -107,6 +180,9 @@ class RecordedLog:
     topics: dict[str, str]
     message_counts: dict[str, int] | None
     report: ReadReport
+    channels: dict[int, tuple[str, str]] = field(default_factory=dict)
+    chunk_records: list[tuple[int, int]] | None = None
+    data_verified: bool = False
 
     @property
     def finished(self) -> bool:
@@ -138,7 +214,17 @@ class RecordedLog:
             # the unfinished chunk of a killed writer: expected
 
         source = (
-            self._reference(wanted, stop) if reference else walk_messages(self.path, wanted, stop)
+            self._reference(wanted, stop)
+            if reference
+            else walk_messages(
+                self.path,
+                wanted,
+                stop,
+                self.report.skip,
+                self.chunk_records,
+                self.channels,
+                check_crcs=not self.data_verified,
+            )
         )
         for topic, name, log_time, data in source:
             if name != self.topics.get(topic):
@@ -174,7 +260,7 @@ class RecordedLog:
                     origin, event = stream_codec.decode_event(data)
                     if origin != "dsp":
                         yield event
-            except (BadMessage, ValueError) as err:
+            except DECODE_ERRORS as err:
                 self.report.skipped[topic] += 1
                 self.report.note(f"{topic}: {err}")
 
@@ -210,7 +296,7 @@ class RecordedLog:
         for _, _, _, data in self.messages([topic]):
             try:
                 yield decode(data)
-            except (BadMessage, ValueError) as err:
+            except DECODE_ERRORS as err:
                 self.report.skipped[topic] += 1
                 self.report.note(f"{topic}: {err}")
 

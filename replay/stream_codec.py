@@ -76,6 +76,10 @@ def encode_samples_reference(block: SampleBlock, group: SampleGroup) -> bytes:
     return bytes(msg.SerializeToString())
 
 
+# A sample index no recording reaches (2**53: where float64 times stop being exact).
+MAX_INDEX = 2**53
+
+
 def decode_samples(data: bytes, layout: StreamLayout) -> SampleBlock:
     """A :class:`SampleBlock` with float64 data holding the recorded float32 values."""
     msg = wire_class("SampleBlock").FromString(data)
@@ -94,7 +98,10 @@ def decode_samples(data: bytes, layout: StreamLayout) -> SampleBlock:
             f"group {msg.group!r}: {len(msg.data)} data bytes, expected {4 * n_ch * n} "
             f"({n_ch} channels x {n} samples x 4)"
         )
-    values = np.frombuffer(msg.data, dtype="<f4").reshape(n_ch, n).astype(np.float64)
+    if not 0 <= msg.first_index < MAX_INDEX:
+        raise BadMessage(f"group {msg.group!r}: first sample index {msg.first_index} out of range")
+    with np.errstate(invalid="ignore"):  # a signalling NaN stays a NaN: a sample known bad
+        values = np.frombuffer(msg.data, dtype="<f4").reshape(n_ch, n).astype(np.float64)
     return SampleBlock(group.name, int(msg.first_index), values)
 
 
@@ -111,7 +118,10 @@ def decode_edges(data: bytes, layout: StreamLayout) -> EdgeBlock:
         raise BadMessage(f"edge channel {msg.channel!r} is not in the recorded layout")
     if len(msg.times_s) % 8:
         raise BadMessage(f"edge channel {msg.channel!r}: {len(msg.times_s)} bytes is not n x 8")
-    return EdgeBlock(msg.channel, np.frombuffer(msg.times_s, dtype="<f8").copy())
+    times = np.frombuffer(msg.times_s, dtype="<f8").copy()
+    if not np.all(np.isfinite(times)):
+        raise BadMessage(f"edge channel {msg.channel!r}: edge times not finite")
+    return EdgeBlock(msg.channel, times)
 
 
 def encode_event(event: SourceEvent, origin: str, time_s: float) -> bytes:

@@ -12,11 +12,14 @@ the logs with its 95 % interval.
 
 from __future__ import annotations
 
+import atexit
 import csv
+import shutil
 import sys
+import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import Any, TextIO
 
 from acquisition.channels import check_channels
@@ -24,6 +27,7 @@ from estimator.result import Z95
 from ptinertia.batch.cluster import ClusterSpec, failure_line, open_client, run_tasks
 from ptinertia.batch.plots import plot_campaign
 from ptinertia.config import Bench, load_bench, loads_bench
+from ptinertia.config_powertrain import GasTrace
 from ptinertia.errors import UsageError, user_error_types
 from ptinertia.runner import RunOptions, run_source, write_json
 from ptinertia.to_acquisition import channel_needs
@@ -87,11 +91,48 @@ def replay_bench(
         if not log.bench_text:
             raise UsageError(f"{log_path}: the log holds no bench file; give one with --bench")
         bench_text = log.bench_text
-        bench = loads_bench(bench_text, f"{log_path}:bench.toml")
+        bench = confined_to_attachments(
+            loads_bench(bench_text, f"{log_path}:bench.toml"), log.attachments, log_path
+        )
     if mount_scale:
         estimator = bench.estimator.model_copy(update={"mount_scale": True})
         bench = bench.model_copy(update={"estimator": estimator})
     return bench, bench_text
+
+
+def confined_to_attachments(bench: Bench, attachments: dict[str, bytes], log_path: Path) -> Bench:
+    """``bench`` (read from a recording) with its file paths resolved to the log's attachments.
+
+    A recording is input from anywhere: a path in its bench file (``[gas] file``,
+    ``[can] dbc``) must never open a file of the user's (``../../etc/passwd``).
+    A path names an attachment by its last component, which is copied to a
+    private temporary directory; a DBC that is not attached is dropped (replay
+    reads one only with ``--dbc``); a missing pressure trace is an error.
+    """
+
+    def extract(name: str) -> str | None:
+        data = attachments.get(PurePath(name).name)
+        if data is None or PurePath(name).name in ("", ".", ".."):
+            return None
+        folder = Path(tempfile.mkdtemp(prefix="ptinertia-attachment-"))
+        atexit.register(shutil.rmtree, folder, ignore_errors=True)
+        path = folder / PurePath(name).name
+        path.write_bytes(data)
+        return str(path)
+
+    if isinstance(bench.gas, GasTrace):
+        trace = extract(bench.gas.file)
+        if trace is None:
+            raise UsageError(
+                f"{log_path}: the recorded bench's [gas] file {bench.gas.file!r} is not attached "
+                "to the recording (paths in a recording resolve only to its attachments); "
+                "give the bench with --bench"
+            )
+        bench = bench.model_copy(update={"gas": GasTrace(model="trace", file=trace)})
+    if bench.can.dbc:
+        dbc = extract(bench.can.dbc)
+        bench = bench.model_copy(update={"can": bench.can.model_copy(update={"dbc": dbc})})
+    return bench
 
 
 def _replay(log_path: Path, job: ReplayJob) -> LogResult:
@@ -106,6 +147,9 @@ def _replay(log_path: Path, job: ReplayJob) -> LogResult:
         attachments=dict(log.attachments),
     )
     summary, doc = run_source(bench, bench_text, source, log.source or "replay", options)
+    skipped = log.report.skipped_document()
+    if doc is not None and skipped:
+        doc["recording_skipped"] = skipped
     warnings = tuple(log.report.lines())
     if doc is None or summary.estimate is None:
         rejected = ", ".join(f"{k} {v}" for k, v in summary.rejected.items()) or "no frames"

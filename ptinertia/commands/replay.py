@@ -93,6 +93,9 @@ def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None)
         attachments=dict(log.attachments),
     )
     summary, doc = run_source(bench, bench_text, source, log.source or "replay", options)
+    skipped = log.report.skipped_document()
+    if doc is not None and skipped:
+        doc["recording_skipped"] = skipped
     for line in log.report.lines():
         print(f"{log_path}: {line}", file=sys.stderr)
     if doc is None or summary.estimate is None:
