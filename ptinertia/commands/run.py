@@ -13,6 +13,7 @@ from typing import Any
 
 from ptinertia.config import load_bench
 from ptinertia.errors import UsageError
+from ptinertia.outputs import REFUSE, WARN, check_output, input_files
 from ptinertia.paths import DEFAULT_BENCH
 from ptinertia.runner import RunOptions, print_table, run_source, write_json
 from ptinertia.sinks import Sink
@@ -41,6 +42,7 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
     )
     p.add_argument("--json", metavar="PATH", help="write the result document here")
     p.add_argument("--record", metavar="PATH", help="record everything to this MCAP file")
+    add_force_flag(p)
     p.add_argument(
         "--rerun",
         metavar="MODE",
@@ -153,8 +155,28 @@ def recorder_sinks(path: str | None) -> list[Sink]:
     return [McapRecorder(path)]
 
 
+def add_force_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="overwrite an existing recording (result documents are replaced with a warning)",
+    )
+
+
+def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> None:
+    """``--json`` and ``--record`` checked before any work (ptinertia.outputs)."""
+    if args.json is not None:
+        check_output(args.json, "--json", inputs, args.force, WARN)
+    if args.record is not None:
+        check_output(args.record, "--record", inputs, args.force, REFUSE)
+        if args.json is not None and Path(args.json).resolve() == Path(args.record).resolve():
+            raise UsageError(f"--json and --record name the same file {args.json}")
+
+
 def run(args: argparse.Namespace) -> int:
     bench_path = Path(args.bench)
+    file_source = args.source.partition(":")[2] if args.source.startswith("file:") else None
+    check_outputs(args, input_files(bench_path, file_source, args.dbc))
     bench = with_mount_scale(load_bench(bench_path), args.mount_scale)
     bench_text = bench_path.read_text(encoding="utf-8")
     overrides = sim_overrides(args) if args.source == "sim" else {}
@@ -191,7 +213,7 @@ def run(args: argparse.Namespace) -> int:
         )
         return 1
     print_table(summary.estimate, doc)
-    if args.json:
+    if args.json is not None:
         write_json(doc, args.json)
         print(f"result written to {args.json}")
     if args.record:
