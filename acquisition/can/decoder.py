@@ -273,11 +273,18 @@ class FrameDecoder:
             assert s.next_frame is not None
             lost_from = None
             n = s.next_frame
-            while n in s.received or (n + 1) * size <= limit or (final and n * size < limit):
+            # frames up to ``stop`` are resolved: received, or lost if still missing
+            stop = -(-limit // size) if final else limit // size
+            while n in s.received or n < stop:
                 if n not in s.received:
-                    s.stats.lost += 1
+                    # a run of missing frames is counted at once, not frame by frame: after
+                    # a receive time far ahead (a corrupt log timestamp) it can be 1e13 long
+                    m = min(_next_received(s, n), stop)
+                    s.stats.lost += m - n
                     lost_from = n if lost_from is None else lost_from
-                elif lost_from is not None:
+                    n = m
+                    continue
+                if lost_from is not None:
                     self._report_lost(s, g, lost_from, n)
                     lost_from = None
                 n += 1
@@ -295,20 +302,28 @@ class FrameDecoder:
         g.next_index = i0
         if upto <= i0:
             return []
-        data = np.empty((g.n_ch, upto - i0))
+        # Built per run of received frames: a span no member received (an outage, or
+        # frames dated far ahead by a corrupt log timestamp) is never allocated.
+        blocks: list[SampleBlock] = []
+        for a, b in _received_spans(g, i0, upto):
+            data = np.empty((g.n_ch, b - a))
+            for s in g.members:
+                size = s.plan.samples_per_frame
+                f0, f1 = a // size, -(-b // size)
+                hole = np.full((size, len(s.plan.rows)), np.nan)
+                # one copy per member: the frames (received or NaN) end to end, then the window
+                run = np.concatenate([s.received.get(n, hole) for n in range(f0, f1)])
+                data[list(s.plan.rows)] = run[a - f0 * size : b - f0 * size].T
+            blocks += _split_on_holes(g.name, a, data)
         for s in g.members:
             size = s.plan.samples_per_frame
-            f0, f1 = i0 // size, -(-upto // size)
-            hole = np.full((size, len(s.plan.rows)), np.nan)
-            # one copy per member: the frames (received or NaN) end to end, then the window
-            run = np.concatenate([s.received.get(n, hole) for n in range(f0, f1)])
-            data[list(s.plan.rows)] = run[i0 - f0 * size : upto - f0 * size].T
-            for n in range(f0, f1 if f1 * size <= upto else f1 - 1):
-                if s.received.pop(n, None) is not None:
-                    s.recent.add(n)
+            f0 = i0 // size
+            for n in [k for k in s.received if f0 <= k and (k + 1) * size <= upto]:
+                del s.received[n]
+                s.recent.add(n)
             s.forget_before(f0)
         g.next_index = upto
-        return _split_on_holes(g.name, i0, data)
+        return blocks
 
     def _report_lost(self, s: MessageStream, g: GroupAssembler, n0: int, n1: int) -> None:
         size = s.plan.samples_per_frame
@@ -322,24 +337,27 @@ class FrameDecoder:
         parts = []
         n = s.next_frame
         lost = 0
-        while n in s.received or n <= s.max_n - s.window or (final and n <= s.max_n):
+        stop = s.max_n + 1 if final else s.max_n - s.window + 1
+        while n in s.received or n < stop:
             times = s.received.pop(n, None)
             if times is None:
-                s.stats.lost += 1
-                lost += 1
+                m = min(_next_received(s, n), stop)  # the whole missing run at once
+                s.stats.lost += m - n
+                lost += m - n
+                n = m
+                continue
+            s.recent.add(n)
+            if lost:
+                t0 = self._edge_last[ch] if math.isfinite(self._edge_last[ch]) else times[0]
+                self._gaps.add(ch, "edge frame(s)", lost, float(t0), float(times[0]))
+                lost = 0
+            if times[0] <= self._edge_last[ch]:
+                s.stats.bad_payload += (
+                    1  # not after the previous edge: a corrupt but CRC-valid frame
+                )
             else:
-                s.recent.add(n)
-                if lost:
-                    t0 = self._edge_last[ch] if math.isfinite(self._edge_last[ch]) else times[0]
-                    self._gaps.add(ch, "edge frame(s)", lost, float(t0), float(times[0]))
-                    lost = 0
-                if times[0] <= self._edge_last[ch]:
-                    s.stats.bad_payload += (
-                        1  # not after the previous edge: a corrupt but CRC-valid frame
-                    )
-                else:
-                    parts.append(times)
-                    self._edge_last[ch] = float(times[-1])
+                parts.append(times)
+                self._edge_last[ch] = float(times[-1])
             n += 1
         if lost:
             t_last = self._edge_last[ch] if math.isfinite(self._edge_last[ch]) else 0.0
@@ -349,6 +367,25 @@ class FrameDecoder:
         if not parts:
             return None
         return EdgeBlock(ch, np.concatenate(parts))
+
+
+def _received_spans(g: GroupAssembler, i0: int, upto: int) -> list[tuple[int, int]]:
+    """Sample ranges within ``[i0, upto)`` covered by a received frame of some member,
+    adjacent and overlapping ones merged, in order."""
+    spans = sorted(
+        (max(i0, n * m.plan.samples_per_frame), min(upto, (n + 1) * m.plan.samples_per_frame))
+        for m in g.members
+        for n in m.received
+    )
+    merged: list[tuple[int, int]] = []
+    for a, b in spans:
+        if b <= a:
+            continue
+        if merged and a <= merged[-1][1]:
+            merged[-1] = (merged[-1][0], max(merged[-1][1], b))
+        else:
+            merged.append((a, b))
+    return merged
 
 
 def _split_on_holes(group: str, i0: int, data: np.ndarray) -> list[SampleBlock]:
@@ -371,6 +408,11 @@ def decode_frames(
     items = dec.feed(list(frames))
     items += dec.finish()
     return items, dec.stats
+
+
+def _next_received(s: MessageStream, n: int) -> int:
+    """The first frame number after ``n`` that ``s`` holds (a large number if none)."""
+    return min((k for k in s.received if k > n), default=1 << 62)
 
 
 def _keep(s: MessageStream, n: int, payload: Any) -> None:

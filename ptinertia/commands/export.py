@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ptinertia.commands.arg_types import finite_float
 from ptinertia.config import load_bench, loads_bench
 from ptinertia.errors import UsageError
 from ptinertia.export import FORMATS, UNITS, export, properties_from_result
@@ -28,7 +29,9 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
     p.add_argument("--format", required=True, choices=FORMATS, help="output format")
     p.add_argument("--out", help="output file (default: standard output)")
     p.add_argument("--force", action="store_true", help="overwrite without the warning line")
-    p.add_argument("--mass", type=float, metavar="KG", help="mass to use when it was not estimated")
+    p.add_argument(
+        "--mass", type=finite_float, metavar="KG", help="mass to use when it was not estimated"
+    )
     p.add_argument(
         "--bench", help="bench TOML whose (weighed) mass to use when it was not estimated"
     )

@@ -11,6 +11,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ptinertia.commands.arg_types import finite_float
+from ptinertia.commands.arg_types import seed as seed_type
 from ptinertia.config import load_bench
 from ptinertia.errors import UsageError
 from ptinertia.outputs import REFUSE, WARN, check_output, input_files
@@ -65,10 +67,10 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress line")
     sim = p.add_argument_group("simulated source (--source sim)")
     sim.add_argument("--sweep", metavar="FROM:TO", help="rpm sweep, e.g. 1500:4500")
-    sim.add_argument("--duration", type=float, metavar="S", help="sweep duration in s")
-    sim.add_argument("--fs", type=float, metavar="HZ", help="accelerometer sample rate")
-    sim.add_argument("--noise-db", type=float, metavar="DB", help="white noise SNR in dB")
-    sim.add_argument("--seed", type=int, help="random seed of the simulated imperfections")
+    sim.add_argument("--duration", type=finite_float, metavar="S", help="sweep duration in s")
+    sim.add_argument("--fs", type=finite_float, metavar="HZ", help="accelerometer sample rate")
+    sim.add_argument("--noise-db", type=finite_float, metavar="DB", help="white noise SNR in dB")
+    sim.add_argument("--seed", type=seed_type, help="random seed of the simulated imperfections")
     sim.add_argument(
         "--realistic", action="store_true", help="1 %% gains, 1 deg, 2 mm, 40 dB, unbalance"
     )

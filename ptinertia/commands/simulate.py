@@ -13,6 +13,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ptinertia.commands.arg_types import finite_float
+from ptinertia.commands.arg_types import seed as seed_type
 from ptinertia.outputs import (
     REFUSE,
     atomic_directory_outputs,
@@ -31,13 +33,17 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
     p.add_argument(
         "--sweep", help="RPM_START:RPM_END, or one RPM for a constant speed (default: the bench's)"
     )
-    p.add_argument("--duration", type=float, help="sweep duration, s (default: the bench's)")
-    p.add_argument("--hold", type=float, help="hold at the start speed before the sweep, s")
-    p.add_argument("--fs", type=float, help="accelerometer sample rate, Hz (default: the bench's)")
+    p.add_argument("--duration", type=finite_float, help="sweep duration, s (default: the bench's)")
+    p.add_argument("--hold", type=finite_float, help="hold at the start speed before the sweep, s")
     p.add_argument(
-        "--noise-db", type=float, help="SNR per channel, dB: 20 log10(rms signal / noise std)"
+        "--fs", type=finite_float, help="accelerometer sample rate, Hz (default: the bench's)"
     )
-    p.add_argument("--seed", type=int, help="random seed of the as-built bench and the noise")
+    p.add_argument(
+        "--noise-db",
+        type=finite_float,
+        help="SNR per channel, dB: 20 log10(rms signal / noise std)",
+    )
+    p.add_argument("--seed", type=seed_type, help="random seed of the as-built bench and the noise")
     p.add_argument(
         "--tacho", choices=("edges", "sampled"), help="tacho delivery (default: the bench's)"
     )

@@ -137,11 +137,14 @@ def _serve_mode(arg: str) -> ViewerMode:
     if host in (None, "localhost"):
         host = "127.0.0.1"
     try:
-        ipaddress.ip_address(host)
+        ip = ipaddress.ip_address(host)
     except ValueError:
         raise UsageError(
             f"--rerun serve={arg}: bind address must be an IP address, got {host!r}"
         ) from None
+    if ip.version != 4:
+        # rerun's server parses IPv4 socket addresses only ("invalid socket address syntax")
+        raise UsageError(f"--rerun serve={arg}: the viewer serves on IPv4 only, e.g. 127.0.0.1")
     return ViewerMode("serve", bind_ip=host, port=port or DEFAULT_PORT)
 
 
