@@ -11,12 +11,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.can_streams import sim_frames
 
 from acquisition.can.decoder import decode_frames
 from acquisition.stream import SampleBlock
 from ptinertia.paths import EXAMPLES_DIR
 from ptinertia.to_can import can_plan
-from tests.support.can_streams import sim_frames
 
 JUMP_NS = int(1e11 * 1e9)
 
