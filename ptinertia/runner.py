@@ -164,8 +164,10 @@ def write_json(doc: dict[str, Any], path: str | Path) -> None:
     atomic_write(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
 
 
-def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO = sys.stdout) -> None:
-    """Estimate, 95 % interval, truth and error, one line per term."""
+def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO | None = None) -> None:
+    """Estimate, 95 % interval, truth and error, one line per term (to ``out``, default the
+    standard output at call time, not the one at import)."""
+    out = sys.stdout if out is None else out
     truth = doc.get("truth") or {}
     t_inertia = (truth.get("inertia_kgm2") or {}).get("value") or {}
     t_cog = (truth.get("cog_m") or {}).get("value")
