@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 import re
+import warnings
 from pathlib import Path
 
 import pytest
@@ -39,10 +40,15 @@ DBC = (EXAMPLES_DIR / "bench.dbc").read_text(encoding="utf-8")
 def check(argv: list[str], capsys: pytest.CaptureFixture[str]) -> int:
     """Run ``argv``; assert the property; return the exit code."""
     capsys.readouterr()
-    try:
-        code = main(argv)
-    except SystemExit as stop:  # argparse's own errors
-        code = int(stop.code or 0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            code = main(argv)
+        except SystemExit as stop:  # argparse's own errors
+            code = int(stop.code or 0)
+    # numpy's warnings on NaN samples would be printed to the user as noise
+    noisy = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    assert not noisy, noisy
     err = capsys.readouterr().err
     assert "Traceback" not in err, err
     assert code in (0, 1, 2), (code, err)
