@@ -175,6 +175,16 @@ def atomic_directory_outputs(directory: Path) -> Iterator[Path]:
         if error.errno in _WRITE_ERRNOS:
             raise write_error(directory, error) from None
         raise
+    except ValueError as error:
+        # a writer's own one-line error names the file it was writing: name the target
+        text = str(error).replace(f"{tmp}{os.sep}", f"{directory}{os.sep}")
+        if text == str(error):
+            raise
+        try:
+            renamed = type(error)(text)
+        except Exception:  # an error type with another signature: keep it as it is
+            raise error from None
+        raise renamed from None
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
