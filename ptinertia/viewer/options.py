@@ -137,14 +137,11 @@ def _serve_mode(arg: str) -> ViewerMode:
     if host in (None, "localhost"):
         host = "127.0.0.1"
     try:
-        ip = ipaddress.ip_address(host)
+        ipaddress.ip_address(host)
     except ValueError:
         raise UsageError(
             f"--rerun serve={arg}: bind address must be an IP address, got {host!r}"
         ) from None
-    if ip.version != 4:
-        # rerun's server parses IPv4 socket addresses only ("invalid socket address syntax")
-        raise UsageError(f"--rerun serve={arg}: the viewer serves on IPv4 only, e.g. 127.0.0.1")
     return ViewerMode("serve", bind_ip=host, port=port or DEFAULT_PORT)
 
 
@@ -263,8 +260,10 @@ def open_recording(mode: ViewerMode, blueprint: Any, out: TextIO) -> Any:
         assert mode.path is not None
         rec.save(mode.path, default_blueprint=blueprint)
     elif mode.kind == "serve":
+        # rerun joins "IP:PORT" and parses it as a socket address: IPv6 needs its brackets
+        bind = f"[{mode.bind_ip}]" if ":" in mode.bind_ip else mode.bind_ip
         server = rr.GrpcServerSink(
-            bind_ip=mode.bind_ip, port=mode.port, server_memory_limit=mode.memory_limit
+            bind_ip=bind, port=mode.port, server_memory_limit=mode.memory_limit
         )
         rec.set_sinks(server, default_blueprint=blueprint)
         print(f"ptinertia: {mode.open_hint()}", file=out)
