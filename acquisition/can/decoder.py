@@ -34,6 +34,7 @@ from acquisition.can.fields import as_rows, frame_crc, raw_fields_slow, read_fie
 from acquisition.can.frames import RawFrame
 from acquisition.can.plan import STATE_STOPPED, CanPlan, MessagePlan
 from acquisition.can.reorder import DecoderOptions, GapReport, GroupAssembler, MessageStream
+from acquisition.can.spans import next_received, received_spans, split_on_holes
 from acquisition.can.stats import DecoderStats, StreamStats
 from acquisition.stream import EdgeBlock, SampleBlock, StreamItem, StreamLayout
 
@@ -279,7 +280,7 @@ class FrameDecoder:
                 if n not in s.received:
                     # a run of missing frames is counted at once, not frame by frame: after
                     # a receive time far ahead (a corrupt log timestamp) it can be 1e13 long
-                    m = min(_next_received(s, n), stop)
+                    m = min(next_received(s, n), stop)
                     s.stats.lost += m - n
                     lost_from = n if lost_from is None else lost_from
                     n = m
@@ -305,7 +306,7 @@ class FrameDecoder:
         # Built per run of received frames: a span no member received (an outage, or
         # frames dated far ahead by a corrupt log timestamp) is never allocated.
         blocks: list[SampleBlock] = []
-        for a, b in _received_spans(g, i0, upto):
+        for a, b in received_spans(g, i0, upto):
             data = np.empty((g.n_ch, b - a))
             for s in g.members:
                 size = s.plan.samples_per_frame
@@ -314,7 +315,7 @@ class FrameDecoder:
                 # one copy per member: the frames (received or NaN) end to end, then the window
                 run = np.concatenate([s.received.get(n, hole) for n in range(f0, f1)])
                 data[list(s.plan.rows)] = run[a - f0 * size : b - f0 * size].T
-            blocks += _split_on_holes(g.name, a, data)
+            blocks += split_on_holes(g.name, a, data)
         for s in g.members:
             size = s.plan.samples_per_frame
             f0 = i0 // size
@@ -341,7 +342,7 @@ class FrameDecoder:
         while n in s.received or n < stop:
             times = s.received.pop(n, None)
             if times is None:
-                m = min(_next_received(s, n), stop)  # the whole missing run at once
+                m = min(next_received(s, n), stop)  # the whole missing run at once
                 s.stats.lost += m - n
                 lost += m - n
                 n = m
@@ -369,37 +370,6 @@ class FrameDecoder:
         return EdgeBlock(ch, np.concatenate(parts))
 
 
-def _received_spans(g: GroupAssembler, i0: int, upto: int) -> list[tuple[int, int]]:
-    """Sample ranges within ``[i0, upto)`` covered by a received frame of some member,
-    adjacent and overlapping ones merged, in order."""
-    spans = sorted(
-        (max(i0, n * m.plan.samples_per_frame), min(upto, (n + 1) * m.plan.samples_per_frame))
-        for m in g.members
-        for n in m.received
-    )
-    merged: list[tuple[int, int]] = []
-    for a, b in spans:
-        if b <= a:
-            continue
-        if merged and a <= merged[-1][1]:
-            merged[-1] = (merged[-1][0], max(merged[-1][1], b))
-        else:
-            merged.append((a, b))
-    return merged
-
-
-def _split_on_holes(group: str, i0: int, data: np.ndarray) -> list[SampleBlock]:
-    """Blocks of ``data`` without the samples every channel lost (those become index jumps)."""
-    hole = np.all(np.isnan(data), axis=0)
-    if not hole.any():
-        return [SampleBlock(group, i0, data)]
-    edges = np.flatnonzero(np.diff(np.concatenate([[1], hole.astype(np.int8), [1]])))
-    out = []
-    for a, b in zip(edges[::2], edges[1::2], strict=True):
-        out.append(SampleBlock(group, i0 + int(a), data[:, a:b]))
-    return out
-
-
 def decode_frames(
     plan: CanPlan, frames: Iterable[RawFrame], options: DecoderOptions | None = None
 ) -> tuple[list[StreamItem], DecoderStats]:
@@ -408,11 +378,6 @@ def decode_frames(
     items = dec.feed(list(frames))
     items += dec.finish()
     return items, dec.stats
-
-
-def _next_received(s: MessageStream, n: int) -> int:
-    """The first frame number after ``n`` that ``s`` holds (a large number if none)."""
-    return min((k for k in s.received if k > n), default=1 << 62)
 
 
 def _keep(s: MessageStream, n: int, payload: Any) -> None:

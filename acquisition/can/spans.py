@@ -1,0 +1,49 @@
+"""Where the decoder's frames are: the runs of received frames and the holes between them.
+
+Split from :mod:`acquisition.can.decoder`: the decoder walks and allocates only what was
+received, so an outage (or frames dated far ahead by a corrupt log timestamp) costs
+nothing however long it is.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from acquisition.can.reorder import GroupAssembler, MessageStream
+from acquisition.stream import SampleBlock
+
+
+def received_spans(g: GroupAssembler, i0: int, upto: int) -> list[tuple[int, int]]:
+    """Sample ranges within ``[i0, upto)`` covered by a received frame of some member,
+    adjacent and overlapping ones merged, in order."""
+    spans = sorted(
+        (max(i0, n * m.plan.samples_per_frame), min(upto, (n + 1) * m.plan.samples_per_frame))
+        for m in g.members
+        for n in m.received
+    )
+    merged: list[tuple[int, int]] = []
+    for a, b in spans:
+        if b <= a:
+            continue
+        if merged and a <= merged[-1][1]:
+            merged[-1] = (merged[-1][0], max(merged[-1][1], b))
+        else:
+            merged.append((a, b))
+    return merged
+
+
+def split_on_holes(group: str, i0: int, data: np.ndarray) -> list[SampleBlock]:
+    """Blocks of ``data`` without the samples every channel lost (those become index jumps)."""
+    hole = np.all(np.isnan(data), axis=0)
+    if not hole.any():
+        return [SampleBlock(group, i0, data)]
+    edges = np.flatnonzero(np.diff(np.concatenate([[1], hole.astype(np.int8), [1]])))
+    out = []
+    for a, b in zip(edges[::2], edges[1::2], strict=True):
+        out.append(SampleBlock(group, i0 + int(a), data[:, a:b]))
+    return out
+
+
+def next_received(s: MessageStream, n: int) -> int:
+    """The first frame number after ``n`` that ``s`` holds (a large number if none)."""
+    return min((k for k in s.received if k > n), default=1 << 62)
