@@ -24,7 +24,15 @@ from pydantic import (
 )
 
 from acquisition.tables import format_validation_error
-from ptinertia.config_fields import NonNegative, Positive, Section
+from ptinertia.config_fields import (
+    MAX_ACCEL_RATE_HZ,
+    MAX_TACHO_RATE_HZ,
+    NonNegative,
+    Positive,
+    Section,
+    Seed,
+    rate_at_most,
+)
 from ptinertia.config_powertrain import (
     Engine,
     GasOrders,
@@ -73,6 +81,11 @@ class Tacho(Section):
     cam_angle_deg: float = 0.0
     pressure_channel: str = "p_cyl1"
 
+    @field_validator("sample_rate_hz", "rpm_rate_hz")
+    @classmethod
+    def _rate(cls, v: float) -> float:
+        return rate_at_most(v, MAX_TACHO_RATE_HZ, "tacho or rpm rate")
+
     @model_validator(mode="after")
     def _wheel(self) -> Tacho:
         if self.kind == "wheel" and self.missing >= self.teeth:
@@ -82,6 +95,11 @@ class Tacho(Section):
 
 class Sampling(Section):
     accel_rate_hz: Positive = 5120.0
+
+    @field_validator("accel_rate_hz")
+    @classmethod
+    def _rate(cls, v: float) -> float:
+        return rate_at_most(v, MAX_ACCEL_RATE_HZ, "accelerometer rate")
 
 
 class ElasticMode(Section):
@@ -99,7 +117,7 @@ class Simulation(Section):
     duration_s: Positive = 60.0
     hold_s: NonNegative = 0.0
     noise_snr_db: float | None = None
-    seed: int = 0
+    seed: Seed = 0
     gain_error_pct: NonNegative = 0.0
     misalignment_deg: NonNegative = 0.0
     position_error_m: NonNegative = 0.0
@@ -259,15 +277,27 @@ def load_bench(path: str | Path) -> Bench:
     """Read and validate a bench TOML file."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        raw = path.read_bytes()
     except OSError as err:
         raise ConfigError(f"{path}: cannot read bench file ({err.strerror})") from None
-    return loads_bench(text, str(path), base_dir=path.parent)
+    return loads_bench(decode_toml(raw, str(path)), str(path), base_dir=path.parent)
+
+
+def decode_toml(raw: bytes, where: str) -> str:
+    """The text of a TOML file: UTF-8 (TOML's only encoding), with or without the byte
+    order mark some Windows editors write."""
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise ConfigError(
+            f"{where}: not UTF-8 text (byte 0x{raw[err.start]:02x} at offset {err.start}); "
+            "save the file as UTF-8"
+        ) from None
 
 
 def loads_bench(text: str, where: str = "bench", base_dir: Path | None = None) -> Bench:
     try:
-        data = tomllib.loads(text)
+        data = tomllib.loads(text.removeprefix("\ufeff"))
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{where}: not valid TOML ({err})") from None
     bench = parse_bench(data, where)

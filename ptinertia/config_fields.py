@@ -10,19 +10,48 @@ import math
 from typing import Annotated
 
 import numpy as np
-from pydantic import Field
+from pydantic import ConfigDict, Field
 
 from acquisition.tables import TomlTable
 
-Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]  # (x, y, z)
+# A bench coordinate, m (or an axis component): a powertrain fits in a few metres; a
+# value kilometres away is a unit mistake, and squared in the inertia terms it would
+# overflow the fit long after the file was read.
+MAX_COORDINATE_M = 1000.0
+Coordinate = Annotated[float, Field(ge=-MAX_COORDINATE_M, le=MAX_COORDINATE_M)]
+Vec3 = Annotated[list[Coordinate], Field(min_length=3, max_length=3)]  # (x, y, z)
 Matrix3 = Annotated[list[Vec3], Field(min_length=3, max_length=3)]  # three rows
 Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
+Seed = Annotated[int, Field(ge=0, lt=2**63)]  # numpy's generators take 0 <= seed
+
+# Sample rates, Hz: the dsp and the simulator hold blocks of rate x block length per
+# channel, so a rate typed in the wrong unit (1e9) exhausts memory before any error.
+# Accelerometer DAQ inputs run at 200 kHz at most, counter-timer tacho inputs at 10s of MHz.
+MAX_ACCEL_RATE_HZ = 1e6
+MAX_TACHO_RATE_HZ = 1e8
+
+
+def rate_at_most(value: float, limit_hz: float, what: str) -> float:
+    """``value`` if it is at most ``limit_hz``; ValueError saying why otherwise."""
+    if value > limit_hz:
+        raise ValueError(
+            f"{value:g} Hz is above the {limit_hz:g} Hz {what} this tool accepts "
+            "(blocks grow with the rate and would exhaust memory; is the unit Hz?)"
+        )
+    return value
+
 
 # the default axes of a mount or sensor: aligned with the bench frame
 IDENTITY = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
 
-Section = TomlTable  # base of every bench-file table
+
+class Section(TomlTable):
+    """Base of every bench-file table: numbers strict. TOML has real booleans, so
+    ``true`` for a number is a mistake, not 1.0; ``nan`` and ``inf`` are valid TOML
+    floats but no bench quantity, and they would fail much later, far from the key."""
+
+    model_config = ConfigDict(strict=True, allow_inf_nan=False)
 
 
 def orthonormal_rows(axes: list[list[float]], what: str) -> list[list[float]]:

@@ -19,6 +19,7 @@ from estimator.result import Z95, Estimate
 from estimator.setup import Corrections, Gates, Tolerances
 from estimator.streaming import InertiaEstimator
 from ptinertia.config import Bench
+from ptinertia.outputs import atomic_write
 from ptinertia.pipeline import Pipeline, RunSummary
 from ptinertia.progress import ProgressLine
 from ptinertia.sinks import RunContext, Sink
@@ -163,15 +164,15 @@ def result_truth(truth: dict[str, Any] | None) -> dict[str, Any] | None:
 
 
 def write_json(doc: dict[str, Any], path: str | Path) -> None:
-    """Write atomically: a reader never sees half a result file."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".part")
-    tmp.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8")
-    tmp.replace(path)
+    """Write atomically (:func:`ptinertia.outputs.atomic_write`): a reader never sees
+    half a result file, a full disk leaves no ``.part`` behind."""
+    atomic_write(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
 
 
-def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO = sys.stdout) -> None:
-    """Estimate, 95 % interval, truth and error, one line per term."""
+def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO | None = None) -> None:
+    """Estimate, 95 % interval, truth and error, one line per term (to ``out``, default the
+    standard output at call time, not the one at import)."""
+    out = sys.stdout if out is None else out
     truth = doc.get("truth") or {}
     t_inertia = (truth.get("inertia_kgm2") or {}).get("value") or {}
     t_cog = (truth.get("cog_m") or {}).get("value")

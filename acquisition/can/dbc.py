@@ -25,6 +25,7 @@ cantools for signals the fast path cannot read.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import re
 from collections.abc import Sequence
 from pathlib import Path
@@ -54,13 +55,35 @@ def load_dbc(path: str | Path | None) -> Any:
     p = Path(path)
     if not p.is_file():
         raise SourceError(f"DBC file {str(p)!r} not found")
+    # cantools logs its warnings (a duplicate id) to stderr: they are checked below instead
+    log = logging.getLogger("cantools")
+    level = log.level
+    log.setLevel(logging.ERROR)
     try:
-        return cantools.database.load_file(str(p), database_format="dbc", strict=True)
+        db = cantools.database.load_file(str(p), database_format="dbc", strict=True)
     except (
         Exception
     ) as err:  # cantools raises many types (ParseError, UnsupportedDatabaseFormatError, ...)
         first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         raise SourceError(f"DBC file {str(p)!r} cannot be read: {first}") from None
+    finally:
+        log.setLevel(level)
+    _refuse_duplicate_ids(db, p)
+    return db
+
+
+def _refuse_duplicate_ids(db: Any, path: Path) -> None:
+    """cantools keeps the last of two messages sharing an id (with a log warning only):
+    the frames would then be decoded with the wrong layout, so two are refused here."""
+    seen: dict[tuple[int, bool], str] = {}
+    for msg in db.messages:
+        key = (msg.frame_id, bool(msg.is_extended_frame))
+        if key in seen:
+            raise SourceError(
+                f"DBC file {str(path)!r}: messages {seen[key]} and {msg.name} share the id "
+                f"0x{msg.frame_id:X}; each frame id may be defined once"
+            )
+        seen[key] = msg.name
 
 
 def _attr(obj: Any, name: str, default: Any = None) -> Any:

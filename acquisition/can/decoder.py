@@ -35,6 +35,7 @@ from acquisition.can.frames import RawFrame
 from acquisition.can.item_cuts import cut_edges, cut_samples, split_on_holes
 from acquisition.can.plan import STATE_STOPPED, CanPlan, MessagePlan
 from acquisition.can.reorder import DecoderOptions, GapReport, GroupAssembler, MessageStream
+from acquisition.can.spans import next_received, received_spans
 from acquisition.can.stats import DecoderStats, StreamStats
 from acquisition.stream import EdgeBlock, SampleBlock, StreamItem, StreamLayout
 
@@ -284,11 +285,18 @@ class FrameDecoder:
             assert s.next_frame is not None
             lost_from = None
             n = s.next_frame
-            while n in s.received or (n + 1) * size <= limit or (final and n * size < limit):
+            # frames up to ``stop`` are resolved: received, or lost if still missing
+            stop = -(-limit // size) if final else limit // size
+            while n in s.received or n < stop:
                 if n not in s.received:
-                    s.stats.lost += 1
+                    # a run of missing frames is counted at once, not frame by frame: after
+                    # a receive time far ahead (a corrupt log timestamp) it can be 1e13 long
+                    m = min(next_received(s, n), stop)
+                    s.stats.lost += m - n
                     lost_from = n if lost_from is None else lost_from
-                elif lost_from is not None:
+                    n = m
+                    continue
+                if lost_from is not None:
                     self._report_lost(s, g, lost_from, n)
                     lost_from = None
                 n += 1
@@ -306,20 +314,28 @@ class FrameDecoder:
         g.next_index = i0
         if upto <= i0:
             return []
-        data = np.empty((g.n_ch, upto - i0))
+        # Built per run of received frames: a span no member received (an outage, or
+        # frames dated far ahead by a corrupt log timestamp) is never allocated.
+        blocks: list[SampleBlock] = []
+        for a, b in received_spans(g, i0, upto):
+            data = np.empty((g.n_ch, b - a))
+            for s in g.members:
+                size = s.plan.samples_per_frame
+                f0, f1 = a // size, -(-b // size)
+                hole = np.full((size, len(s.plan.rows)), np.nan)
+                # one copy per member: the frames (received or NaN) end to end, then the window
+                run = np.concatenate([s.received.get(n, hole) for n in range(f0, f1)])
+                data[list(s.plan.rows)] = run[a - f0 * size : b - f0 * size].T
+            blocks += split_on_holes(g.name, a, data)
         for s in g.members:
             size = s.plan.samples_per_frame
-            f0, f1 = i0 // size, -(-upto // size)
-            hole = np.full((size, len(s.plan.rows)), np.nan)
-            # one copy per member: the frames (received or NaN) end to end, then the window
-            run = np.concatenate([s.received.get(n, hole) for n in range(f0, f1)])
-            data[list(s.plan.rows)] = run[i0 - f0 * size : upto - f0 * size].T
-            for n in range(f0, f1 if f1 * size <= upto else f1 - 1):
-                if s.received.pop(n, None) is not None:
-                    s.recent.add(n)
+            f0 = i0 // size
+            for n in [k for k in s.received if f0 <= k and (k + 1) * size <= upto]:
+                del s.received[n]
+                s.recent.add(n)
             s.forget_before(f0)
         g.next_index = upto
-        return split_on_holes(g.name, i0, data)
+        return blocks
 
     def _report_lost(self, s: MessageStream, g: GroupAssembler, n0: int, n1: int) -> None:
         size = s.plan.samples_per_frame
@@ -333,24 +349,27 @@ class FrameDecoder:
         parts = []
         n = s.next_frame
         lost = 0
-        while n in s.received or n <= s.max_n - s.window or (final and n <= s.max_n):
+        stop = s.max_n + 1 if final else s.max_n - s.window + 1
+        while n in s.received or n < stop:
             times = s.received.pop(n, None)
             if times is None:
-                s.stats.lost += 1
-                lost += 1
+                m = min(next_received(s, n), stop)  # the whole missing run at once
+                s.stats.lost += m - n
+                lost += m - n
+                n = m
+                continue
+            s.recent.add(n)
+            if lost:
+                t0 = self._edge_last[ch] if math.isfinite(self._edge_last[ch]) else times[0]
+                self._gaps.add(ch, "edge frame(s)", lost, float(t0), float(times[0]))
+                lost = 0
+            if times[0] <= self._edge_last[ch]:
+                s.stats.bad_payload += (
+                    1  # not after the previous edge: a corrupt but CRC-valid frame
+                )
             else:
-                s.recent.add(n)
-                if lost:
-                    t0 = self._edge_last[ch] if math.isfinite(self._edge_last[ch]) else times[0]
-                    self._gaps.add(ch, "edge frame(s)", lost, float(t0), float(times[0]))
-                    lost = 0
-                if times[0] <= self._edge_last[ch]:
-                    s.stats.bad_payload += (
-                        1  # not after the previous edge: a corrupt but CRC-valid frame
-                    )
-                else:
-                    parts.append(times)
-                    self._edge_last[ch] = float(times[-1])
+                parts.append(times)
+                self._edge_last[ch] = float(times[-1])
             n += 1
         if lost:
             t_last = self._edge_last[ch] if math.isfinite(self._edge_last[ch]) else 0.0

@@ -18,6 +18,10 @@ from acquisition.can.stats import StreamStats
 from acquisition.stream import SourceEvent
 
 _PLAUSIBLE_WINDOWS = 4  # a counter may move this many reorder windows beyond what the clock allows
+# A receive time this far past the last frame is no longer trusted alone to allow a counter
+# jump (one corrupt log timestamp of 1e11 s would move every later frame 1e13 frames on):
+# the frame then waits for a second one agreeing with it, as after any implausible jump.
+_MAX_TRUSTED_GAP_S = 3600.0
 
 
 @dataclass(frozen=True)
@@ -73,7 +77,8 @@ class MessageStream:
         if self.ref_n is None:
             return False
         d = n - self.ref_n
-        slack = _PLAUSIBLE_WINDOWS * self.window + 2.0 * max(0.0, t - self.ref_t) * self.frame_rate
+        dt = min(max(0.0, t - self.ref_t), _MAX_TRUSTED_GAP_S)
+        slack = _PLAUSIBLE_WINDOWS * self.window + 2.0 * dt * self.frame_rate
         return -_PLAUSIBLE_WINDOWS * self.window <= d <= slack
 
     def offer(self, n: int, t: float, payload: Any) -> list[tuple[int, Any]]:

@@ -77,7 +77,13 @@ def _csv_chunks(
     """
     line_no = 2
     while True:
-        lines = list(itertools.islice(fh, rows))
+        try:
+            lines = list(itertools.islice(fh, rows))
+        except UnicodeDecodeError as err:
+            raise SourceError(
+                f"{path}: not UTF-8 text after line {line_no - 1} (byte 0x{err.object[err.start]:02x}); "
+                "save the file as UTF-8"
+            ) from None
         if not lines:
             return
         try:
@@ -204,7 +210,8 @@ class CsvSource(WindowedFileSource):
         time_factors: list[float] = []
         for key, path in enumerate(files):
             try:
-                fh = path.open("r", encoding="utf-8", newline="")
+                # utf-8-sig: the byte order mark spreadsheet exports put first is not a column name
+                fh = path.open("r", encoding="utf-8-sig", newline="")
                 header = fh.readline()
             except OSError as err:
                 raise SourceError(f"{path}: cannot read ({err.strerror})") from None

@@ -28,6 +28,8 @@ from acquisition.can.logs import FrameLogWriter
 from acquisition.can.plan import CanPlan
 from acquisition.sim.sweep import parse_sweep
 from acquisition.stream import EdgeBlock, SampleBlock, StreamItem, StreamLayout
+from ptinertia.commands.arg_types import finite_float
+from ptinertia.commands.arg_types import seed as seed_type
 from ptinertia.config import Bench, load_bench
 from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
@@ -75,7 +77,7 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
     )
     p.add_argument(
         "--duration",
-        type=float,
+        type=finite_float,
         default=None,
         help="sweep duration, s (default: [simulation] duration_s)",
     )
@@ -83,10 +85,13 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
         "--sweep", default=None, metavar="RPM[:RPM]", help="rpm start:end (default: [simulation])"
     )
     p.add_argument(
-        "--seed", type=int, default=None, help="simulation seed (default: [simulation] seed)"
+        "--seed", type=seed_type, default=None, help="simulation seed (default: [simulation] seed)"
     )
     p.add_argument(
-        "--noise-snr-db", type=float, default=None, help="sensor noise, dB (default: [simulation])"
+        "--noise-snr-db",
+        type=finite_float,
+        default=None,
+        help="sensor noise, dB (default: [simulation])",
     )
     p.add_argument(
         "--pace",
@@ -95,19 +100,22 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
         help="send in real time (default on a bus; a log alone is written as fast as possible)",
     )
     p.add_argument(
-        "--start-delay", type=float, default=0.0, help="wait this long before the first frame, s"
+        "--start-delay",
+        type=finite_float,
+        default=0.0,
+        help="wait this long before the first frame, s",
     )
     for fault, what in zip(
         FAULT_KINDS, ("drop", "send twice", "delay by 1-3 frames", "corrupt"), strict=True
     ):
         p.add_argument(
             f"--{fault}",
-            type=float,
+            type=finite_float,
             default=0.0,
             metavar="FRACTION",
             help=f"{what} this fraction of the data frames",
         )
-    p.add_argument("--fault-seed", type=int, default=0, help="seed of the fault draws")
+    p.add_argument("--fault-seed", type=seed_type, default=0, help="seed of the fault draws")
     p.add_argument(
         "--log",
         default=None,

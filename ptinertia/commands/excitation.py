@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from ptinertia.commands.arg_types import rpm as rpm_type
 from ptinertia.config import load_bench
 from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
@@ -26,7 +27,7 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
         name, help=help_text, description=__doc__.splitlines()[0] if __doc__ else None
     )
     p.add_argument("--bench", default=str(DEFAULT_BENCH), help="bench file (default: %(default)s)")
-    p.add_argument("--rpm", type=float, required=True, help="crank speed, rev/min")
+    p.add_argument("--rpm", type=rpm_type, required=True, help="crank speed, rev/min")
     p.add_argument(
         "--orders",
         default=None,

@@ -15,9 +15,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ptinertia.commands.arg_types import finite_float
 from ptinertia.config import load_bench, loads_bench
 from ptinertia.errors import UsageError
 from ptinertia.export import FORMATS, UNITS, export, properties_from_result
+from ptinertia.outputs import WARN, atomic_write, check_output, input_files
 from replay.reader import open_log
 
 
@@ -26,7 +28,10 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
     p.add_argument("result", help="result document (ptinertia run --json), or a run's LOG.mcap")
     p.add_argument("--format", required=True, choices=FORMATS, help="output format")
     p.add_argument("--out", help="output file (default: standard output)")
-    p.add_argument("--mass", type=float, metavar="KG", help="mass to use when it was not estimated")
+    p.add_argument("--force", action="store_true", help="overwrite without the warning line")
+    p.add_argument(
+        "--mass", type=finite_float, metavar="KG", help="mass to use when it was not estimated"
+    )
     p.add_argument(
         "--bench", help="bench TOML whose (weighed) mass to use when it was not estimated"
     )
@@ -79,6 +84,8 @@ def _grid_at(text: str | None) -> tuple[float, float, float] | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.out is not None:
+        check_output(args.out, "--out", input_files(args.result, args.bench), args.force, WARN)
     doc, log_mass = _result(Path(args.result))
     bench_mass = load_bench(args.bench).powertrain.mass_kg if args.bench else log_mass
     props = properties_from_result(doc, mass=args.mass, bench_mass=bench_mass)
@@ -91,8 +98,8 @@ def run(args: argparse.Namespace) -> int:
             "units": args.units,
         }
     text = export(props, args.format, **kwargs)
-    if args.out:
-        Path(args.out).write_text(text, encoding="utf-8")
+    if args.out is not None:
+        atomic_write(args.out, text)
         print(f"{args.format} written to {args.out}", file=sys.stderr)
     else:
         sys.stdout.write(text)

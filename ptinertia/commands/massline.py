@@ -18,6 +18,7 @@ from typing import Any
 from estimator.classical.massline_rigid import MassLineTolerances
 from estimator.result import Z95
 from ptinertia.classical import massline_document
+from ptinertia.commands.arg_types import finite_float
 from ptinertia.errors import UsageError
 from ptinertia.estimates import write_document
 from ptinertia.paths import DEFAULT_BENCH
@@ -37,7 +38,7 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
     p.add_argument(
         "--band",
         nargs=2,
-        type=float,
+        type=finite_float,
         default=None,
         metavar=("LOW_HZ", "HIGH_HZ"),
         help="mass-line band (default: chosen from the resonances)",
@@ -49,18 +50,28 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
     )
     p.add_argument(
         "--node-tolerance-mm",
-        type=float,
+        type=finite_float,
         default=5.0,
         help="match UFF nodes to bench sensors within this distance (default: %(default)s)",
     )
     tol = p.add_argument_group("declared 1-sigma uncertainties, propagated into the intervals")
-    tol.add_argument("--force-gain-pct", type=float, default=0.0, help="force gauge calibration")
-    tol.add_argument("--hit-position-mm", type=float, default=0.0, help="each hit's position")
-    tol.add_argument("--hit-direction-deg", type=float, default=0.0, help="each hit's direction")
-    tol.add_argument("--sensor-gain-pct", type=float, default=0.0, help="each channel's gain")
-    tol.add_argument("--sensor-position-mm", type=float, default=0.0, help="each sensor's position")
     tol.add_argument(
-        "--sensor-alignment-deg", type=float, default=0.0, help="each sensor's orientation"
+        "--force-gain-pct", type=finite_float, default=0.0, help="force gauge calibration"
+    )
+    tol.add_argument(
+        "--hit-position-mm", type=finite_float, default=0.0, help="each hit's position"
+    )
+    tol.add_argument(
+        "--hit-direction-deg", type=finite_float, default=0.0, help="each hit's direction"
+    )
+    tol.add_argument(
+        "--sensor-gain-pct", type=finite_float, default=0.0, help="each channel's gain"
+    )
+    tol.add_argument(
+        "--sensor-position-mm", type=finite_float, default=0.0, help="each sensor's position"
+    )
+    tol.add_argument(
+        "--sensor-alignment-deg", type=finite_float, default=0.0, help="each sensor's orientation"
     )
     p.add_argument(
         "--json", default=None, metavar="OUT", help="write the result document ('-': stdout)"

@@ -12,6 +12,7 @@ import argparse
 import json
 from typing import Any
 
+from ptinertia.commands.arg_types import rpm as rpm_type
 from ptinertia.config import load_bench
 from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
@@ -24,7 +25,10 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
     )
     p.add_argument("--bench", default=str(DEFAULT_BENCH), help="bench file (default: %(default)s)")
     p.add_argument(
-        "--rpm", type=float, default=None, help="crank speed for damped gyroscopic modes, rev/min"
+        "--rpm",
+        type=rpm_type,
+        default=None,
+        help="crank speed for damped gyroscopic modes, rev/min",
     )
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     return p

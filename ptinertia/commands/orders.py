@@ -29,6 +29,7 @@ import numpy as np
 from dsp.orders import OrderTracker
 from ptinertia.config import load_bench
 from ptinertia.errors import UsageError
+from ptinertia.outputs import WARN, atomic_output, check_output, input_files
 from ptinertia.paths import DEFAULT_BENCH
 from ptinertia.sources import open_source
 from ptinertia.to_dsp import tracker_config
@@ -75,6 +76,10 @@ def run(args: argparse.Namespace) -> int:
     if args.file != "sim" and not Path(args.file).exists():
         raise UsageError(f"{args.file}: no such file")
     spec = "sim" if args.file == "sim" else "file:" + args.file
+    inputs = input_files(args.bench, None if args.file == "sim" else args.file)
+    for option in ("out", "png"):
+        if getattr(args, option) is not None:
+            check_output(getattr(args, option), f"--{option}", inputs, False, WARN)
     config = tracker_config(bench, orders)
     frames = []
     events: Counter[str] = Counter()
@@ -92,10 +97,12 @@ def run(args: argparse.Namespace) -> int:
             f"{args.file}: no order frame (is the tacho channel {config.tacho.channel!r} "
             "carrying edges, and the recording longer than four revolutions?)"
         )
-    if args.out:
-        write_csv(Path(args.out), frames)
-    if args.png:
-        plot(Path(args.png), frames, title=f"{Path(args.file).name} - {bench.meta.name}")
+    if args.out is not None:
+        with atomic_output(args.out) as tmp:
+            write_csv(tmp, frames)
+    if args.png is not None:
+        with atomic_output(args.png) as tmp:
+            plot(tmp, frames, title=f"{Path(args.file).name} - {bench.meta.name}")
     flags = Counter(flag for f in frames for flag in f.flags)
     rpm = [f.rpm for f in frames]
     print(
@@ -184,7 +191,7 @@ def plot(path: Path, frames: list[Any], title: str = "") -> None:
         fig.suptitle(title)
     fig.tight_layout()
     try:
-        fig.savefig(path, dpi=110)
+        fig.savefig(path, dpi=110, format="png")  # the temporary name has no .png suffix
     except OSError as err:
         raise UsageError(f"{path}: cannot write ({err.strerror})") from None
     finally:

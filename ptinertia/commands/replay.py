@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -21,13 +22,16 @@ from ptinertia.batch.campaign import replay_bench
 from ptinertia.commands.replay_campaign import add_campaign_arguments, replay_campaign
 from ptinertia.commands.run import (
     CORRECTIONS,
+    add_force_flag,
     add_mount_scale_flag,
+    check_outputs,
     no_estimate_reason,
     parse_orders,
     recorder_sinks,
     viewer_sinks,
 )
 from ptinertia.errors import UsageError
+from ptinertia.outputs import input_files
 from ptinertia.runner import RunOptions, print_table, run_source, write_json
 from ptinertia.to_acquisition import channel_needs
 from ptinertia.to_can import can_plan
@@ -42,6 +46,7 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
     p.add_argument("--bench", help="bench TOML overriding the one stored in the log")
     p.add_argument("--json", metavar="PATH", help="result document (a directory: one file per log)")
     p.add_argument("--record", metavar="PATH", help="record the replay again (single log only)")
+    add_force_flag(p)
     p.add_argument(
         "--rerun",
         metavar="MODE",
@@ -62,6 +67,9 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
     add_campaign_arguments(p)
 
 
+MIN_SPEED = 1e-3
+
+
 def parse_speed(text: str) -> float | None:
     if text == "max":
         return None
@@ -71,8 +79,11 @@ def parse_speed(text: str) -> float | None:
         value = float(text)
     except ValueError:
         value = -1.0
-    if not value > 0:
-        raise UsageError(f"--speed: expected max, realtime or a positive factor, got {text!r}")
+    # below 1e-3 a second of log would take over 15 minutes: a typo, not a wish
+    if not (math.isfinite(value) and MIN_SPEED <= value):
+        raise UsageError(
+            f"--speed: expected max, realtime or a finite factor >= {MIN_SPEED:g}, got {text!r}"
+        )
     return value
 
 
@@ -128,4 +139,6 @@ def run(args: argparse.Namespace) -> int:
     if len(args.log) > 1 or Path(args.log[0]).is_dir():
         return replay_campaign(args)
     logs = find_logs(Path(args.log[0]))
+    check_outputs(args, input_files(logs[0], args.bench, args.dbc))
+    parse_speed(args.speed)  # a bad --speed fails before the log is read
     return replay_one(logs[0], args, Path(args.json) if args.json else None)

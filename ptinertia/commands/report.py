@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from ptinertia.errors import UsageError
+from ptinertia.outputs import WARN, check_output, input_files
 from ptinertia.report.build import make_report
 from ptinertia.reprocess import reprocess_log
 
@@ -28,15 +29,15 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
         "--bench",
         help="bench TOML: for a result document, enables modes; for a recording, re-estimates with it",
     )
+    p.add_argument("--force", action="store_true", help="overwrite without the warning line")
 
 
 def run(args: argparse.Namespace) -> int:
     src = Path(args.input)
     out = Path(args.out) if args.out else src.with_suffix(".html")
-    if out.resolve() == src.resolve():
-        raise UsageError(f"--out {out}: would overwrite the input")
-    if not out.parent.is_dir():
-        raise UsageError(f"--out {out}: directory {out.parent} does not exist")
+    check_output(out, "--out", input_files(src, args.bench), args.force, WARN)
+    if args.png is not None and Path(args.png).exists() and not Path(args.png).is_dir():
+        raise UsageError(f"--png {args.png}: not a directory")
     t0 = time.perf_counter()
     report = make_report(
         src, out, bench=args.bench, png_dir=args.png, reprocess=reprocess_log, progress=True

@@ -12,8 +12,11 @@ from pathlib import Path
 from typing import Any
 
 from acquisition.can.logs import is_can_log
+from ptinertia.commands.arg_types import finite_float
+from ptinertia.commands.arg_types import seed as seed_type
 from ptinertia.config import load_bench
 from ptinertia.errors import UsageError
+from ptinertia.outputs import REFUSE, WARN, check_output, input_files
 from ptinertia.paths import DEFAULT_BENCH
 from ptinertia.runner import RunOptions, print_table, run_source, write_json
 from ptinertia.sinks import Sink
@@ -47,6 +50,7 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
     )
     p.add_argument("--json", metavar="PATH", help="write the result document here")
     p.add_argument("--record", metavar="PATH", help="record everything to this MCAP file")
+    add_force_flag(p)
     p.add_argument(
         "--record-level",
         metavar="N",
@@ -77,10 +81,10 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress line")
     sim = p.add_argument_group("simulated source (--source sim)")
     sim.add_argument("--sweep", metavar="FROM:TO", help="rpm sweep, e.g. 1500:4500")
-    sim.add_argument("--duration", type=float, metavar="S", help="sweep duration in s")
-    sim.add_argument("--fs", type=float, metavar="HZ", help="accelerometer sample rate")
-    sim.add_argument("--noise-db", type=float, metavar="DB", help="white noise SNR in dB")
-    sim.add_argument("--seed", type=int, help="random seed of the simulated imperfections")
+    sim.add_argument("--duration", type=finite_float, metavar="S", help="sweep duration in s")
+    sim.add_argument("--fs", type=finite_float, metavar="HZ", help="accelerometer sample rate")
+    sim.add_argument("--noise-db", type=finite_float, metavar="DB", help="white noise SNR in dB")
+    sim.add_argument("--seed", type=seed_type, help="random seed of the simulated imperfections")
     sim.add_argument(
         "--realistic", action="store_true", help="1 %% gains, 1 deg, 2 mm, 40 dB, unbalance"
     )
@@ -201,6 +205,24 @@ def recorder_sinks(path: str | None, level: int = ZSTD_LEVEL) -> list[Sink]:
     return [recorder, FoxgloveScene(recorder)]
 
 
+def add_force_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="overwrite an existing recording (result documents are replaced with a warning)",
+    )
+
+
+def check_outputs(args: argparse.Namespace, inputs: list[Path]) -> None:
+    """``--json`` and ``--record`` checked before any work (ptinertia.outputs)."""
+    if args.json is not None:
+        check_output(args.json, "--json", inputs, args.force, WARN)
+    if args.record is not None:
+        check_output(args.record, "--record", inputs, args.force, REFUSE)
+        if args.json is not None and Path(args.json).resolve() == Path(args.record).resolve():
+            raise UsageError(f"--json and --record name the same file {args.json}")
+
+
 def run(args: argparse.Namespace) -> int:
     if args.bench is None and args.source != "sim":
         # a recording read with the example bench's sensor positions, mounts and tacho
@@ -211,6 +233,8 @@ def run(args: argparse.Namespace) -> int:
             "simulated source defaults to the i3 example"
         )
     bench_path = Path(args.bench) if args.bench is not None else DEFAULT_BENCH
+    file_source = args.source.partition(":")[2] if args.source.startswith("file:") else None
+    check_outputs(args, input_files(bench_path, file_source, args.dbc))
     bench = with_mount_scale(load_bench(bench_path), args.mount_scale)
     bench_text = bench_path.read_text(encoding="utf-8")
     overrides = sim_overrides(args) if args.source == "sim" else {}
@@ -256,7 +280,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"ptinertia run: no estimate: {reason}", file=sys.stderr)
         return 1
     print_table(summary.estimate, doc)
-    if args.json:
+    if args.json is not None:
         write_json(doc, args.json)
         print(f"result written to {args.json}")
     if args.record:

@@ -34,6 +34,8 @@ from acquisition.classical.frf_matrix import frfs_from_matrix
 from acquisition.classical.pendulum_file import dumps_pendulum_test
 from acquisition.classical.uff import write_uff
 from powertrain.mounted import MountedPowertrain
+from ptinertia.commands.arg_types import finite_float
+from ptinertia.commands.arg_types import seed as seed_type
 from ptinertia.config import load_bench
 from ptinertia.errors import UsageError
 from ptinertia.paths import DEFAULT_BENCH
@@ -48,32 +50,34 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
     )
     p.add_argument("--bench", default=str(DEFAULT_BENCH), help="bench file (default: %(default)s)")
     p.add_argument("--out", required=True, help="file to write")
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default: %(default)s)")
+    p.add_argument("--seed", type=seed_type, default=0, help="noise seed (default: %(default)s)")
     if name == "simulate-pendulum":
         p.add_argument("--method", choices=("pendulum", "rolling_plate"), default="pendulum")
         p.add_argument(
-            "--stiffness-nm-per-rad", type=float, default=40.0, help="suspension stiffness"
+            "--stiffness-nm-per-rad", type=finite_float, default=40.0, help="suspension stiffness"
         )
-        p.add_argument("--period-noise-pct", type=float, default=0.0)
-        p.add_argument("--stiffness-noise-pct", type=float, default=0.0)
-        p.add_argument("--stiffness-calibration-pct", type=float, default=0.0)
-        p.add_argument("--axis-noise-deg", type=float, default=0.0)
-        p.add_argument("--line-noise-mm", type=float, default=0.0)
-        p.add_argument("--line-angle-noise-deg", type=float, default=0.0)
-        p.add_argument("--plate-inertia-kgm2", type=float, default=0.8)
+        p.add_argument("--period-noise-pct", type=finite_float, default=0.0)
+        p.add_argument("--stiffness-noise-pct", type=finite_float, default=0.0)
+        p.add_argument("--stiffness-calibration-pct", type=finite_float, default=0.0)
+        p.add_argument("--axis-noise-deg", type=finite_float, default=0.0)
+        p.add_argument("--line-noise-mm", type=finite_float, default=0.0)
+        p.add_argument("--line-angle-noise-deg", type=finite_float, default=0.0)
+        p.add_argument("--plate-inertia-kgm2", type=finite_float, default=0.8)
     else:
         p.add_argument(
             "--snr-db",
-            type=float,
+            type=finite_float,
             default=40.0,
             help="relative noise per line (default: %(default)s)",
         )
         p.add_argument("--exact", action="store_true", help="no noise")
-        p.add_argument("--suspension-hz", type=float, default=5.0, help="highest suspension mode")
-        p.add_argument("--elastic-hz", type=float, default=250.0, help="first elastic mode")
+        p.add_argument(
+            "--suspension-hz", type=finite_float, default=5.0, help="highest suspension mode"
+        )
+        p.add_argument("--elastic-hz", type=finite_float, default=250.0, help="first elastic mode")
         p.add_argument("--no-elastic", action="store_true", help="a rigid test article")
-        p.add_argument("--df-hz", type=float, default=0.25, help="frequency resolution")
-        p.add_argument("--fmax-hz", type=float, default=400.0, help="highest frequency")
+        p.add_argument("--df-hz", type=finite_float, default=0.25, help="frequency resolution")
+        p.add_argument("--fmax-hz", type=finite_float, default=400.0, help="highest frequency")
         p.add_argument("--binary", action="store_true", help="binary 58b datasets")
     return p
 

@@ -17,6 +17,7 @@ from datetime import UTC, datetime
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
+from ptinertia.outputs import atomic_write, write_error
 from ptinertia.progress import work_bar
 from ptinertia.report import gating, plots, sections
 from ptinertia.report.data import ReportData, Reprocess, load
@@ -194,16 +195,17 @@ def build_report(data: ReportData, step: Callable[[str], None] = _no_step) -> Re
 def write_report(report: Report, out: str | Path, png_dir: str | Path | None = None) -> list[Path]:
     """Write the HTML (atomically) and, when asked, every figure as ``NAME.png``; returns the paths."""
     out = Path(out)
-    tmp = out.with_name(out.name + ".part")
-    tmp.write_text(report.html, encoding="utf-8")
-    tmp.replace(out)
+    atomic_write(out, report.html)
     written = [out]
     if png_dir is not None:
         d = Path(png_dir)
-        d.mkdir(parents=True, exist_ok=True)
+        try:
+            d.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise write_error(d, err) from None
         for name, data in report.figures.items():
             p = d / f"{name}.png"
-            p.write_bytes(data)
+            atomic_write(p, data)
             written.append(p)
     return written
 

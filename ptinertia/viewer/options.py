@@ -260,8 +260,10 @@ def open_recording(mode: ViewerMode, blueprint: Any, out: TextIO) -> Any:
         assert mode.path is not None
         rec.save(mode.path, default_blueprint=blueprint)
     elif mode.kind == "serve":
+        # rerun joins "IP:PORT" and parses it as a socket address: IPv6 needs its brackets
+        bind = f"[{mode.bind_ip}]" if ":" in mode.bind_ip else mode.bind_ip
         server = rr.GrpcServerSink(
-            bind_ip=mode.bind_ip, port=mode.port, server_memory_limit=mode.memory_limit
+            bind_ip=bind, port=mode.port, server_memory_limit=mode.memory_limit
         )
         rec.set_sinks(server, default_blueprint=blueprint)
         print(f"ptinertia: {mode.open_hint()}", file=out)
