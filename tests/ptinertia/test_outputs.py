@@ -17,6 +17,7 @@ import pytest
 from ptinertia.cli import main
 from ptinertia.errors import UsageError
 from ptinertia.outputs import REFUSE, WARN, atomic_output, atomic_write, check_output
+from ptinertia.paths import DEFAULT_BENCH
 from ptinertia.runner import write_json
 
 DOC = {"a": 1.0}
@@ -137,8 +138,14 @@ def _never_run(*args: object, **kwargs: object) -> None:
     [
         (["replay", "{mcap}", "--record", "{mcap}", "--force"], "is an input"),
         (["replay", "{mcap}", "--json", "{mcap}", "--force"], "is an input"),
-        (["run", "--source", "file:{csv}", "--record", "{csv}", "--force"], "is an input"),
-        (["run", "--source", "file:{csv}", "--json", "{rpm_csv}"], "is an input"),  # read with it
+        (
+            ["run", "--bench", "{bench}", "--source", "file:{csv}", "--record", "{csv}", "--force"],
+            "is an input",
+        ),
+        (  # a file read with the one named
+            ["run", "--bench", "{bench}", "--source", "file:{csv}", "--json", "{rpm_csv}"],
+            "is an input",
+        ),
         (["run", "--json", ""], "--json: empty path"),
         (["run", "--json", "{missing}"], "no-such-dir does not exist"),
         (["run", "--record", "{mcap}"], "exists; add --force"),  # an existing recording
@@ -163,6 +170,7 @@ def test_a_bad_output_path_is_refused_before_the_run_and_the_input_is_intact(
         "rpm_csv": sweep["csv"].with_name("s.rpm.csv"),
         "missing": sweep["csv"].parent / "no-such-dir" / "r.json",
         "dir": sweep["csv"].parent,
+        "bench": DEFAULT_BENCH,
     }
     before = {p: p.read_bytes() for p in sweep["csv"].parent.iterdir()}
     args = [a.format(**paths) for a in argv] + ["--rerun", "off", "--quiet"]
