@@ -56,6 +56,7 @@ from estimator.partial_pairs import PartialPairs
 from estimator.pending_rows import FrameQueue, PendingFrame, RowAssembler
 from estimator.redundancy import calibrated_names
 from estimator.result import Estimate, EstimatorStats, build_estimate
+from estimator.rigidity import excess_residual
 from estimator.rls import RlsSolution, RlsState, rls_solve
 from estimator.setup import EstimatorSetup
 from estimator.systematic import systematic_names, systematic_stds
@@ -221,8 +222,9 @@ class InertiaEstimator:
                 return self._reject(frame, "no_pressure")
             gas = setup.gas_moment(orders, spectrum)
             moment = moment + gas
+        excess = excess_residual(motion, fitter, self.channels.channel_noise.variance())
         rejected, residuals, ks, floor = self.gates.judge_orders(
-            frame.rpm, orders, motion, force, moment, curvature, power
+            frame.rpm, orders, motion, force, moment, curvature, power, excess
         )
         for why in rejected.values():
             self.stats.orders_rejected[why] += 1
