@@ -77,7 +77,8 @@ class EstimatorStats:
     orders_rejected: Counter[str] = field(default_factory=Counter)
     rpm_lo: float = float("inf")
     rpm_hi: float = float("-inf")
-    ambiguous_frames: int = 0
+    ambiguous_frames: int = 0  # frames whose half-order sign the residual test judged
+    referenced_frames: int = 0  # those of them with a 720 deg reference (the test checks it)
     skipped: int = (
         0  # overlapping frames left out (not rejected: their data are in their neighbours)
     )

@@ -17,6 +17,13 @@ modulo 360 deg, so the sign of every half-order amplitude is unknown. We carry
 two states, one per sign, and keep the one whose weighted residual is smaller
 (the wrong sign turns the roll equation of H1.5 against the inertia, and the
 misfit is large); the ratio of the two residuals is reported.
+
+With a cam or pressure reference the sign is known, unless the reference is
+wrong: a cam angle 360 deg off flips every half order, and the fit then turns
+out a negative Iyy. The same test checks the reference: its frames carry both
+hypotheses too, the reference's sign is kept unless the residuals decide
+(``DECIDE_RATIO``) against it, and then the test's sign is used and the
+contradiction reported (``half_order["reference_contradicted"]``).
 """
 
 from __future__ import annotations
@@ -248,7 +255,9 @@ class InertiaEstimator:
         self.stats.used += 1
         # (the sign hypotheses of the fully measured frames: frames with an unseen
         # motion decide their own, see estimator.partial_pairs)
-        self.stats.ambiguous_frames += int(self._cycle_unknown(frame) and fitter.null is None)
+        tested = self._cycle_unknown(frame) and fitter.null is None
+        self.stats.ambiguous_frames += int(tested)
+        self.stats.referenced_frames += int(tested and "cycle_ambiguous" not in frame.flags)
         self.stats.rpm_lo = min(self.stats.rpm_lo, frame.rpm)
         self.stats.rpm_hi = max(self.stats.rpm_hi, frame.rpm)
         # Relinearise after the first used frame (the nominal cog may be centimetres
@@ -267,8 +276,9 @@ class InertiaEstimator:
 
     def _cycle_unknown(self, frame: FrameLike) -> bool:
         """Whether the frame's half orders may be seen through phi + 360 deg with a sign
-        that matters: not when the gas moment is measured in the same angle (it flips too)."""
-        return "cycle_ambiguous" in frame.flags and self.setup.gas_moment is None
+        that matters: without a 720 deg reference, or with one that may be wrong (it
+        is checked); not when the gas moment is measured in the same angle (it flips too)."""
+        return self.setup.gas_moment is None
 
     def _flush(self) -> None:
         """Assemble the queued frames' rows and add them, frame by frame, to both hypotheses.
@@ -371,6 +381,8 @@ class InertiaEstimator:
             return self._effective(self.decided_sign)
         if sign is not None:
             return self._effective(sign)
+        if self.stats.referenced_frames:  # undecided: the reference's sign stands
+            return self._effective(1)
         eff = {s: self._effective(s) for s in self.acc}
         return eff[better_sign(self._sign_rss(eff))[0]]
 
@@ -381,7 +393,8 @@ class InertiaEstimator:
         return {s: self.solve(a.state).rss for s, a in eff.items()}
 
     def half_order_resolution(self) -> dict[str, Any] | None:
-        """How the 720 deg ambiguity was resolved (None when a phase reference existed)."""
+        """How the 720 deg ambiguity was resolved, or how the phase reference fared
+        against the residual test (None when no half order was tested)."""
         self._flush()
         if self.stats.ambiguous_frames == 0:
             return None
@@ -390,6 +403,18 @@ class InertiaEstimator:
             after = self.decision["after_frames"]
         else:
             (best, ratio), after = better_sign(self._sign_rss()), None
+        if self.stats.referenced_frames:
+            return {
+                "method": "reference_checked",
+                "half_order_sign": self.decided_sign or 1,
+                # the test decided against the reference: its sign is used
+                "reference_contradicted": self.decided_sign == -1,
+                # undecided: the reference's sign is kept, whichever the test leans to
+                "test_decided": self.decided_sign is not None,
+                "residual_ratio": ratio if best == 1 else 1.0 / ratio,
+                "decided_after_frames": after,
+                "frames": self.stats.ambiguous_frames,
+            }
         return {
             "method": "residual",
             "half_order_sign": best,

@@ -233,6 +233,15 @@ def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO = sys.stdou
             "past its f^2 growth",
             file=out,
         )
+    half = doc.get("half_order") or {}
+    if half.get("reference_contradicted"):
+        print(
+            "phase reference contradicted: the half orders fit "
+            f"{1 / max(half['residual_ratio'], 1e-300):.3g} times better with the cycle 360 deg "
+            "from where the cam/pressure reference puts it; the residual test's sign was used "
+            "(check [tacho] cam_angle_deg)",
+            file=out,
+        )
     unseen = doc.get("unseen_motion")
     if unseen:
         axis = ", ".join(f"{v:.2f}" for v in unseen["unseen_rotation_axis"])
