@@ -12,7 +12,8 @@ Prints:
 7. sensor C dead all run (two sensors left): noise-free, and the realistic seeds;
 8. RLS update time per frame and estimator time per frame;
 9. ``--only noise``: a rigid body with noise alone at 40 and 30 dB over N seeds (the elastic
-   modes reported: none may be), and the elastic-mode scenario over 6 seeds (confirmed in each).
+   modes reported: none may be), the elastic-mode scenario over 6 seeds (confirmed in each),
+   and the realistic seeds (no mode, and how many are flagged inconsistent).
 
 Usage: python benchmarks/bench_estimator.py [--seeds 20] [--jobs 2] [--quick] [--only noise]
 """
@@ -338,7 +339,9 @@ def noise_alone(seeds: int, jobs: int, dur: dict[str, Any]) -> None:
         (I3, {**dur, **REALISTIC, "seed": s, "elastic_mode": ELASTIC_140}, (), None)
         for s in range(6)
     ]
-    docs = map_on_cluster(ClusterSpec(workers=jobs), run_case, noisy + elastic)
+    realistic = [(I3, {**dur, **REALISTIC, "seed": s}, (), None) for s in range(seeds)]
+    docs = map_on_cluster(ClusterSpec(workers=jobs), run_case, noisy + elastic + realistic)
+    real, docs = docs[len(noisy) + len(elastic) :], docs[: len(noisy) + len(elastic)]
     for i, db in enumerate((40.0, 30.0)):
         group = docs[i * seeds : (i + 1) * seeds]
         modes = [d["elastic_mode"] for d in group if d.get("elastic_mode")]
@@ -357,6 +360,12 @@ def noise_alone(seeds: int, jobs: int, dur: dict[str, Any]) -> None:
         + " Hz; cog error "
         + ", ".join(f"{errors(d)['cog_mm']:.1f}" for d in group)
         + " mm"
+    )
+    modes = [d["elastic_mode"] for d in real if d.get("elastic_mode")]
+    print(
+        f"== realistic i3 (rigid; noise and sensor errors), {seeds} seeds: elastic mode reported "
+        f"in {len(modes)}/{seeds}; model flagged inconsistent in "
+        f"{sum(not d.get('consistent', True) for d in real)}/{seeds}"
     )
 
 

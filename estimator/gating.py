@@ -81,7 +81,7 @@ class OrderGates:
         moment: np.ndarray,
         curvature: np.ndarray,
         power: np.ndarray,
-        excess: np.ndarray | None = None,
+        excess: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[dict[float, str], dict[float, float], list[int], np.ndarray]:
         """The order gates of one fitted frame.
 
@@ -93,8 +93,9 @@ class OrderGates:
         force, moment : (k, 3) complex, the excitation per order (N, N m).
         curvature : (k,) the mass-line curvature (:meth:`curvature`).
         power : (k,) the fitted channels' mean square readings per order, (m/s^2)^2.
-        excess : (k,) the relative residual beyond what the channel noise explains
-            (:func:`estimator.rigidity.excess_residual`); None: the whole residual.
+        excess : (k,) twice, the relative residual less the channel noise's mean and
+            beyond its quantile (:func:`estimator.rigidity.excess_residual`); None:
+            the whole residual.
 
         Returns
         -------
@@ -116,7 +117,7 @@ class OrderGates:
         rejected: dict[float, str] = {}
         residuals: dict[float, float] = {}
         used: list[int] = []
-        beyond_noise = motion.relative_residual if excess is None else excess
+        share, beyond = (motion.relative_residual,) * 2 if excess is None else excess
         for k, h in enumerate(orders.tolist()):
             residuals[h] = float(motion.relative_residual[k])
             why = (
@@ -128,7 +129,7 @@ class OrderGates:
                 if off_line[k]
                 else "neighbour_leakage"
                 if leaking[k]
-                else self.residual(h, rpm, float(motion.relative_residual[k]), beyond_noise[k])
+                else self.residual(h, rpm, float(motion.relative_residual[k]), share[k], beyond[k])
             )
             if why:
                 rejected[h] = why
@@ -190,9 +191,12 @@ class OrderGates:
         top = self.setup.mode_max_hz
         return top is not None and h * rpm / 60.0 < self.setup.gates.min_mode_ratio * top
 
-    def residual(self, h: float, rpm: float, relative: float, excess: float) -> str | None:
+    def residual(
+        self, h: float, rpm: float, relative: float, share: float, excess: float
+    ) -> str | None:
         """Whether order ``h`` of a fitted frame is rigid enough (None) or "non_rigid",
-        from its relative rigidity residual and the part of it the noise cannot explain."""
+        from its relative rigidity residual, that less the noise's mean (``share``) and
+        beyond the noise's quantile (``excess``)."""
         gates = self.setup.gates
         res = float(excess)
         if relative > gates.max_relative_residual:
@@ -208,7 +212,7 @@ class OrderGates:
         # baseline; a frame whose excess has grown past it is off the mass line.
         base = self.residual_baseline.setdefault(h, [])
         if len(base) < gates.baseline_frames:
-            base.append(res)
+            base.append(float(share))
             if len(base) == gates.baseline_frames:
                 self.residual_limit[h] = (
                     gates.residual_growth * float(np.median(base)) + gates.residual_margin

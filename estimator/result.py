@@ -111,6 +111,14 @@ class Estimate:
     unseen_motion: dict[str, Any] | None = None
     # each channel's weight in the rigid fit when measured from its noise (median 1)
     channel_weights: dict[str, float] | None = None
+    # the fit's chi-square per dof far above 1 (estimator.misfit): where, and the
+    # likely inputs; None when the model fits
+    misfit: dict[str, Any] | None = None
+
+    @property
+    def consistent(self) -> bool:
+        """The model fits the data and the tensor is physical: an estimate to stand behind."""
+        return self.misfit is None and not enforce_physical(self.inertia)[1]
 
     def std(self, name: str) -> float:
         i = self.names.index(name)
@@ -235,6 +243,10 @@ class Estimate:
             ),
             "unobservable": unobservable,
             "variance_factor": self.variance_factor,
+            # false: the model misfits grossly ("misfit") or the tensor is not physical
+            # ("principal"/"consistency"): not an estimate to stand behind
+            "consistent": self.misfit is None and not problems,
+            "misfit": self.misfit,
         }
         if self.unseen_motion is not None:
             doc["unseen_motion"] = self.unseen_motion
@@ -282,6 +294,7 @@ def build_estimate(
     elastic_mode: dict[str, float] | None = None,
     unseen_motion: dict[str, Any] | None = None,
     channel_weights: dict[str, float] | None = None,
+    misfit: dict[str, Any] | None = None,
 ) -> Estimate:
     """The estimate of a solved state: ``acc`` the state (its ``sens`` the systematic
     sensitivity ``S``), ``sol`` its solution, ``sys_std`` (n_sys,) the declared
@@ -316,4 +329,5 @@ def build_estimate(
         elastic_mode=elastic_mode,
         unseen_motion=unseen_motion,
         channel_weights=channel_weights,
+        misfit=misfit,
     )

@@ -59,6 +59,7 @@ from estimator.hypotheses import (
     better_sign,
 )
 from estimator.kinematics import RigidFit, RigidMotion
+from estimator.misfit import CHI2_LIMIT, MisfitSample, likely_inputs, misfits
 from estimator.partial_pairs import PartialPairs
 from estimator.pending_rows import FrameQueue, PendingFrame, RowAssembler
 from estimator.redundancy import calibrated_names
@@ -149,6 +150,7 @@ class InertiaEstimator:
         # frames whose channels leave one rigid-body motion unseen (two sensors left)
         self.partial = PartialPairs(self, self.rows, self.scale, n_sys)
         self._events: list[SourceEvent] = []  # reportable events not taken yet
+        self.misfit = MisfitSample()  # rows of a sample of frames: where the model misfits
 
     @property
     def elastic(self) -> dict[str, float] | None:
@@ -313,6 +315,7 @@ class InertiaEstimator:
         else:
             if self._hypotheses_equal:
                 self.acc[-1] = Accumulator(state=self.acc[1].state, sens=self.acc[1].sens)
+                self.misfit.copy_sign(1, -1)
                 self._hypotheses_equal = False
             H, y, dr = self.rows.rows(batch, np.ones(len(half)), everything, dm, self.lin)
             hyp = {1: (H, y, dr), -1: (H, y, dr)}
@@ -323,12 +326,14 @@ class InertiaEstimator:
         bounds = np.cumsum([0] + [len(p.orders) for p in batch])
         kin = self.rows.redundancy(batch) if self._cal else None
         f_hz = np.concatenate([p.orders * p.rpm / 60.0 for p in batch])
+        orders = np.concatenate([p.orders for p in batch])
         for sign_, (Hs, ys, drs) in hyp.items():
             Ha = with_tail(Hs, f_hz)
             # one update per frame, in stream order: the same sums whatever the batch
             for a, b in itertools.pairwise(bounds):
                 # the frame's redundancy rows (already discounted with the frame's own)
                 own = None if kin is None else (kin[0][a:b], kin[1][a:b], kin[2][a:b])
+                self.misfit.add(sign_, orders[a:b], Hs[a:b], ys[a:b])
                 self.acc[sign_] = add_frame(
                     self.acc[sign_], Ha[a:b], ys[a:b], drs[a:b], self.forgetting, own
                 )
@@ -430,9 +435,13 @@ class InertiaEstimator:
             self._flush()
             self.partial.solve()
         acc = self.best_state()
+        sol = self.solve(acc.state)
+        misfit = None
+        if final and misfits(sol.rss, sol.dof, acc.state.yty):
+            misfit = self.misfit_report(sol.theta[: self.layout.size], sol.rss / sol.dof)
         return build_estimate(
             acc,
-            self.solve(acc.state),
+            sol,
             self.sys_std,
             self.layout.names,
             self.setup,
@@ -441,4 +450,20 @@ class InertiaEstimator:
             elastic_mode=None if self.elastic is None else dict(self.elastic),
             unseen_motion=self.partial.report(),
             channel_weights=self.channels.measured_weights(),
+            misfit=misfit,
         )
+
+    def misfit_report(self, theta: np.ndarray, chi2_per_dof: float) -> dict[str, Any]:
+        """Where the fit misfits most (:mod:`estimator.misfit`), at ``theta``."""
+        if self.decided_sign is not None:
+            sign = self.decided_sign
+        elif not self.stats.ambiguous_frames or self.stats.referenced_frames:
+            sign = 1
+        else:
+            sign = better_sign(self._sign_rss())[0]
+        worst = self.misfit.worst(sign, theta) or {}
+        if worst:
+            worst["likely_inputs"] = likely_inputs(
+                worst["order"], worst["equation"], self.setup.crank_axis
+            )
+        return {"chi2_per_dof": chi2_per_dof, "limit": CHI2_LIMIT, **worst}

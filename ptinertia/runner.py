@@ -165,8 +165,36 @@ def write_json(doc: dict[str, Any], path: str | Path) -> None:
     tmp.replace(path)
 
 
-def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO = sys.stdout) -> None:
-    """Estimate, 95 % interval, truth and error, one line per term."""
+def misfit_line(doc: dict[str, Any]) -> str | None:
+    """One line when the model does not fit the data (``doc["misfit"]``), else None."""
+    m = doc.get("misfit")
+    if not m:
+        return None
+    where = ""
+    if "order" in m:
+        where = (
+            f"; H{m['order']:g} {m['equation']} misfits most ({100 * m['share']:.0f} % of the "
+            f"residual): check {m['likely_inputs']}"
+        )
+    return (
+        f"the model does not fit the data: chi-square per degree of freedom "
+        f"{m['chi2_per_dof']:.3g} (far above 1: limit {m['limit']:g}){where}; result marked inconsistent"
+    )
+
+
+def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO = sys.stdout) -> bool:
+    """Estimate, 95 % interval, truth and error, one line per term; False, with the
+    reason on stderr and no table, when the tensor is not physical (no estimate)."""
+    misfit = misfit_line(doc)
+    problems = doc["principal"]["consistency"]["problems"]
+    if problems:
+        print(
+            "ptinertia: no physically consistent estimate: the fitted inertia tensor is "
+            + "; ".join(problems)
+            + (f"; {misfit}" if misfit else ""),
+            file=sys.stderr,
+        )
+        return False
     truth = doc.get("truth") or {}
     t_inertia = (truth.get("inertia_kgm2") or {}).get("value") or {}
     t_cog = (truth.get("cog_m") or {}).get("value")
@@ -255,9 +283,6 @@ def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO = sys.stdou
         print(
             "unobservable (no excitation reaches them): " + ", ".join(doc["unobservable"]), file=out
         )
-    if doc["principal"]["consistency"]["problems"]:
-        print(
-            "physical consistency enforced: "
-            + "; ".join(doc["principal"]["consistency"]["problems"]),
-            file=out,
-        )
+    if misfit:
+        print(misfit, file=out)
+    return True

@@ -32,7 +32,7 @@ def test_noise_alone_passes_the_quantile_as_often_as_the_chi_square_says(matched
     var = np.array([1.0, 4.0, 0.5, 2.0, 1.0, 9.0, 0.3, 1.0, 2.5]) * 1e-4
     # weights the inverse variances (exactly chi2 with 2 (9 - 6) dof) or equal ones
     fit = RigidFit.of(pos, dirs, 1.0 / var if matched else None).on_channels(np.arange(9))
-    q, dof = noise_quantile(fit, var)
+    q, mean, dof = noise_quantile(fit, var)
     if matched:
         assert dof == pytest.approx(2 * (9 - 6))
     rng = np.random.default_rng(3)
@@ -43,9 +43,10 @@ def test_noise_alone_passes_the_quantile_as_often_as_the_chi_square_says(matched
     motions = fit.fit_many(noise + signal)
     rss = np.array([2 * 3 * m.noise_var[0] for m in motions])
     exceed = np.mean(rss > q)
+    assert mean == pytest.approx(float(np.mean(rss)), rel=0.02)
     # 40 draws expected at 0.999; Satterthwaite's approximation errs a little in the tail
     assert 0.3 * (1 - NOISE_QUANTILE) < exceed < 2.5 * (1 - NOISE_QUANTILE)
-    excess = np.array([excess_residual(m, fit, var)[0] for m in motions])
+    excess = np.array([excess_residual(m, fit, var)[1][0] for m in motions])
     assert np.mean(excess > 0) == pytest.approx(exceed)
 
 
@@ -54,15 +55,16 @@ def test_excess_is_the_whole_residual_without_noise_and_a_bent_body_keeps_its_re
     fit = RigidFit.of(pos, dirs).on_channels(np.arange(9))
     bent = fit.jw @ np.array([1, 2, 3, 0.5, 0.2, 0.1]) + 0.1 * np.sin(np.arange(9.0))
     motion = fit.fit(bent[None].astype(complex))
-    assert excess_residual(motion, fit, None)[0] == motion.relative_residual[0]
-    assert excess_residual(motion, fit, np.zeros(9))[0] == motion.relative_residual[0]
+    assert excess_residual(motion, fit, None)[1][0] == motion.relative_residual[0]
+    assert excess_residual(motion, fit, np.zeros(9))[1][0] == motion.relative_residual[0]
     # noise a thousand times below the bend takes almost nothing off it
     small = np.full(9, 1e-6 * float(motion.noise_var[0]))
-    assert excess_residual(motion, fit, small)[0] == pytest.approx(
+    assert excess_residual(motion, fit, small)[1][0] == pytest.approx(
         motion.relative_residual[0], rel=1e-3
     )
     # noise that explains it all leaves no excess
-    assert excess_residual(motion, fit, np.full(9, 100 * float(motion.noise_var[0])))[0] == 0.0
+    loud = excess_residual(motion, fit, np.full(9, 100 * float(motion.noise_var[0])))
+    assert loud[0][0] == 0.0 and loud[1][0] == 0.0
 
 
 @pytest.mark.parametrize("k", [1, 2, 3, 5, 6])
