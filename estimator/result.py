@@ -118,7 +118,11 @@ class Estimate:
     @property
     def consistent(self) -> bool:
         """The model fits the data and the tensor is physical: an estimate to stand behind."""
-        return self.misfit is None and not enforce_physical(self.inertia)[1]
+        return (
+            self.misfit is None
+            and not enforce_physical(self.inertia)[1]
+            and not (self.half_order or {}).get("reference_doubtful", False)
+        )
 
     def std(self, name: str) -> float:
         i = self.names.index(name)
@@ -243,9 +247,10 @@ class Estimate:
             ),
             "unobservable": unobservable,
             "variance_factor": self.variance_factor,
-            # false: the model misfits grossly ("misfit") or the tensor is not physical
-            # ("principal"/"consistency"): not an estimate to stand behind
-            "consistent": self.misfit is None and not problems,
+            # false: the model misfits grossly ("misfit"), the tensor is not physical
+            # ("principal"/"consistency") or the half-order test leans against the phase
+            # reference ("half_order"/"reference_doubtful"): not an estimate to stand behind
+            "consistent": self.consistent,
             "misfit": self.misfit,
         }
         if self.unseen_motion is not None:

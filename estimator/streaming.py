@@ -414,8 +414,11 @@ class InertiaEstimator:
                 "half_order_sign": self.decided_sign or 1,
                 # the test decided against the reference: its sign is used
                 "reference_contradicted": self.decided_sign == -1,
-                # undecided: the reference's sign is kept, whichever the test leans to
+                # undecided: the reference's sign is kept, whichever the test leans to,
+                # and a lean against it leaves no estimate to stand behind (the run exits
+                # with the reason: realistic i3, cam 360 deg off, 20 s: 42x, Iyy -2.7)
                 "test_decided": self.decided_sign is not None,
+                "reference_doubtful": self.decided_sign is None and best == -1,
                 "residual_ratio": ratio if best == 1 else 1.0 / ratio,
                 "decided_after_frames": after,
                 "frames": self.stats.ambiguous_frames,

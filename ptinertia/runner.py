@@ -186,11 +186,23 @@ def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO = sys.stdou
     """Estimate, 95 % interval, truth and error, one line per term; False, with the
     reason on stderr and no table, when the tensor is not physical (no estimate)."""
     misfit = misfit_line(doc)
-    problems = doc["principal"]["consistency"]["problems"]
+    problems = list(doc["principal"]["consistency"]["problems"])
+    half = doc.get("half_order") or {}
+    if half.get("reference_doubtful"):
+        problems.insert(
+            0,
+            "phase reference doubtful: the half orders fit "
+            f"{1 / max(half['residual_ratio'], 1e-300):.3g} times better with the cycle 360 deg "
+            "from where the cam/pressure reference puts it, too little to decide (100 needed); "
+            "check [tacho] cam_angle_deg",
+        )
     if problems:
         print(
-            "ptinertia: no physically consistent estimate: the fitted inertia tensor is "
-            + "; ".join(problems)
+            "ptinertia: no estimate to stand behind: "
+            + "; ".join(
+                p if p.startswith("phase") else f"the fitted inertia tensor is {p}"
+                for p in problems
+            )
             + (f"; {misfit}" if misfit else ""),
             file=sys.stderr,
         )

@@ -68,4 +68,4 @@ def test_a_non_physical_tensor_is_never_printed_as_an_estimate(
     out = io.StringIO()
     assert not print_table(bad, bad_doc, out)
     assert out.getvalue() == ""  # no table
-    assert "no physically consistent estimate" in capsys.readouterr().err
+    assert "no estimate to stand behind: the fitted inertia tensor is" in capsys.readouterr().err

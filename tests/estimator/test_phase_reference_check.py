@@ -15,7 +15,7 @@ from support.estimator_runs import I3, rel_errors
 
 from ptinertia.config import Bench, load_bench
 from ptinertia.runner import RunOptions, print_table, run_source
-from ptinertia.sources import open_source
+from ptinertia.sources import REALISTIC_SIMULATION, open_source
 
 
 def _with_cam(bench: Bench, angle_deg: float) -> Bench:
@@ -23,15 +23,16 @@ def _with_cam(bench: Bench, angle_deg: float) -> Bench:
     return bench.model_copy(update={"tacho": tacho})
 
 
-def _run(declared_deg: float) -> tuple[dict[str, Any], str]:
+def _run(declared_deg: float, **sim: Any) -> tuple[dict[str, Any], str]:
     bench = load_bench(I3)
-    source = open_source("sim", _with_cam(bench, 0.0), duration_s=12.0)
+    source = open_source("sim", _with_cam(bench, 0.0), duration_s=12.0, **sim)
     summary, doc = run_source(
         _with_cam(bench, declared_deg), I3.read_text(), source, "sim", RunOptions(quiet=True)
     )
     assert doc is not None and summary.estimate is not None
     out = io.StringIO()
-    print_table(summary.estimate, doc, out)
+    printed = print_table(summary.estimate, doc, out)
+    assert printed is doc["consistent"]
     return doc, out.getvalue()
 
 
@@ -47,3 +48,18 @@ def test_a_wrong_cam_reference_is_flagged_and_the_estimate_is_right(declared_deg
     errs = rel_errors(doc)
     assert max(abs(v) for v in errs.values()) < 1e-3, errs
     assert doc["principal"]["consistency"]["problems"] == []
+
+
+def test_an_undecided_test_against_the_reference_leaves_no_estimate(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    # realistic errors, 12 s: the half orders lean against the wrong cam, too little to
+    # decide; the reference's estimate (Iyy about -2.7 kg m^2) must not be printed
+    doc, text = _run(360.0, **{**REALISTIC_SIMULATION, "seed": 1})
+    half = doc["half_order"]
+    if half["test_decided"]:  # decided: flagged and corrected as noise-free
+        assert half["reference_contradicted"] and doc["consistent"]
+        return
+    assert half["reference_doubtful"] and not doc["consistent"]
+    assert text == ""
+    assert "phase reference doubtful" in capsys.readouterr().err
