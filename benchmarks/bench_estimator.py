@@ -365,7 +365,8 @@ def noise_alone(seeds: int, jobs: int, dur: dict[str, Any]) -> None:
     print(
         f"== realistic i3 (rigid; noise and sensor errors), {seeds} seeds: elastic mode reported "
         f"in {len(modes)}/{seeds}; model flagged inconsistent in "
-        f"{sum(not d.get('consistent', True) for d in real)}/{seeds}"
+        f"{sum(not d.get('consistent', True) for d in real)}/{seeds}; seeds with orders rejected "
+        f"as non_rigid {sum(bool(d['frames']['orders_rejected'].get('non_rigid')) for d in real)}"
     )
 
 
