@@ -88,8 +88,9 @@ class ChannelFits:
         return self._fitters[key]
 
     def track_noise(self, frame: FrameLike, used: np.ndarray, cols: np.ndarray) -> None:
-        """Add a gated frame's amplitudes to the channel noise estimate (when measured)."""
-        if not self._measure_weights or (rev := revolution(frame)) is None:
+        """Add a gated frame's amplitudes to the channel noise estimate (its level is
+        the rigidity gate's reference, its ratios the weights when measured)."""
+        if (rev := revolution(frame)) is None:
             return
         x = np.where(used, frame.amplitudes[:, np.where(used, cols, 0)], np.nan)
         self.channel_noise.add(rev, tuple(frame.orders), x)

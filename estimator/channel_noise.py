@@ -15,8 +15,16 @@ the second difference of three frames 720 deg apart (no overlap, independent
 noise) is noise: ``Var(X_k - 2 X_k-1 + X_k-2) = 6 Var(X)`` for each real part.
 White noise gives every order of a window the same variance, so per frame we
 take the median over the orders (a resonant order bends, the median ignores it),
-and over the sweep the median of those. Only the ratios across channels are used:
-the rigid fit's residual sets the level.
+and over the sweep the median of those. Only the ratios across channels are used
+for the weights: the rigid fit's residual sets the level.
+
+The level itself, where it is now along the sweep (:meth:`ChannelNoise.variance`),
+is what the rigidity gate judges a frame's residual against
+(:mod:`estimator.rigidity`): the mean of the last ``RECENT`` per-frame medians,
+divided by the mean of the median of k exponential variables (each |d|^2 / 12 is
+one: two real parts of Gaussian noise) so that it estimates the variance itself.
+A second difference also holds what the amplitudes bend along the sweep: that
+errs on the high side, towards calling a frame rigid.
 
 Memory is bounded: at most ``CAPACITY`` frame estimates are kept; when full,
 every other one is dropped and only every other later frame is added, so the
@@ -34,6 +42,21 @@ CAPACITY = 256
 # measurable noise (noise-free simulation, a stuck sensor) must not take the fit over.
 MAX_WEIGHT_RATIO = 100.0
 MIN_ESTIMATES = 8
+# per-frame estimates in the current noise level: the order noise grows with rpm
+# (shorter cycles), 8 frames 720 deg apart span 16 revolutions
+RECENT = 8
+
+
+def median_bias(k: int) -> float:
+    """E[median of k independent unit-mean exponential variables] (numpy's median:
+    the mean of the two middle ones for even k): E[X_(j)] = sum_{i=k-j+1}^{k} 1/i."""
+
+    def order_stat(j: int) -> float:
+        return float(sum(1.0 / i for i in range(k - j + 1, k + 1)))
+
+    if k % 2:
+        return order_stat((k + 1) // 2)
+    return 0.5 * (order_stat(k // 2) + order_stat(k // 2 + 1))
 
 
 class ChannelNoise:
@@ -51,6 +74,7 @@ class ChannelNoise:
         self._kept: list[np.ndarray] = []
         self._stride = 1
         self._seen = 0
+        self._recent: list[np.ndarray] = []  # the last RECENT bias-corrected estimates
 
     def add(self, revolution: int, orders: tuple[float, ...], amplitudes: np.ndarray) -> None:
         """One frame: its revolution number (frames 720 deg apart differ by 2) and its
@@ -63,7 +87,9 @@ class ChannelNoise:
             if r1 == revolution - 2 and r0 == revolution - 4:
                 d = x - 2 * x1 + x0
                 per_order = (d.real**2 + d.imag**2) / 12.0  # 6 Var per part, two parts
-                self._keep(np.median(per_order, axis=0))
+                median = np.median(per_order, axis=0)
+                self._keep(median)
+                self._recent = [*self._recent[-(RECENT - 1) :], median / median_bias(len(x))]
             self._history[key] = (r1, x1, revolution, x)
         else:
             self._history[key] = (revolution - 10**6, x, revolution, x)
@@ -76,6 +102,16 @@ class ChannelNoise:
         if len(self._kept) >= CAPACITY:
             self._kept = self._kept[::2]
             self._stride *= 2
+
+    def variance(self) -> np.ndarray | None:
+        """(n_channels,) the current noise variance of the real (and of the imaginary)
+        part of an order amplitude, (m/s^2)^2, NaN for a channel not measured lately
+        (None until ``RECENT`` frames have been measured)."""
+        if len(self._recent) < RECENT:
+            return None
+        stack = np.array(self._recent)
+        with np.errstate(invalid="ignore"):
+            return np.where(np.all(np.isfinite(stack), axis=0), np.mean(stack, axis=0), np.nan)
 
     def weights(self) -> np.ndarray | None:
         """(n_channels,) inverse noise variances, the median channel's 1, within

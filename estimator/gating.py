@@ -5,7 +5,9 @@ steady and in range, the tacho sound, the orders away from the rigid-body
 modes, the motion of each order bending slowly from frame to frame, its
 rigidity residual at the level of the sweep's first frames. :class:`OrderGates`
 keeps what those decisions remember of earlier frames, and confirms an elastic
-mode when one order keeps failing the residual gate.
+mode when one order keeps failing the residual gate. That gate judges only the
+residual the measured channel noise cannot explain (:mod:`estimator.rigidity`):
+noise grows along a sweep and must never confirm a mode.
 """
 
 from __future__ import annotations
@@ -79,6 +81,7 @@ class OrderGates:
         moment: np.ndarray,
         curvature: np.ndarray,
         power: np.ndarray,
+        excess: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[dict[float, str], dict[float, float], list[int], np.ndarray]:
         """The order gates of one fitted frame.
 
@@ -90,6 +93,9 @@ class OrderGates:
         force, moment : (k, 3) complex, the excitation per order (N, N m).
         curvature : (k,) the mass-line curvature (:meth:`curvature`).
         power : (k,) the fitted channels' mean square readings per order, (m/s^2)^2.
+        excess : (k,) twice, the relative residual less the channel noise's mean and
+            beyond its quantile (:func:`estimator.rigidity.excess_residual`); None:
+            the whole residual.
 
         Returns
         -------
@@ -111,6 +117,7 @@ class OrderGates:
         rejected: dict[float, str] = {}
         residuals: dict[float, float] = {}
         used: list[int] = []
+        share, beyond = (motion.relative_residual,) * 2 if excess is None else excess
         for k, h in enumerate(orders.tolist()):
             residuals[h] = float(motion.relative_residual[k])
             why = (
@@ -122,7 +129,7 @@ class OrderGates:
                 if off_line[k]
                 else "neighbour_leakage"
                 if leaking[k]
-                else self.residual(h, rpm, motion, k)
+                else self.residual(h, rpm, float(motion.relative_residual[k]), share[k], beyond[k])
             )
             if why:
                 rejected[h] = why
@@ -184,21 +191,28 @@ class OrderGates:
         top = self.setup.mode_max_hz
         return top is not None and h * rpm / 60.0 < self.setup.gates.min_mode_ratio * top
 
-    def residual(self, h: float, rpm: float, motion: RigidMotion, k: int) -> str | None:
-        """Whether order ``h`` of a fitted frame is rigid enough (None) or "non_rigid"."""
+    def residual(
+        self, h: float, rpm: float, relative: float, share: float, excess: float
+    ) -> str | None:
+        """Whether order ``h`` of a fitted frame is rigid enough (None) or "non_rigid",
+        from its relative rigidity residual, that less the noise's mean (``share``) and
+        beyond the noise's quantile (``excess``)."""
         gates = self.setup.gates
-        res = float(motion.relative_residual[k])
-        if res > gates.max_relative_residual:
+        res = float(excess)
+        if relative > gates.max_relative_residual:
+            # a residual this large makes the frame unusable whatever its cause; it
+            # counts towards an elastic mode only if the noise cannot explain it
             if h in self.residual_limit:
-                self._note_non_rigid(h, h * rpm / 60.0, True)
+                self._note_non_rigid(h, h * rpm / 60.0, res > self.residual_limit[h])
             return "non_rigid"
         # Elastic-mode detection: sensor errors leave a residual that is a fixed
         # share of the signal along the mass line, an approaching elastic mode one
-        # that grows like (f / f_e)^2. The first frames of each order set the
-        # baseline; a frame whose residual has grown past it is off the mass line.
+        # that grows like (f / f_e)^2, noise one that follows the measured channel
+        # noise (left out of ``excess``). The first frames of each order set the
+        # baseline; a frame whose excess has grown past it is off the mass line.
         base = self.residual_baseline.setdefault(h, [])
         if len(base) < gates.baseline_frames:
-            base.append(res)
+            base.append(float(share))
             if len(base) == gates.baseline_frames:
                 self.residual_limit[h] = (
                     gates.residual_growth * float(np.median(base)) + gates.residual_margin

@@ -77,7 +77,8 @@ class EstimatorStats:
     orders_rejected: Counter[str] = field(default_factory=Counter)
     rpm_lo: float = float("inf")
     rpm_hi: float = float("-inf")
-    ambiguous_frames: int = 0
+    ambiguous_frames: int = 0  # frames whose half-order sign the residual test judged
+    referenced_frames: int = 0  # those of them with a 720 deg reference (the test checks it)
     skipped: int = (
         0  # overlapping frames left out (not rejected: their data are in their neighbours)
     )
@@ -110,6 +111,18 @@ class Estimate:
     unseen_motion: dict[str, Any] | None = None
     # each channel's weight in the rigid fit when measured from its noise (median 1)
     channel_weights: dict[str, float] | None = None
+    # the fit's chi-square per dof far above 1 (estimator.misfit): where, and the
+    # likely inputs; None when the model fits
+    misfit: dict[str, Any] | None = None
+
+    @property
+    def consistent(self) -> bool:
+        """The model fits the data and the tensor is physical: an estimate to stand behind."""
+        return (
+            self.misfit is None
+            and not enforce_physical(self.inertia)[1]
+            and not (self.half_order or {}).get("reference_doubtful", False)
+        )
 
     def std(self, name: str) -> float:
         i = self.names.index(name)
@@ -234,6 +247,11 @@ class Estimate:
             ),
             "unobservable": unobservable,
             "variance_factor": self.variance_factor,
+            # false: the model misfits grossly ("misfit"), the tensor is not physical
+            # ("principal"/"consistency") or the half-order test leans against the phase
+            # reference ("half_order"/"reference_doubtful"): not an estimate to stand behind
+            "consistent": self.consistent,
+            "misfit": self.misfit,
         }
         if self.unseen_motion is not None:
             doc["unseen_motion"] = self.unseen_motion
@@ -281,6 +299,7 @@ def build_estimate(
     elastic_mode: dict[str, float] | None = None,
     unseen_motion: dict[str, Any] | None = None,
     channel_weights: dict[str, float] | None = None,
+    misfit: dict[str, Any] | None = None,
 ) -> Estimate:
     """The estimate of a solved state: ``acc`` the state (its ``sens`` the systematic
     sensitivity ``S``), ``sol`` its solution, ``sys_std`` (n_sys,) the declared
@@ -315,4 +334,5 @@ def build_estimate(
         elastic_mode=elastic_mode,
         unseen_motion=unseen_motion,
         channel_weights=channel_weights,
+        misfit=misfit,
     )

@@ -17,6 +17,13 @@ modulo 360 deg, so the sign of every half-order amplitude is unknown. We carry
 two states, one per sign, and keep the one whose weighted residual is smaller
 (the wrong sign turns the roll equation of H1.5 against the inertia, and the
 misfit is large); the ratio of the two residuals is reported.
+
+With a cam or pressure reference the sign is known, unless the reference is
+wrong: a cam angle 360 deg off flips every half order, and the fit then turns
+out a negative Iyy. The same test checks the reference: its frames carry both
+hypotheses too, the reference's sign is kept unless the residuals decide
+(``DECIDE_RATIO``) against it, and then the test's sign is used and the
+contradiction reported (``half_order["reference_contradicted"]``).
 """
 
 from __future__ import annotations
@@ -52,10 +59,12 @@ from estimator.hypotheses import (
     better_sign,
 )
 from estimator.kinematics import RigidFit, RigidMotion
+from estimator.misfit import CHI2_LIMIT, MisfitSample, likely_inputs, misfits
 from estimator.partial_pairs import PartialPairs
 from estimator.pending_rows import FrameQueue, PendingFrame, RowAssembler
 from estimator.redundancy import calibrated_names
 from estimator.result import Estimate, EstimatorStats, build_estimate
+from estimator.rigidity import excess_residual
 from estimator.rls import RlsSolution, RlsState, rls_solve
 from estimator.setup import EstimatorSetup
 from estimator.systematic import systematic_names, systematic_stds
@@ -141,6 +150,7 @@ class InertiaEstimator:
         # frames whose channels leave one rigid-body motion unseen (two sensors left)
         self.partial = PartialPairs(self, self.rows, self.scale, n_sys)
         self._events: list[SourceEvent] = []  # reportable events not taken yet
+        self.misfit = MisfitSample()  # rows of a sample of frames: where the model misfits
 
     @property
     def elastic(self) -> dict[str, float] | None:
@@ -221,8 +231,9 @@ class InertiaEstimator:
                 return self._reject(frame, "no_pressure")
             gas = setup.gas_moment(orders, spectrum)
             moment = moment + gas
+        excess = excess_residual(motion, fitter, self.channels.channel_noise.variance())
         rejected, residuals, ks, floor = self.gates.judge_orders(
-            frame.rpm, orders, motion, force, moment, curvature, power
+            frame.rpm, orders, motion, force, moment, curvature, power, excess
         )
         for why in rejected.values():
             self.stats.orders_rejected[why] += 1
@@ -246,7 +257,9 @@ class InertiaEstimator:
         self.stats.used += 1
         # (the sign hypotheses of the fully measured frames: frames with an unseen
         # motion decide their own, see estimator.partial_pairs)
-        self.stats.ambiguous_frames += int(self._cycle_unknown(frame) and fitter.null is None)
+        tested = self._cycle_unknown(frame) and fitter.null is None
+        self.stats.ambiguous_frames += int(tested)
+        self.stats.referenced_frames += int(tested and "cycle_ambiguous" not in frame.flags)
         self.stats.rpm_lo = min(self.stats.rpm_lo, frame.rpm)
         self.stats.rpm_hi = max(self.stats.rpm_hi, frame.rpm)
         # Relinearise after the first used frame (the nominal cog may be centimetres
@@ -265,8 +278,9 @@ class InertiaEstimator:
 
     def _cycle_unknown(self, frame: FrameLike) -> bool:
         """Whether the frame's half orders may be seen through phi + 360 deg with a sign
-        that matters: not when the gas moment is measured in the same angle (it flips too)."""
-        return "cycle_ambiguous" in frame.flags and self.setup.gas_moment is None
+        that matters: without a 720 deg reference, or with one that may be wrong (it
+        is checked); not when the gas moment is measured in the same angle (it flips too)."""
+        return self.setup.gas_moment is None
 
     def _flush(self) -> None:
         """Assemble the queued frames' rows and add them, frame by frame, to both hypotheses.
@@ -301,6 +315,7 @@ class InertiaEstimator:
         else:
             if self._hypotheses_equal:
                 self.acc[-1] = Accumulator(state=self.acc[1].state, sens=self.acc[1].sens)
+                self.misfit.copy_sign(1, -1)
                 self._hypotheses_equal = False
             H, y, dr = self.rows.rows(batch, np.ones(len(half)), everything, dm, self.lin)
             hyp = {1: (H, y, dr), -1: (H, y, dr)}
@@ -311,12 +326,14 @@ class InertiaEstimator:
         bounds = np.cumsum([0] + [len(p.orders) for p in batch])
         kin = self.rows.redundancy(batch) if self._cal else None
         f_hz = np.concatenate([p.orders * p.rpm / 60.0 for p in batch])
+        orders = np.concatenate([p.orders for p in batch])
         for sign_, (Hs, ys, drs) in hyp.items():
             Ha = with_tail(Hs, f_hz)
             # one update per frame, in stream order: the same sums whatever the batch
             for a, b in itertools.pairwise(bounds):
                 # the frame's redundancy rows (already discounted with the frame's own)
                 own = None if kin is None else (kin[0][a:b], kin[1][a:b], kin[2][a:b])
+                self.misfit.add(sign_, orders[a:b], Hs[a:b], ys[a:b])
                 self.acc[sign_] = add_frame(
                     self.acc[sign_], Ha[a:b], ys[a:b], drs[a:b], self.forgetting, own
                 )
@@ -369,6 +386,8 @@ class InertiaEstimator:
             return self._effective(self.decided_sign)
         if sign is not None:
             return self._effective(sign)
+        if self.stats.referenced_frames:  # undecided: the reference's sign stands
+            return self._effective(1)
         eff = {s: self._effective(s) for s in self.acc}
         return eff[better_sign(self._sign_rss(eff))[0]]
 
@@ -379,7 +398,8 @@ class InertiaEstimator:
         return {s: self.solve(a.state).rss for s, a in eff.items()}
 
     def half_order_resolution(self) -> dict[str, Any] | None:
-        """How the 720 deg ambiguity was resolved (None when a phase reference existed)."""
+        """How the 720 deg ambiguity was resolved, or how the phase reference fared
+        against the residual test (None when no half order was tested)."""
         self._flush()
         if self.stats.ambiguous_frames == 0:
             return None
@@ -388,6 +408,21 @@ class InertiaEstimator:
             after = self.decision["after_frames"]
         else:
             (best, ratio), after = better_sign(self._sign_rss()), None
+        if self.stats.referenced_frames:
+            return {
+                "method": "reference_checked",
+                "half_order_sign": self.decided_sign or 1,
+                # the test decided against the reference: its sign is used
+                "reference_contradicted": self.decided_sign == -1,
+                # undecided: the reference's sign is kept, whichever the test leans to,
+                # and a lean against it leaves no estimate to stand behind (the run exits
+                # with the reason: realistic i3, cam 360 deg off, 20 s: 42x, Iyy -2.7)
+                "test_decided": self.decided_sign is not None,
+                "reference_doubtful": self.decided_sign is None and best == -1,
+                "residual_ratio": ratio if best == 1 else 1.0 / ratio,
+                "decided_after_frames": after,
+                "frames": self.stats.ambiguous_frames,
+            }
         return {
             "method": "residual",
             "half_order_sign": best,
@@ -403,9 +438,13 @@ class InertiaEstimator:
             self._flush()
             self.partial.solve()
         acc = self.best_state()
+        sol = self.solve(acc.state)
+        misfit = None
+        if final and misfits(sol.rss, sol.dof, acc.state.yty):
+            misfit = self.misfit_report(sol.theta[: self.layout.size], sol.rss / sol.dof)
         return build_estimate(
             acc,
-            self.solve(acc.state),
+            sol,
             self.sys_std,
             self.layout.names,
             self.setup,
@@ -414,4 +453,20 @@ class InertiaEstimator:
             elastic_mode=None if self.elastic is None else dict(self.elastic),
             unseen_motion=self.partial.report(),
             channel_weights=self.channels.measured_weights(),
+            misfit=misfit,
         )
+
+    def misfit_report(self, theta: np.ndarray, chi2_per_dof: float) -> dict[str, Any]:
+        """Where the fit misfits most (:mod:`estimator.misfit`), at ``theta``."""
+        if self.decided_sign is not None:
+            sign = self.decided_sign
+        elif not self.stats.ambiguous_frames or self.stats.referenced_frames:
+            sign = 1
+        else:
+            sign = better_sign(self._sign_rss())[0]
+        worst = self.misfit.worst(sign, theta) or {}
+        if worst:
+            worst["likely_inputs"] = likely_inputs(
+                worst["order"], worst["equation"], self.setup.crank_axis
+            )
+        return {"chi2_per_dof": chi2_per_dof, "limit": CHI2_LIMIT, **worst}

@@ -168,6 +168,8 @@ class GasParametric(Section):
     combustion_duration_deg: Positive = 50.0
     wiebe_a: Positive = 5.0
     wiebe_m: NonNegative = 2.0
+    # under the pistons: only p - p_crankcase loads them (it has orders of its own)
+    crankcase_pressure_pa: Positive = 101325.0
 
 
 class GasTrace(Section):
@@ -175,6 +177,7 @@ class GasTrace(Section):
 
     model: Literal["trace"]
     file: str
+    crankcase_pressure_pa: Positive = 101325.0  # under the pistons (see GasParametric)
 
 
 class GasOrder(Section):

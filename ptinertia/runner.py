@@ -169,10 +169,50 @@ def write_json(doc: dict[str, Any], path: str | Path) -> None:
     atomic_write(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
 
 
-def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO | None = None) -> None:
+def misfit_line(doc: dict[str, Any]) -> str | None:
+    """One line when the model does not fit the data (``doc["misfit"]``), else None."""
+    m = doc.get("misfit")
+    if not m:
+        return None
+    where = ""
+    if "order" in m:
+        where = (
+            f"; H{m['order']:g} {m['equation']} misfits most ({100 * m['share']:.0f} % of the "
+            f"residual): check {m['likely_inputs']}"
+        )
+    return (
+        f"the model does not fit the data: chi-square per degree of freedom "
+        f"{m['chi2_per_dof']:.3g} (far above 1: limit {m['limit']:g}){where}; result marked inconsistent"
+    )
+
+
+def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO | None = None) -> bool:
     """Estimate, 95 % interval, truth and error, one line per term (to ``out``, default the
-    standard output at call time, not the one at import)."""
+    standard output at call time, not the one at import); False, with the reason on stderr
+    and no table, when the tensor is not physical (no estimate)."""
     out = sys.stdout if out is None else out
+    misfit = misfit_line(doc)
+    problems = list(doc["principal"]["consistency"]["problems"])
+    half = doc.get("half_order") or {}
+    if half.get("reference_doubtful"):
+        problems.insert(
+            0,
+            "phase reference doubtful: the half orders fit "
+            f"{1 / max(half['residual_ratio'], 1e-300):.3g} times better with the cycle 360 deg "
+            "from where the cam/pressure reference puts it, too little to decide (100 needed); "
+            "check [tacho] cam_angle_deg",
+        )
+    if problems:
+        print(
+            "ptinertia: no estimate to stand behind: "
+            + "; ".join(
+                p if p.startswith("phase") else f"the fitted inertia tensor is {p}"
+                for p in problems
+            )
+            + (f"; {misfit}" if misfit else ""),
+            file=sys.stderr,
+        )
+        return False
     truth = doc.get("truth") or {}
     t_inertia = (truth.get("inertia_kgm2") or {}).get("value") or {}
     t_cog = (truth.get("cog_m") or {}).get("value")
@@ -239,6 +279,15 @@ def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO | None = No
             "past its f^2 growth",
             file=out,
         )
+    half = doc.get("half_order") or {}
+    if half.get("reference_contradicted"):
+        print(
+            "phase reference contradicted: the half orders fit "
+            f"{1 / max(half['residual_ratio'], 1e-300):.3g} times better with the cycle 360 deg "
+            "from where the cam/pressure reference puts it; the residual test's sign was used "
+            "(check [tacho] cam_angle_deg)",
+            file=out,
+        )
     unseen = doc.get("unseen_motion")
     if unseen:
         axis = ", ".join(f"{v:.2f}" for v in unseen["unseen_rotation_axis"])
@@ -252,9 +301,6 @@ def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO | None = No
         print(
             "unobservable (no excitation reaches them): " + ", ".join(doc["unobservable"]), file=out
         )
-    if doc["principal"]["consistency"]["problems"]:
-        print(
-            "physical consistency enforced: "
-            + "; ".join(doc["principal"]["consistency"]["problems"]),
-            file=out,
-        )
+    if misfit:
+        print(misfit, file=out)
+    return True

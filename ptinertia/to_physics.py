@@ -113,13 +113,24 @@ def gas_model(
     )
 
 
+def crankcase_pa(
+    gas: config_powertrain.GasParametric | config_powertrain.GasTrace | config_powertrain.GasOrders,
+) -> float:
+    """Pa under the pistons: ``[gas] crankcase_pressure_pa`` (1 atm for a torque-order
+    model, whose torque already holds it)."""
+    return float(getattr(gas, "crankcase_pressure_pa", 101325.0))
+
+
 def build_engine(
     engine: config_powertrain.Engine,
     gas: GasModel | None,
     extra_unbalances: tuple[Unbalance, ...] = (),
+    crankcase_pressure: float = 101325.0,
 ) -> Engine:
-    """The physics :class:`Engine` of an ``[engine]`` table, SI and rad."""
+    """The physics :class:`Engine` of an ``[engine]`` table, SI and rad
+    (``crankcase_pressure``: Pa under the pistons, ``[gas] crankcase_pressure_pa``)."""
     return Engine(
+        crankcase_pressure=crankcase_pressure,
         cylinders=engine.cylinders,
         bore=engine.bore_m,
         stroke=engine.stroke_m,
@@ -188,7 +199,9 @@ def build_model(
     engine's: the re-simulation check puts an estimate there
     (:func:`ptinertia.resim.resim_model`).
     """
-    engine = build_engine(bench.engine, gas_model(bench.gas), extra_unbalances)
+    engine = build_engine(
+        bench.engine, gas_model(bench.gas), extra_unbalances, crankcase_pa(bench.gas)
+    )
     body = _body(bench) if body is None else body
     return BenchModel(body, _mounts(bench), engine, _sensors(bench))
 
@@ -253,7 +266,9 @@ def build_simulated_model(
         sim.residual_unbalance_kgm, sim.residual_unbalance_deg * DEG, sim.residual_unbalance_axial_m
     )
     extra = (residual,) if sim.residual_unbalance_kgm > 0 else ()
-    engine = build_engine(bench.engine, gas_model(_true_gas(bench, sim)), extra)
+    engine = build_engine(
+        bench.engine, gas_model(_true_gas(bench, sim)), extra, crankcase_pa(bench.gas)
+    )
     elastic = (
         None
         if sim.elastic_mode is None

@@ -279,10 +279,12 @@ def run(args: argparse.Namespace) -> int:
         )
         print(f"ptinertia run: no estimate: {reason}", file=sys.stderr)
         return 1
-    print_table(summary.estimate, doc)
+    physical = print_table(summary.estimate, doc)
     if args.json is not None:
         write_json(doc, args.json)
         print(f"result written to {args.json}")
+    if not physical:  # the reason is printed; the JSON says "consistent": false
+        return 1
     if args.record:
         print(f"recording written to {args.record}")
     return 130 if summary.interrupted else 0
