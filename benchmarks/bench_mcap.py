@@ -58,8 +58,8 @@ TEETH = 60
 def make_stream(seconds: float) -> tuple[StreamLayout, list[Any]]:
     """Raw items plus ``("frame", frame, outcome)`` and ``("estimate", update)`` markers, in time order."""
     from dsp.frames import OrderFrame
+    from estimator.outcome import FrameOutcome
     from estimator.result import Estimate, EstimateUpdate
-    from estimator.streaming import FrameOutcome
 
     rng = np.random.default_rng(1)
     acc = SampleGroup(

@@ -112,3 +112,14 @@ class MisfitSample:
             "share": ss / total,
             "chi2_per_row": float(ss / (2 * np.sum(orders == h))),
         }
+
+
+def misfit_report(
+    sample: MisfitSample, sign: int, theta: np.ndarray, chi2_per_dof: float, crank_axis: np.ndarray
+) -> dict[str, Any]:
+    """Where the fit misfits most at ``theta`` (the rows of ``sign``'s hypothesis in
+    ``sample``), with the inputs most likely wrong."""
+    worst = sample.worst(sign, theta) or {}
+    if worst:
+        worst["likely_inputs"] = likely_inputs(worst["order"], worst["equation"], crank_axis)
+    return {"chi2_per_dof": chi2_per_dof, "limit": CHI2_LIMIT, **worst}

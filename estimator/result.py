@@ -79,9 +79,17 @@ class EstimatorStats:
     rpm_hi: float = float("-inf")
     ambiguous_frames: int = 0  # frames whose half-order sign the residual test judged
     referenced_frames: int = 0  # those of them with a 720 deg reference (the test checks it)
-    skipped: int = (
-        0  # overlapping frames left out (not rejected: their data are in their neighbours)
-    )
+    # overlapping frames left out (not rejected: their data are in their neighbours)
+    skipped: int = 0
+
+    def count_used(self, rpm: float, tested: bool, referenced: bool) -> None:
+        """One more used frame at ``rpm``; ``tested``: its half-order sign judged by the
+        residual test, ``referenced``: with a 720 deg reference the test checks."""
+        self.used += 1
+        self.ambiguous_frames += int(tested)
+        self.referenced_frames += int(referenced)
+        self.rpm_lo = min(self.rpm_lo, rpm)
+        self.rpm_hi = max(self.rpm_hi, rpm)
 
 
 @dataclass(frozen=True)

@@ -12,18 +12,8 @@ declared tolerances into a type-B covariance that does not shrink with the
 number of frames, which is what makes the 95 % intervals honest when the
 real errors are systematic (a 1 % gain error is the same in every frame).
 
-Half orders without a 720 deg reference: the crank wheel gives the angle
-modulo 360 deg, so the sign of every half-order amplitude is unknown. We carry
-two states, one per sign, and keep the one whose weighted residual is smaller
-(the wrong sign turns the roll equation of H1.5 against the inertia, and the
-misfit is large); the ratio of the two residuals is reported.
-
-With a cam or pressure reference the sign is known, unless the reference is
-wrong: a cam angle 360 deg off flips every half order, and the fit then turns
-out a negative Iyy. The same test checks the reference: its frames carry both
-hypotheses too, the reference's sign is kept unless the residuals decide
-(``DECIDE_RATIO``) against it, and then the test's sign is used and the
-contradiction reported (``half_order["reference_contradicted"]``).
+Half orders: without a 720 deg reference, and to check one, two sign hypotheses are
+carried and the residuals decide between them (:mod:`estimator.hypotheses`).
 """
 
 from __future__ import annotations
@@ -31,7 +21,6 @@ from __future__ import annotations
 import itertools
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -44,22 +33,20 @@ from estimator.equations import (
     ParameterLayout,
     linearisation_at,
     parameter_scale,
+    relinearise_due,
 )
-from estimator.gating import (
-    FrameLike,
-    OrderGates,
-    frame_gate,
-    overlaps_previous,
-)
+from estimator.gating import FrameLike, OrderGates, frame_gate, overlaps_previous
 from estimator.hypotheses import (
     DECIDE_AFTER_FRAMES,
     DECIDE_RATIO,
     Accumulator,
     add_frame,
     better_sign,
+    half_order_report,
 )
 from estimator.kinematics import RigidFit, RigidMotion
-from estimator.misfit import CHI2_LIMIT, MisfitSample, likely_inputs, misfits
+from estimator.misfit import MisfitSample, misfit_report, misfits
+from estimator.outcome import FrameOutcome
 from estimator.partial_pairs import PartialPairs
 from estimator.pending_rows import FrameQueue, PendingFrame, RowAssembler
 from estimator.redundancy import calibrated_names
@@ -68,36 +55,6 @@ from estimator.rigidity import excess_residual
 from estimator.rls import RlsSolution, RlsState, rls_solve
 from estimator.setup import EstimatorSetup
 from estimator.systematic import systematic_names, systematic_stds
-
-# The linearised terms (G x F_unb, row weighting) move slowly once a few frames are in:
-# refresh them every few used frames rather than solving after every frame, more
-# often while the estimate still moves (each refresh costs a solve and a row batch).
-RELINEARISE_EVERY = 8
-RELINEARISE_EVERY_LATER = 32
-RELINEARISE_LATER_AFTER = 64
-
-
-def relinearise_due(used: int) -> bool:
-    """True after the used frames at which the linearisation point is refreshed."""
-    every = RELINEARISE_EVERY if used <= RELINEARISE_LATER_AFTER else RELINEARISE_EVERY_LATER
-    return used % every == 1
-
-
-# Frame flags (dsp.frames.FLAGS) that make the crank angle, and so every phase, untrustworthy.
-# "nan", "clipped" and "missing_channel" only drop the affected channels (channel_ok).
-
-
-@dataclass(frozen=True)
-class FrameOutcome:
-    """What the estimator did with one frame."""
-
-    time_s: float
-    rpm: float
-    used_orders: tuple[float, ...]
-    rejected: dict[float, str]
-    reason: str | None  # why the whole frame was rejected, None when used
-    relative_residual: dict[float, float]
-    motion: RigidMotion | None = None  # the fitted rigid motion (for viewers)
 
 
 class InertiaEstimator:
@@ -254,14 +211,10 @@ class InertiaEstimator:
             floor,
             gas,
         )
-        self.stats.used += 1
         # (the sign hypotheses of the fully measured frames: frames with an unseen
         # motion decide their own, see estimator.partial_pairs)
         tested = self._cycle_unknown(frame) and fitter.null is None
-        self.stats.ambiguous_frames += int(tested)
-        self.stats.referenced_frames += int(tested and "cycle_ambiguous" not in frame.flags)
-        self.stats.rpm_lo = min(self.stats.rpm_lo, frame.rpm)
-        self.stats.rpm_hi = max(self.stats.rpm_hi, frame.rpm)
+        self.stats.count_used(frame.rpm, tested, tested and "cycle_ambiguous" not in frame.flags)
         # Relinearise after the first used frame (the nominal cog may be centimetres
         # off) and then after every full batch.
         # (Counted in used frames, not queued ones: an early flush for a published
@@ -338,18 +291,14 @@ class InertiaEstimator:
                     self.acc[sign_], Ha[a:b], ys[a:b], drs[a:b], self.forgetting, own
                 )
 
-    def _decide_half_order_sign(self) -> None:
-        """Stop carrying the losing sign hypothesis once the residuals leave no doubt."""
-        if self.decided_sign is not None or self.stats.ambiguous_frames < DECIDE_AFTER_FRAMES:
-            return
-        best, ratio = better_sign(self._sign_rss())
-        if ratio >= DECIDE_RATIO:
-            self.decided_sign = best
-            self.decision = {"ratio": ratio, "after_frames": self.stats.ambiguous_frames}
-
     def _relinearise(self) -> None:
         self.channels.refresh_weights()
-        self._decide_half_order_sign()
+        # stop carrying the losing sign hypothesis once the residuals leave no doubt
+        if self.decided_sign is None and self.stats.ambiguous_frames >= DECIDE_AFTER_FRAMES:
+            best, ratio = better_sign(self._sign_rss())
+            if ratio >= DECIDE_RATIO:
+                self.decided_sign = best
+                self.decision = {"ratio": ratio, "after_frames": self.stats.ambiguous_frames}
         sol = self.solve(self.best_state().state)
         if not np.all(sol.observable[:9]):
             return
@@ -379,17 +328,10 @@ class InertiaEstimator:
 
     def measured_state(self, sign: int | None = None) -> Accumulator:
         """:meth:`best_state` of the fully measured frames alone (no flush); ``sign``:
-        that half-order hypothesis rather than the better one."""
-        if self.stats.ambiguous_frames == 0:
-            return self._effective(1)
-        if self.decided_sign is not None:
-            return self._effective(self.decided_sign)
-        if sign is not None:
-            return self._effective(sign)
-        if self.stats.referenced_frames:  # undecided: the reference's sign stands
-            return self._effective(1)
-        eff = {s: self._effective(s) for s in self.acc}
-        return eff[better_sign(self._sign_rss(eff))[0]]
+        that half-order hypothesis rather than the one in use (a decided sign wins)."""
+        if sign is None or self.decided_sign is not None or not self.stats.ambiguous_frames:
+            return self._effective(self._sign_in_use())
+        return self._effective(sign)
 
     def _sign_rss(self, eff: dict[int, Accumulator] | None = None) -> dict[int, float]:
         """Weighted residual sum of squares of each half-order sign hypothesis
@@ -408,28 +350,14 @@ class InertiaEstimator:
             after = self.decision["after_frames"]
         else:
             (best, ratio), after = better_sign(self._sign_rss()), None
-        if self.stats.referenced_frames:
-            return {
-                "method": "reference_checked",
-                "half_order_sign": self.decided_sign or 1,
-                # the test decided against the reference: its sign is used
-                "reference_contradicted": self.decided_sign == -1,
-                # undecided: the reference's sign is kept, whichever the test leans to,
-                # and a lean against it leaves no estimate to stand behind (the run exits
-                # with the reason: realistic i3, cam 360 deg off, 20 s: 42x, Iyy -2.7)
-                "test_decided": self.decided_sign is not None,
-                "reference_doubtful": self.decided_sign is None and best == -1,
-                "residual_ratio": ratio if best == 1 else 1.0 / ratio,
-                "decided_after_frames": after,
-                "frames": self.stats.ambiguous_frames,
-            }
-        return {
-            "method": "residual",
-            "half_order_sign": best,
-            "residual_ratio": ratio,
-            "decided_after_frames": after,
-            "frames": self.stats.ambiguous_frames,
-        }
+        return half_order_report(
+            self.decided_sign,
+            best,
+            ratio,
+            after,
+            self.stats.ambiguous_frames,
+            referenced=bool(self.stats.referenced_frames),
+        )
 
     def estimate(self, final: bool = True) -> Estimate:
         """The current estimate. ``final=False`` (a live update) skips the full re-solve
@@ -441,7 +369,13 @@ class InertiaEstimator:
         sol = self.solve(acc.state)
         misfit = None
         if final and misfits(sol.rss, sol.dof, acc.state.yty):
-            misfit = self.misfit_report(sol.theta[: self.layout.size], sol.rss / sol.dof)
+            misfit = misfit_report(
+                self.misfit,
+                self._sign_in_use(),
+                sol.theta[: self.layout.size],
+                sol.rss / sol.dof,
+                self.setup.crank_axis,
+            )
         return build_estimate(
             acc,
             sol,
@@ -456,17 +390,10 @@ class InertiaEstimator:
             misfit=misfit,
         )
 
-    def misfit_report(self, theta: np.ndarray, chi2_per_dof: float) -> dict[str, Any]:
-        """Where the fit misfits most (:mod:`estimator.misfit`), at ``theta``."""
+    def _sign_in_use(self) -> int:
+        """The half-order sign hypothesis the estimate stands on."""
         if self.decided_sign is not None:
-            sign = self.decided_sign
-        elif not self.stats.ambiguous_frames or self.stats.referenced_frames:
-            sign = 1
-        else:
-            sign = better_sign(self._sign_rss())[0]
-        worst = self.misfit.worst(sign, theta) or {}
-        if worst:
-            worst["likely_inputs"] = likely_inputs(
-                worst["order"], worst["equation"], self.setup.crank_axis
-            )
-        return {"chi2_per_dof": chi2_per_dof, "limit": CHI2_LIMIT, **worst}
+            return self.decided_sign
+        if not self.stats.ambiguous_frames or self.stats.referenced_frames:
+            return 1
+        return better_sign(self._sign_rss())[0]

@@ -13,8 +13,8 @@ import time
 from typing import Any, TextIO
 
 from acquisition.stream import SourceEvent
+from estimator.outcome import FrameOutcome
 from estimator.result import Z95, Estimate, EstimateUpdate
-from estimator.streaming import FrameOutcome
 from ptinertia.sinks import RunContext, Sink
 
 

@@ -22,9 +22,9 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from acquisition.stream import SourceEvent, StreamItem, StreamLayout
+from estimator.outcome import FrameOutcome
 from estimator.result import Estimate, EstimateUpdate
 from estimator.setup import EstimatorSetup
-from estimator.streaming import FrameOutcome
 
 
 @dataclass(frozen=True)

@@ -23,8 +23,8 @@ from mcap.reader import NonSeekingReader, SeekingReader
 from acquisition.can.frames import RawFrame
 from acquisition.stream import SourceEvent, StreamItem, StreamLayout
 from dsp.frames import OrderFrame
+from estimator.outcome import FrameOutcome
 from estimator.result import Estimate, EstimateUpdate
-from estimator.streaming import FrameOutcome
 from replay import results_codec, stream_codec
 from replay.chunks import READ_ERRORS, Skipped, walk_messages
 from replay.errors import BadMessage, LogError, describe

@@ -67,8 +67,8 @@ from typing import IO, Any
 from acquisition.can.frames import RawFrame
 from acquisition.stream import EdgeBlock, SampleBlock, SourceEvent, StreamItem, StreamLayout
 from dsp.frames import OrderFrame
+from estimator.outcome import FrameOutcome
 from estimator.result import Estimate, EstimateUpdate
-from estimator.streaming import FrameOutcome
 from replay import foxglove, results_codec, stream_codec
 from replay.errors import LogError
 from replay.mcap_output import check_level

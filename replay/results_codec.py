@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 
 from dsp.frames import OrderFrame
+from estimator.outcome import FrameOutcome
 from estimator.result import Estimate
-from estimator.streaming import FrameOutcome
 from replay import wire
 from replay.errors import BadMessage
 from replay.schemas import PARAMETERS, wire_class

@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from estimator.outcome import FrameOutcome
 from estimator.result import EstimateUpdate, enforce_physical, principal_axes
-from estimator.streaming import FrameOutcome
 from ptinertia.sinks import RunContext, Sink
 from ptinertia.viewer import layout as lay
 from ptinertia.viewer.data import BAND_K

@@ -32,8 +32,8 @@ from typing import Any, TextIO
 import numpy as np
 
 from acquisition.stream import SourceEvent
+from estimator.outcome import FrameOutcome
 from estimator.result import Estimate, EstimateUpdate, enforce_physical, principal_axes
-from estimator.streaming import FrameOutcome
 from ptinertia.sinks import RunContext, Sink
 from ptinertia.viewer import layout as lay
 from ptinertia.viewer.data import BAND_K, band_columns, estimate_rows, order_columns, truth_values

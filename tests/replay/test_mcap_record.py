@@ -38,8 +38,8 @@ from acquisition.stream import (
     StreamLayout,
 )
 from dsp.frames import OrderFrame
+from estimator.outcome import FrameOutcome
 from estimator.result import RATIO_CAP, Estimate, EstimateUpdate
-from estimator.streaming import FrameOutcome
 from replay.raw_writer import record_source
 from replay.reader import open_log
 from replay.recorder import McapRecorder

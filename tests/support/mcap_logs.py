@@ -22,7 +22,7 @@ from acquisition.stream import (
     StreamLayout,
 )
 from dsp.frames import OrderFrame
-from estimator.streaming import FrameOutcome
+from estimator.outcome import FrameOutcome
 from replay.recorder import McapRecorder
 from replay.recording_head import RecordingInfo
 
