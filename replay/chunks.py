@@ -14,7 +14,7 @@ buffer, copying only the messages of the wanted topics.
 instead; a test checks both agree on whole and cut files.
 
 Damage. Every chunk is checked before its records are read: a known
-compression, a declared size within :data:`MAX_CHUNK_BYTES` (a 32 KB zstd
+compression, a declared size within :data:`replay.mcap_records.MAX_CHUNK_BYTES` (a 32 KB zstd
 bomb or a chunk declaring 2**40 bytes is refused before anything is
 allocated), the decompressed size as declared, and the CRC. A chunk that
 fails (:class:`BadChunk`), and a record whose opcode has no business in the
@@ -25,59 +25,35 @@ file; the walk goes on with the next record.
 
 from __future__ import annotations
 
-import os
 import struct
-import zlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from io import BytesIO
 from pathlib import Path
 from typing import IO
 
-import lz4.frame
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
-from mcap.records import Attachment, Channel, Message, Schema
+from mcap.records import Channel, Message, Schema
 
-MAGIC = b"\x89MCAP0\r\n"
-_RECORD = struct.Struct("<BQ")  # opcode, content length
-_MESSAGE = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
-_CHUNK = struct.Struct("<QQQI")  # start time, end time, uncompressed size, uncompressed crc
+from replay.mcap_records import (
+    DATA_OPCODES,
+    MESSAGE_HEAD,
+    RECORD_HEAD,
+    BadChunk,
+    chunk_payload,
+    chunk_records,
+    ends_data,
+    looks_like_index,
+    parse_definition,
+    read_at,
+    records,
+)
 
 # (topic, schema name, log time ns, data)
 MessageTuple = tuple[str, str, int, bytes]
-
-
-# The largest chunk a reader decompresses (bytes): the recorder closes a chunk
-# past 1 MB, so only the largest single message (a sample block) can make one
-# larger; this bound is what keeps a crafted size from exhausting memory.
-MAX_CHUNK_BYTES = 256 * 1024 * 1024
-# What the data section of a recording may hold at its top level (and its end, see
-# :func:`ends_data`).
-DATA_OPCODES = frozenset(
-    int(op)
-    for op in (
-        Opcode.HEADER,
-        Opcode.METADATA,
-        Opcode.ATTACHMENT,
-        Opcode.SCHEMA,
-        Opcode.CHANNEL,
-        Opcode.MESSAGE,
-        Opcode.CHUNK,
-        Opcode.MESSAGE_INDEX,
-    )
-)
-CHUNK_OPCODES = frozenset(int(op) for op in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE))
-
-
-class Truncated(McapError):
-    """The file ends inside a record."""
-
-
-class BadChunk(McapError):
-    """A chunk (or a top-level record) is damaged: its messages cannot be trusted."""
 
 
 @dataclass
@@ -111,143 +87,6 @@ READ_ERRORS: tuple[type[Exception], ...] = (
     KeyError,
     RuntimeError,
 )
-
-
-def records(fh: IO[bytes]) -> Iterator[tuple[int, int, int]]:
-    """``(opcode, content offset, content length)`` of every top-level record after the magic.
-
-    Ends at the end of the file (a writer killed between two records) and
-    raises :class:`Truncated` for a record that runs past it. The caller may
-    read from ``fh`` between two steps.
-    """
-    size = os.fstat(fh.fileno()).st_size
-    fh.seek(0)
-    if fh.read(len(MAGIC)) != MAGIC:
-        raise McapError("not an MCAP file")
-    pos = len(MAGIC)
-    while True:
-        fh.seek(pos)
-        head = fh.read(_RECORD.size)
-        if not head:
-            return
-        if len(head) < _RECORD.size:
-            raise Truncated(f"file ends inside a record header at byte {pos}")
-        opcode, length = _RECORD.unpack(head)
-        start = pos + _RECORD.size
-        if start + length > size:
-            raise Truncated(
-                f"file ends inside a record at byte {pos} ({size - start} of {length} bytes)"
-            )
-        yield opcode, start, length
-        pos = start + length
-
-
-def read_at(fh: IO[bytes], offset: int, length: int) -> bytes:
-    fh.seek(offset)
-    return fh.read(length)
-
-
-def chunk_times(fh: IO[bytes], offset: int) -> tuple[int, int]:
-    """Log times (ns) of the first and last message of the chunk whose content starts at ``offset``."""
-    start, end, _, _ = _CHUNK.unpack(read_at(fh, offset, _CHUNK.size)[: _CHUNK.size])
-    return start, end
-
-
-def chunk_payload(content: bytes, check_crc: bool = True) -> bytes:
-    """The uncompressed records of a chunk record's content, checked; raises :class:`BadChunk`.
-
-    The declared uncompressed size bounds the decompression (and may not
-    exceed :data:`MAX_CHUNK_BYTES`), the result must have that size, and its
-    CRC (when the writer wrote one, non-zero) must match, unless ``check_crc``
-    is False (a data section CRC vouched for the bytes already).
-    """
-    view = memoryview(content)
-    try:
-        _, _, size, crc = _CHUNK.unpack_from(view, 0)
-        pos = _CHUNK.size
-        (n,) = struct.unpack_from("<I", view, pos)
-        compression = bytes(view[pos + 4 : pos + 4 + n]).decode("ascii", errors="replace")
-        pos += 4 + n
-        (n_data,) = struct.unpack_from("<Q", view, pos)
-    except struct.error:
-        raise BadChunk("chunk header runs past the chunk record") from None
-    pos += 8
-    if pos + n_data != len(view):
-        raise BadChunk(
-            f"chunk declares {n_data} compressed bytes, its record holds {len(view) - pos}"
-        )
-    if size > MAX_CHUNK_BYTES:
-        raise BadChunk(f"chunk declares {size} uncompressed bytes (at most {MAX_CHUNK_BYTES} read)")
-    data = view[pos:]
-    try:
-        if compression == "zstd":
-            # max_output_size binds only frames without a content size: check that first
-            declared = zstandard.frame_content_size(data)
-            if declared not in (-1, size):
-                raise BadChunk(f"zstd frame holds {declared} bytes, the chunk declares {size}")
-            payload = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-        elif compression == "lz4":
-            payload = lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=size + 1)
-        elif compression == "":
-            payload = bytes(data)
-        else:
-            raise BadChunk(f"unsupported chunk compression {compression!r}")
-    except (zstandard.ZstdError, RuntimeError, ValueError) as err:
-        raise BadChunk(f"chunk does not decompress ({type(err).__name__}: {err})") from None
-    if len(payload) != size:
-        raise BadChunk(f"chunk decompresses to {len(payload)} bytes, declares {size}")
-    if check_crc and crc and zlib.crc32(payload) != crc:
-        raise BadChunk(f"chunk CRC mismatch ({zlib.crc32(payload):#010x}, recorded {crc:#010x})")
-    return payload
-
-
-def chunk_records(payload: bytes) -> Iterator[tuple[int, memoryview]]:
-    """``(opcode, content)`` of each record inside a chunk."""
-    view = memoryview(payload)
-    pos, end = 0, len(payload)
-    while pos < end:
-        if pos + _RECORD.size > end:
-            raise BadChunk("chunk ends inside a record header")
-        opcode, length = _RECORD.unpack_from(view, pos)
-        pos += _RECORD.size
-        if pos + length > end:
-            raise BadChunk(f"chunk record of {length} bytes runs past the chunk's end")
-        if opcode not in CHUNK_OPCODES:
-            raise BadChunk(f"record with opcode {opcode:#04x} inside a chunk")
-        if opcode == Opcode.MESSAGE and length < _MESSAGE.size:
-            raise BadChunk(f"message record of {length} bytes inside a chunk")
-        yield opcode, view[pos : pos + length]
-        pos += length
-
-
-def read_attachment(content: bytes) -> Attachment:
-    """An attachment record from its content, its CRC checked; raises :class:`BadChunk`."""
-    attachment = Attachment.read(ReadDataStream(BytesIO(content)))
-    (crc,) = struct.unpack_from("<I", content, len(content) - 4)
-    if crc and zlib.crc32(memoryview(content)[:-4]) != crc:
-        raise BadChunk(f"attachment {attachment.name!r}: CRC mismatch")
-    return attachment
-
-
-def looks_like_index(head: bytes, length: int) -> bool:
-    """Whether a record of ``length`` bytes starting ``head`` (6 bytes) is a message index:
-    a channel id, then its entries' byte count (16 each), filling the record."""
-    if len(head) < 6:
-        return False
-    _, n = struct.unpack_from("<HI", head, 0)
-    return 6 + n == length and n % 16 == 0
-
-
-def ends_data(opcode: int, length: int) -> bool:
-    """Whether a top-level record ends the data section: a data end record (4 bytes) or
-    a footer (20 bytes). A damaged opcode that reads as one has another length."""
-    return (opcode == Opcode.DATA_END and length == 4) or (opcode == Opcode.FOOTER and length == 20)
-
-
-def parse_definition(opcode: int, content: bytes | memoryview) -> Schema | Channel:
-    """A Schema or Channel record from its content."""
-    stream = ReadDataStream(BytesIO(bytes(content)))
-    return Schema.read(stream) if opcode == Opcode.SCHEMA else Channel.read(stream)
 
 
 class MessageWalk:
@@ -301,9 +140,9 @@ class MessageWalk:
                     try:
                         payload = chunk_payload(read_at(fh, offset, length), self.check_crcs)
                     except BadChunk as err:
-                        self._skip(offset - _RECORD.size, str(err))
+                        self._skip(offset - RECORD_HEAD.size, str(err))
                         continue
-                    yield from self._chunk(payload, offset - _RECORD.size)
+                    yield from self._chunk(payload, offset - RECORD_HEAD.size)
                 elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
                     self._define(parse_definition(opcode, read_at(fh, offset, length)))
                 elif opcode == Opcode.MESSAGE:
@@ -317,7 +156,7 @@ class MessageWalk:
                     and not looks_like_index(read_at(fh, offset, 6), length)
                 ):  # a flipped opcode: most likely a chunk
                     self._skip(
-                        offset - _RECORD.size,
+                        offset - RECORD_HEAD.size,
                         f"damaged record (opcode {opcode:#04x}, {length} bytes)",
                     )
 
@@ -326,13 +165,13 @@ class MessageWalk:
             yield from records(fh)
             return
         for offset, length in self.chunks:  # from the summary's chunk indexes
-            head = read_at(fh, offset, _RECORD.size)
-            _, declared = _RECORD.unpack(head) if len(head) == _RECORD.size else (0, 0)
-            if declared != length - _RECORD.size:
+            head = read_at(fh, offset, RECORD_HEAD.size)
+            _, declared = RECORD_HEAD.unpack(head) if len(head) == RECORD_HEAD.size else (0, 0)
+            if declared != length - RECORD_HEAD.size:
                 self._skip(offset, "damaged chunk record header")
                 continue
             # a damaged opcode alone is harmless here: the content's CRC decides
-            yield Opcode.CHUNK, offset + _RECORD.size, declared
+            yield Opcode.CHUNK, offset + RECORD_HEAD.size, declared
 
     def _skip(self, offset: int, reason: str) -> None:
         skipped = Skipped(offset, reason, after_ns=self._last_ns)
@@ -362,7 +201,7 @@ class MessageWalk:
         return topic, self.schemas.get(schema_id, "")
 
     def _chunk(self, payload: bytes, offset: int) -> Iterator[MessageTuple]:
-        unpack_message = _MESSAGE.unpack_from
+        unpack_message = MESSAGE_HEAD.unpack_from
         wanted: dict[int, tuple[str, str] | None] = {}  # per channel, for this chunk
         try:
             for opcode, content in chunk_records(payload):
@@ -373,7 +212,7 @@ class MessageWalk:
                         wanted[channel_id] = self._wanted(channel_id)
                     out = wanted[channel_id]
                     if out is not None:
-                        yield out[0], out[1], log_time, bytes(content[_MESSAGE.size :])
+                        yield out[0], out[1], log_time, bytes(content[MESSAGE_HEAD.size :])
                 elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
                     self._define(parse_definition(opcode, content))
                     wanted.clear()

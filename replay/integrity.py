@@ -18,8 +18,9 @@ from typing import IO
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 
-from replay.chunks import MAGIC, READ_ERRORS, BadChunk, chunk_payload, read_at, records
+from replay.chunks import READ_ERRORS
 from replay.errors import LogError
+from replay.mcap_records import MAGIC, BadChunk, chunk_payload, read_at, records
 
 
 def check_summary_crc(fh: IO[bytes]) -> int:

@@ -39,7 +39,7 @@ from mcap.records import (
     SummaryOffset,
 )
 
-from replay.chunks import MAGIC
+from replay.mcap_records import MAGIC
 
 COMPRESSIONS = ("zstd", "lz4", "")
 # zstandard.compress's (and so mcap's) default level; the recorder chooses its own

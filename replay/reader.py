@@ -33,9 +33,11 @@ from mcap.records import Channel, Metadata, Schema
 
 from acquisition.stream import StreamLayout
 from replay import stream_codec
-from replay.chunks import (
+from replay.chunks import READ_ERRORS
+from replay.errors import LogError, describe
+from replay.integrity import check_data_crc, check_summary_crc
+from replay.mcap_records import (
     MAGIC,
-    READ_ERRORS,
     BadChunk,
     chunk_payload,
     chunk_records,
@@ -46,8 +48,6 @@ from replay.chunks import (
     read_attachment,
     records,
 )
-from replay.errors import LogError, describe
-from replay.integrity import check_data_crc, check_summary_crc
 from replay.recorded_log import ReadReport, RecordedLog
 from replay.schemas import (
     BENCH_ATTACHMENT,

@@ -5,7 +5,7 @@ stream, or a part of it with what was skipped reported (``recording_skipped``
 in the result document), or refuses the file with one line (``LogError``,
 exit 2; exit 1 "no estimate"); never a traceback, never an item or an estimate
 silently different from the clean one. Sizes read from the file are bounded
-(``replay.chunks.MAX_CHUNK_BYTES``, the file size), which is what keeps a
+(``replay.mcap_records.MAX_CHUNK_BYTES``, the file size), which is what keeps a
 crafted record from hanging the reader; ``benchmarks/bench_bitflips.py``
 measures the replay times.
 
@@ -37,8 +37,8 @@ from support.mcap_logs import record, synthetic_items, synthetic_layout
 
 from acquisition.stream import EdgeBlock, SampleBlock, SourceEvent, StreamItem
 from ptinertia.cli import main
-from replay.chunks import chunk_payload, records
 from replay.errors import LogError
+from replay.mcap_records import chunk_payload, records
 from replay.reader import open_log
 
 EXAMPLES = int(os.environ.get("PTINERTIA_FUZZ_EXAMPLES", "40"))

@@ -36,9 +36,9 @@ from acquisition.stream import (
 from ptinertia.cli import main
 from ptinertia.config import load_bench
 from ptinertia.runner import RunOptions, run_source
-from replay import chunks
-from replay.chunks import BadChunk, Truncated, chunk_payload, records
+from replay import mcap_records
 from replay.errors import LogError
+from replay.mcap_records import BadChunk, Truncated, chunk_payload, records
 from replay.raw_writer import record_source
 from replay.reader import open_log
 from replay.recording_head import RecordingInfo, run_metadata
@@ -119,7 +119,7 @@ def _chunk_content(payload_size: int, data: bytes, compression: str, crc: int = 
 
 
 def test_zstd_bombs_are_refused_by_the_declared_size(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(chunks, "MAX_CHUNK_BYTES", 1 << 20)
+    monkeypatch.setattr(mcap_records, "MAX_CHUNK_BYTES", 1 << 20)
     zeros = bytes(16 << 20)
     with_size = zstandard.ZstdCompressor().compress(zeros)
     without_size = zstandard.ZstdCompressor(write_content_size=False).compress(zeros)
