@@ -46,7 +46,12 @@ def add_parser(subparsers: Any, name: str, help_text: str) -> argparse.ArgumentP
     p.add_argument(
         "file", metavar="FILE", help="recording to analyse, or 'sim' for the simulated bench"
     )
-    p.add_argument("--bench", default=str(DEFAULT_BENCH), help="bench file (default: %(default)s)")
+    p.add_argument(
+        "--bench",
+        default=None,
+        help=f"bench file the data was measured on (required for a recording; 'sim' defaults "
+        f"to {DEFAULT_BENCH.name})",
+    )
     p.add_argument(
         "--orders", help="comma-separated engine orders, multiples of 0.5 (default: [dsp] orders)"
     )
@@ -72,6 +77,11 @@ def parse_orders(text: str | None) -> tuple[float, ...] | None:
 
 def run(args: argparse.Namespace) -> int:
     orders = parse_orders(args.orders)
+    if args.bench is None and args.file != "sim":
+        # a recording tracked with the example bench's tacho and channels would give
+        # confident, wrong orders: as ``run``, the bench must be named
+        raise UsageError(f"{args.file}: needs --bench B.toml, the bench the data was measured on")
+    args.bench = str(DEFAULT_BENCH) if args.bench is None else args.bench
     bench = load_bench(args.bench)
     if args.file != "sim" and not Path(args.file).exists():
         raise UsageError(f"{args.file}: no such file")

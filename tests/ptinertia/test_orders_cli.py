@@ -121,3 +121,12 @@ def test_a_missing_file_is_a_one_line_error(short_bench, tmp_path, capsys):
     code = main(["orders", str(tmp_path / "nope.csv"), "--bench", str(short_bench)])
     err = capsys.readouterr().err
     assert code == 2 and "nope.csv" in err and err.count("\n") == 1
+
+
+def test_a_recording_without_its_bench_is_refused(tmp_path, capsys) -> None:
+    """A recording is never tracked with the example bench by default (as ``run``)."""
+    rec = tmp_path / "x.csv"
+    rec.write_text("time_s,A_x\n0,0\n")
+    assert main(["orders", str(rec)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "needs --bench" in err[0] and str(rec) in err[0]
