@@ -32,6 +32,22 @@ def message_to_frame(msg: Any) -> RawFrame:
     )
 
 
+def frame_to_message(frame: RawFrame, channel: Any = None) -> Any:
+    """A :class:`RawFrame` as a python-can ``Message`` (the inverse of :func:`message_to_frame`;
+    an FD frame switches its bit rate, as the simulated DAQ sends it)."""
+    import can  # on use, as in open_bus
+
+    return can.Message(
+        timestamp=frame.timestamp_ns * 1e-9,
+        arbitration_id=frame.arbitration_id,
+        is_extended_id=frame.is_extended_id,
+        is_fd=frame.is_fd,
+        bitrate_switch=frame.is_fd,
+        data=frame.data,
+        channel=channel,
+    )
+
+
 def bus_error_kind(msg: Any) -> str:
     """``bus_off``, ``error_passive`` or ``bus_error`` from an error frame (SocketCAN error classes)."""
     if msg.arbitration_id & 0x40:

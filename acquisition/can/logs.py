@@ -19,7 +19,7 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import IO, Any
 
-from acquisition.can.bus import message_to_frame
+from acquisition.can.bus import frame_to_message, message_to_frame
 from acquisition.can.dbc import load_plan
 from acquisition.can.frames import DLC_SIZES, RawFrame
 from acquisition.can.plan import CanPlan
@@ -205,19 +205,7 @@ class FrameLogWriter:
         if self._trc is not None:
             self._write_trc(frame)
         else:
-            import can  # on use, as in __init__
-
-            self._logger.on_message_received(
-                can.Message(
-                    timestamp=frame.timestamp_ns * 1e-9,
-                    arbitration_id=frame.arbitration_id,
-                    is_extended_id=frame.is_extended_id,
-                    is_fd=frame.is_fd,
-                    bitrate_switch=frame.is_fd,
-                    data=frame.data,
-                    channel=0,
-                )
-            )
+            self._logger.on_message_received(frame_to_message(frame, channel=0))
         self.count += 1
 
     def _write_trc(self, f: RawFrame) -> None:

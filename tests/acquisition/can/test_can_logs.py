@@ -14,6 +14,7 @@ from support.can_streams import (
     simulated,
 )
 
+from acquisition.can.bus import frame_to_message
 from acquisition.can.decoder import decode_frames
 from acquisition.can.logs import FrameLogWriter, is_can_log, read_frames, write_can_log
 from acquisition.stream import EdgeBlock, SampleBlock, SourceError, SourceEvent
@@ -83,16 +84,7 @@ def test_error_frames_in_a_log_are_counted(tmp_path, plan, frames):
                         timestamp=f.timestamp_ns * 1e-9, is_error_frame=True, arbitration_id=0x40
                     )
                 )
-            log.on_message_received(
-                can.Message(
-                    timestamp=f.timestamp_ns * 1e-9,
-                    arbitration_id=f.arbitration_id,
-                    is_extended_id=f.is_extended_id,
-                    data=f.data,
-                    is_fd=f.is_fd,
-                    bitrate_switch=f.is_fd,
-                )
-            )
+            log.on_message_received(frame_to_message(f))
     from acquisition.can.logs import CanLogSource
 
     with CanLogSource(path, plan) as src:
@@ -153,17 +145,7 @@ def test_compressed_logs_written_by_python_can_replay_the_stream(
     path = tmp_path / f"run.{fmt}"
     with can.Logger(str(path)) as log:  # python-can's own compressed writer
         for f in frames:
-            log.on_message_received(
-                can.Message(
-                    timestamp=f.timestamp_ns * 1e-9,
-                    arbitration_id=f.arbitration_id,
-                    is_extended_id=f.is_extended_id,
-                    data=f.data,
-                    is_fd=f.is_fd,
-                    bitrate_switch=f.is_fd,
-                    channel=0,
-                )
-            )
+            log.on_message_received(frame_to_message(f, channel=0))
     assert is_can_log(path)
     bench = load_bench(can_bench_file(tmp_path))
     with open_source(f"file:{path}", bench) as src:

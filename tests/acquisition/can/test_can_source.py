@@ -26,7 +26,7 @@ from support.can_streams import (
     simulated,
 )
 
-from acquisition.can.bus import CanBusSource
+from acquisition.can.bus import CanBusSource, frame_to_message
 from acquisition.can.decoder import FrameDecoder, decode_frames
 from acquisition.can.faults import FaultInjector, FaultRates
 from acquisition.can.fields import as_rows, read_fields
@@ -303,16 +303,7 @@ class _StubBus:
 
 
 def _messages(frames):
-    return [
-        can.Message(
-            timestamp=f.timestamp_ns * 1e-9,
-            arbitration_id=f.arbitration_id,
-            is_extended_id=f.is_extended_id,
-            data=f.data,
-            is_fd=f.is_fd,
-        )
-        for f in frames
-    ]
+    return [frame_to_message(f) for f in frames]
 
 
 def test_bus_errors_and_controller_state_are_reported(plan, clean_frames):
