@@ -33,6 +33,7 @@ kept ones stay spread over the whole sweep.
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
@@ -47,6 +48,7 @@ MIN_ESTIMATES = 8
 RECENT = 8
 
 
+@functools.cache  # k is the channel count, fixed for a run: one sum per run
 def median_bias(k: int) -> float:
     """E[median of k independent unit-mean exponential variables] (numpy's median:
     the mean of the two middle ones for even k): E[X_(j)] = sum_{i=k-j+1}^{k} 1/i."""
@@ -57,6 +59,32 @@ def median_bias(k: int) -> float:
     if k % 2:
         return order_stat((k + 1) // 2)
     return 0.5 * (order_stat(k // 2) + order_stat(k // 2 + 1))
+
+
+class ThinnedSample:
+    """A sample of a stream that stays below ``capacity`` items however long the stream:
+    when full, every other kept item is dropped and only every other later item is kept
+    from then on, so the sample stays spread evenly over the whole stream."""
+
+    def __init__(self, capacity: int) -> None:
+        self.capacity = capacity
+        self.items: list[Any] = []
+        self._stride = 1
+        self._seen = 0
+
+    def add(self, item: Any) -> None:
+        self._seen += 1
+        if self._seen % self._stride:
+            return
+        self.items.append(item)
+        if len(self.items) >= self.capacity:
+            self.items = self.items[::2]
+            self._stride *= 2
+
+    def copy(self) -> ThinnedSample:
+        out = ThinnedSample(self.capacity)
+        out.items, out._stride, out._seen = list(self.items), self._stride, self._seen
+        return out
 
 
 class ChannelNoise:
@@ -71,9 +99,7 @@ class ChannelNoise:
         self.n_channels = n_channels
         # per (orders, revolution parity): the last two frames, (rev, amplitudes) each
         self._history: dict[tuple[Any, ...], tuple[int, np.ndarray, int, np.ndarray]] = {}
-        self._kept: list[np.ndarray] = []
-        self._stride = 1
-        self._seen = 0
+        self._kept = ThinnedSample(CAPACITY)  # per-frame variance estimates along the sweep
         self._recent: list[np.ndarray] = []  # the last RECENT bias-corrected estimates
 
     def add(self, revolution: int, orders: tuple[float, ...], amplitudes: np.ndarray) -> None:
@@ -88,20 +114,11 @@ class ChannelNoise:
                 d = x - 2 * x1 + x0
                 per_order = (d.real**2 + d.imag**2) / 12.0  # 6 Var per part, two parts
                 median = np.median(per_order, axis=0)
-                self._keep(median)
+                self._kept.add(median)
                 self._recent = [*self._recent[-(RECENT - 1) :], median / median_bias(len(x))]
             self._history[key] = (r1, x1, revolution, x)
         else:
             self._history[key] = (revolution - 10**6, x, revolution, x)
-
-    def _keep(self, variance: np.ndarray) -> None:
-        self._seen += 1
-        if self._seen % self._stride:
-            return
-        self._kept.append(variance)
-        if len(self._kept) >= CAPACITY:
-            self._kept = self._kept[::2]
-            self._stride *= 2
 
     def variance(self) -> np.ndarray | None:
         """(n_channels,) the current noise variance of the real (and of the imaginary)
@@ -117,7 +134,7 @@ class ChannelNoise:
         """(n_channels,) inverse noise variances, the median channel's 1, within
         ``MAX_WEIGHT_RATIO`` of it; 1 for a channel with fewer than ``MIN_ESTIMATES``
         estimates (None while no channel has that many)."""
-        stack = np.array(self._kept).reshape(-1, self.n_channels)
+        stack = np.array(self._kept.items).reshape(-1, self.n_channels)
         known = np.sum(np.isfinite(stack), axis=0) >= MIN_ESTIMATES
         if not np.any(known):
             return None

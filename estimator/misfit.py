@@ -28,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from estimator.channel_noise import ThinnedSample
+
 CHI2_LIMIT = 10.0
 SHARE_LIMIT = 1e-7
 CAPACITY = 128
@@ -62,33 +64,22 @@ class MisfitSample:
     """Rows of a sample of used frames, per half-order sign hypothesis."""
 
     def __init__(self) -> None:
-        self._rows: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
-        self._stride: dict[int, int] = {}
-        self._seen: dict[int, int] = {}
+        self._rows: dict[int, ThinnedSample] = {}
 
     def add(self, sign: int, orders: np.ndarray, H: np.ndarray, y: np.ndarray) -> None:
-        """One frame's whitened rows: orders (p,), H (p, 12, n), y (p, 12)."""
-        seen = self._seen.get(sign, 0) + 1
-        self._seen[sign] = seen
-        stride = self._stride.get(sign, 1)
-        if seen % stride:
-            return
-        kept = self._rows.setdefault(sign, [])
-        kept.append((np.asarray(orders, float), H, y))
-        if len(kept) >= CAPACITY:
-            self._rows[sign] = kept[::2]
-            self._stride[sign] = stride * 2
+        """One frame's whitened rows: orders (p,), H (p, 12, n), y (p, 12). They are
+        copied: views would keep the whole flush batch they were cut from alive."""
+        kept = self._rows.setdefault(sign, ThinnedSample(CAPACITY))
+        kept.add((np.array(orders, float), H.copy(), y.copy()))
 
     def copy_sign(self, src: int, dst: int) -> None:
         """Start hypothesis ``dst`` from ``src``'s sample (the hypotheses split)."""
-        self._rows[dst] = list(self._rows.get(src, []))
-        self._stride[dst] = self._stride.get(src, 1)
-        self._seen[dst] = self._seen.get(src, 0)
+        self._rows[dst] = self._rows[src].copy() if src in self._rows else ThinnedSample(CAPACITY)
 
     def worst(self, sign: int, theta: np.ndarray) -> dict[str, Any] | None:
         """The order and equation with the largest mean squared whitened residual at
         ``theta`` (n,), its share of the sample's residual, and the rows' mean square."""
-        rows = self._rows.get(sign) or []
+        rows = self._rows[sign].items if sign in self._rows else []
         if not rows:
             return None
         n = len(theta)

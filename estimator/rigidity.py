@@ -71,27 +71,37 @@ def noise_quantile(fit: RigidFit, variance: np.ndarray) -> tuple[float, float, f
     return g * 2.0 * float(gammainccinv(h / 2.0, 1.0 - NOISE_QUANTILE)), 2.0 * s1, h
 
 
-def excess_residual(
-    motion: RigidMotion, fit: RigidFit, variance: np.ndarray | None
-) -> tuple[np.ndarray, np.ndarray]:
-    """(n_orders,) twice: the relative rigidity residual less the noise's mean (the
-    share the sensor errors or a mode leave, for the baseline), and beyond the noise's
-    quantile (what a frame is judged on).
-
-    ``relative * sqrt(1 - c / r)`` (0 when ``r <= c``), with ``r`` each order's
-    weighted residual sum of squares and ``c`` the noise's mean or quantile: on the
-    scale of ``motion.relative_residual``, and equal to it when the noise is unknown
-    (None or NaN for a fitted channel) or nil.
-    """
-    rel = np.asarray(motion.relative_residual, float)
+def noise_levels(fit: RigidFit, variance: np.ndarray | None) -> tuple[float, float] | None:
+    """The noise's (mean, quantile) weighted residual sum of squares of ``fit`` for the
+    channel noise ``variance`` (:func:`noise_quantile`); None when the noise is unknown
+    (None or NaN for a fitted channel). The same for every frame fitted with ``fit``."""
     if variance is None:
-        return rel, rel
+        return None
     var = np.asarray(variance, float)
     if fit.channels is not None:
         var = var[fit.channels]
     if var.shape != fit.sw.shape or not np.all(np.isfinite(var)):
-        return rel, rel
+        return None
     q, mean, _ = noise_quantile(fit, var)
+    return mean, q
+
+
+def excess_beyond(
+    motion: RigidMotion, fit: RigidFit, levels: tuple[float, float] | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(n_orders,) twice: the relative rigidity residual less the noise's mean (the
+    share the sensor errors or a mode leave, for the baseline), and beyond the noise's
+    quantile (what a frame is judged on); ``levels`` from :func:`noise_levels`.
+
+    ``relative * sqrt(1 - c / r)`` (0 when ``r <= c``), with ``r`` each order's
+    weighted residual sum of squares and ``c`` the noise's mean or quantile: on the
+    scale of ``motion.relative_residual``, and equal to it when the noise is unknown
+    (``levels`` None) or nil.
+    """
+    rel = np.asarray(motion.relative_residual, float)
+    if levels is None:
+        return rel, rel
+    mean, q = levels
     dof = max(fit.sw.size - fit.rank, 1)
     rss = 2.0 * dof * np.asarray(motion.noise_var, float)  # noise_var = rss / (2 dof)
 
@@ -100,3 +110,10 @@ def excess_residual(
             return rel * np.sqrt(np.where(rss > c, 1.0 - c / rss, 0.0))
 
     return beyond(mean), beyond(q)
+
+
+def excess_residual(
+    motion: RigidMotion, fit: RigidFit, variance: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`excess_beyond` at the noise levels of ``variance`` (one frame)."""
+    return excess_beyond(motion, fit, noise_levels(fit, variance))

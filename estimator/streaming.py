@@ -51,7 +51,7 @@ from estimator.partial_pairs import PartialPairs
 from estimator.pending_rows import FrameQueue, PendingFrame, RowAssembler
 from estimator.redundancy import calibrated_names
 from estimator.result import Estimate, EstimatorStats, build_estimate
-from estimator.rigidity import excess_residual
+from estimator.rigidity import excess_beyond, noise_levels
 from estimator.rls import RlsSolution, RlsState, rls_solve
 from estimator.setup import EstimatorSetup
 from estimator.systematic import systematic_names, systematic_stds
@@ -102,6 +102,9 @@ class InertiaEstimator:
             inertia=np.asarray(setup.inertia_nominal, float),
             mass=float(setup.mass_nominal),
         )
+        # half orders may be seen 360 deg off (no 720 deg reference, or a checked one), and
+        # the sign matters unless the gas moment is measured in that angle (it flips too)
+        self.cycle_unknown = setup.gas_moment is None
         self.scale = parameter_scale(self.layout, setup.inertia_nominal, setup.mass_nominal)
         self.channels = ChannelFits(setup)  # the used channels and their fits' geometry
         # frames whose channels leave one rigid-body motion unseen (two sensors left)
@@ -147,9 +150,12 @@ class InertiaEstimator:
         def same_fit(item: tuple[int, RigidFit, np.ndarray]) -> tuple[int, tuple[float, ...]]:
             return id(item[1]), tuple(frames[item[0]].orders)
 
+        # the channel noise only moves while frames are selected (above): one level per fit
+        variance = self.channels.channel_noise.variance()
         for _, group in itertools.groupby(todo, key=same_fit):
             run = list(group)
             first_index, fit, _ = run[0]
+            levels = noise_levels(fit, variance)
             readings = np.stack([r for _, _, r in run])  # (n, k, u)
             motions = fit.fit_many(readings)
             powers = np.mean(readings.real**2 + readings.imag**2, axis=2)  # (n, k)
@@ -157,7 +163,7 @@ class InertiaEstimator:
             bends = self.gates.curvature([frames[i] for i, _, _ in run], orders, motions, fit)
             for j, (i, fitter, r) in enumerate(run):
                 outcomes[i] = self._use(
-                    frames[i], fitter, motions[j], orders, r, powers[j], bends[j]
+                    frames[i], fitter, motions[j], orders, r, powers[j], bends[j], levels
                 )
         if elastic_before is None and self.elastic is not None and frames:
             self._events.append(elastic_mode_event(self.elastic, frames[-1].time_s))
@@ -177,8 +183,9 @@ class InertiaEstimator:
         readings: np.ndarray,
         power: np.ndarray,
         curvature: np.ndarray,
+        noise: tuple[float, float] | None,
     ) -> FrameOutcome:
-        """Gate the orders of a fitted frame and queue the usable ones."""
+        """Gate a fitted frame's orders, queue the usable ones (``noise``: noise_levels)."""
         setup = self.setup
         force, moment = setup.excitation(frame.rpm, orders)
         gas = None
@@ -188,7 +195,7 @@ class InertiaEstimator:
                 return self._reject(frame, "no_pressure")
             gas = setup.gas_moment(orders, spectrum)
             moment = moment + gas
-        excess = excess_residual(motion, fitter, self.channels.channel_noise.variance())
+        excess = excess_beyond(motion, fitter, noise)
         rejected, residuals, ks, floor = self.gates.judge_orders(
             frame.rpm, orders, motion, force, moment, curvature, power, excess
         )
@@ -199,7 +206,7 @@ class InertiaEstimator:
             return self._reject(frame, counts.most_common(1)[0][0] if counts else "no_orders")
         self.queue.add(
             frame.rpm,
-            self._cycle_unknown(frame),
+            self.cycle_unknown,
             fitter,
             motion,
             np.array(ks),
@@ -213,7 +220,7 @@ class InertiaEstimator:
         )
         # (the sign hypotheses of the fully measured frames: frames with an unseen
         # motion decide their own, see estimator.partial_pairs)
-        tested = self._cycle_unknown(frame) and fitter.null is None
+        tested = self.cycle_unknown and fitter.null is None
         self.stats.count_used(frame.rpm, tested, tested and "cycle_ambiguous" not in frame.flags)
         # Relinearise after the first used frame (the nominal cog may be centimetres
         # off) and then after every full batch.
@@ -228,12 +235,6 @@ class InertiaEstimator:
     def _reject(self, frame: FrameLike, reason: str) -> FrameOutcome:
         self.stats.rejected[reason] += 1
         return FrameOutcome(frame.time_s, frame.rpm, (), {}, reason, {})
-
-    def _cycle_unknown(self, frame: FrameLike) -> bool:
-        """Whether the frame's half orders may be seen through phi + 360 deg with a sign
-        that matters: without a 720 deg reference, or with one that may be wrong (it
-        is checked); not when the gas moment is measured in the same angle (it flips too)."""
-        return self.setup.gas_moment is None
 
     def _flush(self) -> None:
         """Assemble the queued frames' rows and add them, frame by frame, to both hypotheses.

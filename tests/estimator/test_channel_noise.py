@@ -71,7 +71,7 @@ def test_memory_is_bounded_over_a_long_sweep():
     noise = ChannelNoise(2)
     for rev, x in _sweep(np.array([0.01, 0.02]), 5000):
         noise.add(rev, ORDERS, x)
-    assert len(noise._kept) < CAPACITY
+    assert len(noise._kept.items) < CAPACITY
     assert noise.weights() is not None
 
 
