@@ -18,7 +18,6 @@ from typing import Any
 
 from acquisition.can.source import CanFrameSource
 from acquisition.channels import check_channels
-from ptinertia.batch.campaign import replay_bench
 from ptinertia.commands.replay_campaign import add_campaign_arguments, replay_campaign
 from ptinertia.commands.run import (
     CORRECTIONS,
@@ -32,6 +31,7 @@ from ptinertia.commands.run import (
 )
 from ptinertia.errors import UsageError
 from ptinertia.outputs import input_files
+from ptinertia.recorded_bench import replay_bench
 from ptinertia.runner import RunOptions, print_table, run_source, write_json
 from ptinertia.to_acquisition import channel_needs
 from ptinertia.to_can import can_plan

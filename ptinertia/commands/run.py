@@ -18,6 +18,7 @@ from ptinertia.config import load_bench
 from ptinertia.errors import UsageError
 from ptinertia.outputs import REFUSE, WARN, check_output, input_files
 from ptinertia.paths import DEFAULT_BENCH
+from ptinertia.recorded_bench import with_mount_scale
 from ptinertia.runner import RunOptions, print_table, run_source, write_json
 from ptinertia.sinks import Sink
 from ptinertia.sources import REALISTIC_SIMULATION, open_source
@@ -314,15 +315,6 @@ def add_mount_scale_flag(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="estimate one stiffness scale per mount (as [estimator] mount_scale = true): "
         "for mount data you do not trust",
-    )
-
-
-def with_mount_scale(bench: Any, on: bool) -> Any:
-    """``bench`` with ``[estimator] mount_scale`` switched on when ``on``."""
-    if not on:
-        return bench
-    return bench.model_copy(
-        update={"estimator": bench.estimator.model_copy(update={"mount_scale": True})}
     )
 
 

@@ -26,6 +26,7 @@ import numpy as np
 from estimator.result import Estimate, EstimateUpdate
 from ptinertia import config
 from ptinertia.errors import UsageError
+from ptinertia.recorded_bench import replay_bench
 from ptinertia.reprocess import Reprocessed
 from ptinertia.runner import result_truth
 from replay.reader import open_log
@@ -211,14 +212,7 @@ def load_recording(
     by ``reprocess`` first (the app's :func:`ptinertia.reprocess.reprocess_log`).
     """
     log = open_log(path)
-    if bench_path:
-        bench_text = Path(bench_path).read_text(encoding="utf-8")
-        bench = config.load_bench(bench_path)
-    elif log.bench_text:
-        bench_text = log.bench_text
-        bench = config.loads_bench(bench_text, f"{path}:bench.toml")
-    else:
-        raise UsageError(f"{path}: the log holds no bench file; give one with --bench")
+    bench, bench_text = replay_bench(log, path, bench_path or None, mount_scale=False)
     # A run's recording carries its settings; a raw-only one has none ({}).
     if log.settings and not bench_path:
         data = _from_run_log(path, log, bench, bench_text, list(log.frames()))

@@ -240,6 +240,10 @@ def test_a_recorded_bench_cannot_read_the_users_files(
             continue
         assert code == 2 and len(err) == 1
         assert "not attached to the recording" in err[0] and "root:" not in err[0]
+        # the report runs a raw-only recording through the chain: the same bench, the same refusal
+        assert main(["report", str(evil), "--out", str(tmp_path / "r.html")]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "not attached to the recording" in err[0], err
 
 
 def test_a_sidecar_truth_that_is_not_an_object_is_one_line(tmp_path: Path) -> None:

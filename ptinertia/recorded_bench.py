@@ -1,0 +1,80 @@
+"""The bench a recording is replayed with.
+
+The one given, or the one recorded in the log with its file paths confined to the log's
+own attachments (a recording is input from anywhere); used by replay, campaigns and the
+report alike.
+"""
+
+from __future__ import annotations
+
+import atexit
+import shutil
+import tempfile
+from pathlib import Path, PurePath
+
+from ptinertia.config import Bench, load_bench, loads_bench
+from ptinertia.config_powertrain import GasTrace
+from ptinertia.errors import UsageError
+from replay.recorded_log import RecordedLog
+
+
+def replay_bench(
+    log: RecordedLog, log_path: Path, bench_path: str | None, mount_scale: bool
+) -> tuple[Bench, str]:
+    """The bench a log is replayed with, and its text: ``bench_path`` if given, else the
+    bench file recorded in the log; ``[estimator] mount_scale`` switched on if asked."""
+    if bench_path is not None:
+        bench_text = Path(bench_path).read_text(encoding="utf-8")
+        bench = load_bench(bench_path)
+    else:
+        if not log.bench_text:
+            raise UsageError(f"{log_path}: the log holds no bench file; give one with --bench")
+        bench_text = log.bench_text
+        bench = confined_to_attachments(
+            loads_bench(bench_text, f"{log_path}:bench.toml"), log.attachments, log_path
+        )
+    return with_mount_scale(bench, mount_scale), bench_text
+
+
+def confined_to_attachments(bench: Bench, attachments: dict[str, bytes], log_path: Path) -> Bench:
+    """``bench`` (read from a recording) with its file paths resolved to the log's attachments.
+
+    A recording is input from anywhere: a path in its bench file (``[gas] file``,
+    ``[can] dbc``) must never open a file of the user's (``../../etc/passwd``).
+    A path names an attachment by its last component, which is copied to a
+    private temporary directory; a DBC that is not attached is dropped (replay
+    reads one only with ``--dbc``); a missing pressure trace is an error.
+    """
+
+    def extract(name: str) -> str | None:
+        data = attachments.get(PurePath(name).name)
+        if data is None or PurePath(name).name in ("", ".", ".."):
+            return None
+        folder = Path(tempfile.mkdtemp(prefix="ptinertia-attachment-"))
+        atexit.register(shutil.rmtree, folder, ignore_errors=True)
+        path = folder / PurePath(name).name
+        path.write_bytes(data)
+        return str(path)
+
+    if isinstance(bench.gas, GasTrace):
+        trace = extract(bench.gas.file)
+        if trace is None:
+            raise UsageError(
+                f"{log_path}: the recorded bench's [gas] file {bench.gas.file!r} is not attached "
+                "to the recording (paths in a recording resolve only to its attachments); "
+                "give the bench with --bench"
+            )
+        bench = bench.model_copy(update={"gas": GasTrace(model="trace", file=trace)})
+    if bench.can.dbc:
+        dbc = extract(bench.can.dbc)
+        bench = bench.model_copy(update={"can": bench.can.model_copy(update={"dbc": dbc})})
+    return bench
+
+
+def with_mount_scale(bench: Bench, on: bool) -> Bench:
+    """``bench`` with ``[estimator] mount_scale`` switched on when ``on``."""
+    if not on:
+        return bench
+    return bench.model_copy(
+        update={"estimator": bench.estimator.model_copy(update={"mount_scale": True})}
+    )
