@@ -24,6 +24,7 @@ from estimator.result import Z95
 from ptinertia.batch.cluster import ClusterSpec, failure_line, open_client, run_tasks
 from ptinertia.batch.plots import plot_campaign
 from ptinertia.errors import user_error_types
+from ptinertia.outputs import atomic_output
 from ptinertia.recorded_bench import replay_bench
 from ptinertia.runner import RunOptions, run_source, write_json
 from ptinertia.to_acquisition import channel_needs
@@ -199,12 +200,10 @@ def table_rows(results: Sequence[LogResult]) -> tuple[list[str], list[dict[str, 
 def write_table(results: Sequence[LogResult], path: Path) -> None:
     """The campaign table as CSV (written atomically, as the results)."""
     header, rows = table_rows(results)
-    tmp = path.with_name(path.name + ".part")
-    with tmp.open("w", newline="", encoding="utf-8") as f:
+    with atomic_output(path) as tmp, tmp.open("w", newline="", encoding="utf-8") as f:
         writer = csv.DictWriter(f, fieldnames=header, restval="")
         writer.writeheader()
         writer.writerows(rows)
-    tmp.replace(path)
 
 
 def print_summary(results: Sequence[LogResult], out: TextIO = sys.stdout) -> None:

@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 
 from estimator.result import Z95
-
-INERTIA = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
+from powertrain.rigidbody import TERMS as INERTIA
+from ptinertia.outputs import atomic_output
 
 
 def unit_of(term: str) -> str:
@@ -165,9 +165,7 @@ def write_ranking(ranking: Sequence[tuple[str, float, float, int]], path: Path) 
 
 
 def _write_csv(path: Path, header: list[str], rows: list[list[Any]]) -> None:
-    tmp = path.with_name(path.name + ".part")
-    with tmp.open("w", newline="", encoding="utf-8") as f:
+    with atomic_output(path) as tmp, tmp.open("w", newline="", encoding="utf-8") as f:
         writer = csv.writer(f)
         writer.writerow(header)
         writer.writerows(rows)
-    tmp.replace(path)
