@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 
 from dsp.frames import RISE_GRID, RISE_SLOPE, RISE_TABLE
-from dsp.sum_sets import POWER_STRIDE, Segments, SetSums, SumSet, base
+from dsp.sum_sets import POWER_STRIDE, Segments, SetSums, SumSet, base_parts
 
 # numba is optional and imported on first use only: its import and the cached machine
 # code cost about 0.5 s of CPU per process, more than the kernel saves on a short run
@@ -76,7 +76,7 @@ def compiled_sums(
     first_index: int,
 ) -> tuple[list[SetSums], np.ndarray, np.ndarray]:
     """Every set's sums and the weights ``wa``, ``wd`` by :func:`piece_sums`."""
-    base_re, base_im = base(delta)
+    base_re, base_im = base_parts(delta)
     c_lo = seg.c - seg.half
     n_seg = seg.mu.size
     wa, wd = np.zeros(n_seg), np.zeros(n_seg)

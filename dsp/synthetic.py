@@ -28,8 +28,6 @@ from acquisition.stream import (
     StreamLayout,
 )
 
-RPM = 2.0 * math.pi / 60.0
-
 
 @dataclass(frozen=True)
 class Ramp:
@@ -49,11 +47,6 @@ class Ramp:
     def profile(self) -> RpmProfile:
         """The one-segment profile behind the ramp."""
         return RpmProfile([ramp(self.rpm0, self.rpm1, self.duration_s)], self.phi0_rad)
-
-    @property
-    def alpha(self) -> float:
-        """Angular acceleration (rad/s^2)."""
-        return (self.rpm1 - self.rpm0) * RPM / self.duration_s
 
     def phi(self, t: np.ndarray | float) -> np.ndarray:
         return self.profile.phi(np.asarray(t, dtype=float))

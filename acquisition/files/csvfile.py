@@ -46,7 +46,7 @@ from acquisition.files.windowed import (
     SampleStream,
     WindowedFileSource,
 )
-from acquisition.signal_units import UnitError, unit_factor
+from acquisition.signal_units import unit_factor
 from acquisition.stream import ChannelSpec, SourceError
 
 # -- CSV reading ---------------------------------------------------------------------------------
@@ -250,11 +250,8 @@ class CsvSource(WindowedFileSource):
 
 
 def _time_factor(spec: ChannelSpec, path: Path) -> float:
-    unit = spec.unit or "s"  # time_s, or an edge column: seconds unless it says otherwise
-    try:
-        return unit_factor(unit, "s")
-    except UnitError as err:
-        raise SourceError(f"{path}: column {spec.name!r}: {err}") from None
+    # time_s, or an edge column: seconds unless it says otherwise (UnitError is a SourceError)
+    return unit_factor(spec.unit or "s", "s", f"{path}: column {spec.name!r}")
 
 
 def _read_sidecar(base: Path) -> dict[str, Any]:
