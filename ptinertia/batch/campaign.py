@@ -24,6 +24,7 @@ from estimator.result import Z95
 from ptinertia.batch.cluster import ClusterSpec, failure_line, open_client, run_tasks
 from ptinertia.batch.plots import plot_campaign
 from ptinertia.errors import user_error_types
+from ptinertia.no_estimate import no_estimate_reason
 from ptinertia.outputs import atomic_output
 from ptinertia.recorded_bench import replay_bench
 from ptinertia.runner import RunOptions, run_source, write_json
@@ -92,8 +93,8 @@ def _replay(log_path: Path, job: ReplayJob) -> LogResult:
         doc["recording_skipped"] = skipped
     warnings = tuple(log.report.lines())
     if doc is None or summary.estimate is None:
-        rejected = ", ".join(f"{k} {v}" for k, v in summary.rejected.items()) or "no frames"
-        return LogResult(str(log_path), "no estimate", None, f"no estimate ({rejected})", warnings)
+        reason = no_estimate_reason(summary.rejected, summary.orders_rejected)
+        return LogResult(str(log_path), "no estimate", None, f"no estimate: {reason}", warnings)
     return LogResult(str(log_path), "ok", doc, None, warnings)
 
 

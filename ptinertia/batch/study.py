@@ -47,6 +47,7 @@ from ptinertia.batch.study_stats import (
 )
 from ptinertia.config import Bench, ConfigError, load_bench, parse_bench
 from ptinertia.errors import UsageError, user_error_types
+from ptinertia.no_estimate import no_estimate_reason
 from ptinertia.runner import RunOptions, run_source
 from ptinertia.sources import REALISTIC_SIMULATION, open_source
 
@@ -182,8 +183,9 @@ def simulate_run(
     except user_error_types() as err:
         return RunResult(error=str(err))
     if doc is None:
-        rejected = ", ".join(f"{k} {v}" for k, v in summary.rejected.items()) or "no frames"
-        return RunResult(error=f"no estimate ({rejected})")
+        return RunResult(
+            error=f"no estimate: {no_estimate_reason(summary.rejected, summary.orders_rejected)}"
+        )
     return RunResult(terms=run_terms(doc))
 
 

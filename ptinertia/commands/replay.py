@@ -24,12 +24,12 @@ from ptinertia.commands.run import (
     add_force_flag,
     add_mount_scale_flag,
     check_outputs,
-    no_estimate_reason,
     parse_orders,
     recorder_sinks,
     viewer_sinks,
 )
 from ptinertia.errors import UsageError
+from ptinertia.no_estimate import no_estimate_reason
 from ptinertia.outputs import input_files
 from ptinertia.recorded_bench import replay_bench
 from ptinertia.runner import RunOptions, print_table, run_source, write_json

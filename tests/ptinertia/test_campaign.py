@@ -18,10 +18,11 @@ from pathlib import Path
 import pytest
 from dask.distributed import Client
 
-from ptinertia.batch.campaign import ReplayJob, run_campaign
+from ptinertia.batch.campaign import ReplayJob, replay_log, run_campaign
 from ptinertia.batch.cluster import ClusterSpec, open_client
 from ptinertia.cli import main
 from ptinertia.errors import UsageError
+from replay.reader import open_log
 
 BIN = Path(sys.executable).parent
 SEEDS = (1, 2, 3)
@@ -182,3 +183,22 @@ def test_an_unreachable_scheduler_is_a_usage_error() -> None:
     spec = ClusterSpec(f"tcp://127.0.0.1:{_free_port()}", connect_timeout_s=1.0)
     with pytest.raises(UsageError, match="cannot reach"), open_client(spec):
         pass
+
+
+def test_a_log_without_estimate_gives_the_reason_replay_prints(
+    logs: tuple[Path, dict[str, bytes]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    folder, _ = logs
+    log = folder / "run1.mcap"
+    # the log's own bench with an estimator rpm range the 1500-4500 rpm sweep never enters
+    bench_text = open_log(log).bench_text
+    assert bench_text and "[estimator]" not in bench_text
+    bench = tmp_path / "high.toml"
+    bench.write_text(bench_text + "\n[estimator]\nrpm_min = 6000.0\n")
+    row = replay_log(str(log), ReplayJob(bench_path=str(bench)))
+    assert row.status == "no estimate"
+    assert row.error is not None
+    assert "never entered the [estimator] rpm range" in row.error
+    assert main(["replay", str(log), "--quiet", "--bench", str(bench)]) == 1
+    printed = capsys.readouterr().err
+    assert row.error.split(": ", 1)[1] in printed

@@ -206,7 +206,7 @@ def test_a_confirmed_elastic_mode_is_reported_and_logged(tmp_path: Path) -> None
 
 
 def test_no_estimate_names_the_bending_orders_over_the_low_ones_among_the_modes() -> None:
-    from ptinertia.commands.run import no_estimate_reason
+    from ptinertia.no_estimate import no_estimate_reason
 
     frames = {"near_rigid_modes": 29, "dsp_settling": 1}
     assert "mass-line range" in no_estimate_reason(frames, {"near_rigid_modes": 58})
