@@ -88,12 +88,21 @@ class McapOutput:
         self.end_time = 0
         self._compress: Callable[[bytes], bytes] | None = None
         self.data_crc: int | None = 0  # CRC of the data section so far; None after it
+        # set by cut(): log time of the last message kept (None: none), and whether the
+        # file was closed readable there
+        self.cut_at_ns: int | None = None
+        self.cut_complete = False
 
     def write(self, data: bytes | bytearray | memoryview) -> None:
-        self.stream.write(data)
-        self.pos += len(data)
-        if self.data_crc is not None:
-            self.data_crc = zlib.crc32(data, self.data_crc)
+        # an unbuffered file may take part of the bytes per call (a disk filling up)
+        view = memoryview(data).cast("B")
+        while view:
+            n = self.stream.write(view)
+            n = len(view) if n is None else n
+            self.pos += n
+            if self.data_crc is not None:
+                self.data_crc = zlib.crc32(view[:n], self.data_crc)
+            view = view[n:]
 
     def flush(self) -> None:
         self.stream.flush()
@@ -134,6 +143,7 @@ class McapOutput:
                 end = max(end, log_time)
             offset += len(head) + len(data)
         assert start is not None, "a chunk without messages"
+        end_before = self.end_time if self.chunk_indexes else None
         self.start_time = start if not self.message_count else min(self.start_time, start)
         self.end_time = max(self.end_time, end)
         self.message_count += sum(len(v) for v in index.values()) // 2
@@ -159,8 +169,13 @@ class McapOutput:
             pos += len(parts[-1])
         # one write, one system call: each call that releases the GIL costs the caller's
         # thread a GIL hand-over when it takes it back (the copy of ~0.5 MB costs less)
-        self.write(b"".join(parts))
-        self.flush()
+        crc_before = self.data_crc
+        try:
+            self.write(b"".join(parts))
+            self.flush()
+        except OSError:
+            self.cut(chunk_offset, crc_before, end_before)
+            raise
         self.chunk_indexes.append(
             ChunkIndex(
                 message_start_time=start,
@@ -217,6 +232,29 @@ class McapOutput:
         self._record(Footer(footer_start, offset_start, crc))
         self.write(MAGIC)
         self.flush()
+
+    def cut(self, offset: int, data_crc: int | None, end_ns: int | None) -> None:
+        """End the file at ``offset`` (after the last complete chunk) as a finished MCAP
+        without summary: data end, footer, magic. Readers read it linearly, ``mcap``'s
+        included, and lose only the chunk that did not fit.
+
+        For a write that failed (a full disk): cutting frees the failed chunk's bytes, so
+        the few bytes of the end fit. When even that fails the file stays an unfinished
+        recording, which :mod:`replay.reader` still recovers.
+        """
+        self.cut_at_ns = end_ns  # the last message kept
+        try:
+            self.stream.seek(offset)
+            self.stream.truncate(offset)
+            self.pos, self.data_crc = offset, data_crc
+            self._record(DataEnd(data_crc or 0))
+            self.data_crc = None
+            self._record(Footer(0, 0, 0))  # summary start 0: no summary section
+            self.write(MAGIC)
+            self.flush()
+            self.cut_complete = True
+        except OSError:
+            pass  # the write's own error is the one reported
 
     def _record(self, record: Any) -> int:
         builder = RecordBuilder()

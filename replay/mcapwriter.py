@@ -186,6 +186,11 @@ class ThreadedWriter:
             self._jobs.put(None)
             self._thread.join()
 
+    def cut_end_ns(self) -> int | None:
+        """After a failed chunk write: the log time (ns) of the last message the file now
+        ends readable with; None when it was not cut (or holds no message)."""
+        return self._out.cut_at_ns if self._out.cut_complete else None
+
     # -- internals -------------------------------------------------------------------------
     def _add_record(self, record: Schema | Channel) -> None:
         builder = RecordBuilder()

@@ -95,6 +95,11 @@ class _Scan:
     notes: list[str] = field(default_factory=list)
 
 
+class NoSummary(McapError):
+    """A finished file whose footer declares no summary section: what the recorder
+    writes when it must stop early (a full disk, ``McapOutput.cut``)."""
+
+
 def open_log(path: str | Path) -> RecordedLog:
     """Open a recording; raises :class:`LogError` when nothing replayable is in it.
 
@@ -121,11 +126,14 @@ def open_log(path: str | Path) -> RecordedLog:
         finished = fh.read(len(MAGIC)) == MAGIC and size > 2 * len(MAGIC)
     scan: _Scan | None = None
     report = ReadReport(finished=False, file_bytes=size, readable_bytes=0)
+    closed_early = False
     if finished:
         try:
             scan = _scan_finished(path)
             report.finished = True
             report.readable_bytes = size
+        except NoSummary:
+            closed_early = True  # a valid end, read front to back as MCAP's readers do
         except READ_ERRORS as err:
             report.note(f"footer or summary damaged ({describe(err)}): reading front to back")
             scan = None
@@ -147,9 +155,14 @@ def open_log(path: str | Path) -> RecordedLog:
         path, scan.data_end_offset, scan.data_crc, scan.chunk_records, bool(scan.notes)
     )
     log = _build(path, scan, report)
-    if not report.finished:
-        until = report.recorded_until_s
-        where = f" up to t = {until:.2f} s" if until is not None else ""
+    until = report.recorded_until_s
+    where = f" up to t = {until:.2f} s" if until is not None else ""
+    if closed_early:
+        report.note(
+            f"recording closed early, without its summary (the writer stopped, e.g. on a full "
+            f"disk): {scan.chunks} chunk(s){where}; nothing after was recorded"
+        )
+    elif not report.finished:
         if scan.data_end:
             tail = "the writer stopped while finishing the file: no data lost"
         else:
@@ -169,6 +182,8 @@ def _scan_finished(path: Path) -> _Scan:
         fh.seek(0)
         reader = SeekingReader(fh)
         summary = reader.get_summary()
+        if summary is None and summary_start == 0:
+            raise NoSummary("no summary section")
         if summary is None:
             raise McapError("no summary section")
         scan.schemas = dict(summary.schemas)

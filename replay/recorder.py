@@ -176,6 +176,7 @@ class McapRecorder:
         self._last_source_event: SourceEvent | None = None
         self._gating_log = foxglove.GatingLog()
         self._closed = False
+        self._failed = False  # a write failed: reported once, close() only closes the file
         # on_can_frames comes from the acquisition thread, everything else from the
         # processing thread: one lock around the writer
         self._lock = threading.Lock()
@@ -192,7 +193,9 @@ class McapRecorder:
         self._layout = layout
         check_topics(layout)
         try:
-            self._file = open(self.path, "wb")  # closed in close()
+            # unbuffered: after a failed write (a full disk) the writer cuts the file back
+            # to its last complete chunk, which a buffer holding the failed bytes would undo
+            self._file = open(self.path, "wb", buffering=0)  # closed in close()
         except OSError as err:
             raise LogError(f"cannot write the recording {self.path}: {err.strerror}") from None
         self._origin_ns = (
@@ -222,6 +225,11 @@ class McapRecorder:
     def _close(self, final: Estimate | None) -> None:
         if self._closed or self._writer is None or self._file is None:
             self._closed = True
+            return
+        if self._failed:  # the file was cut and closed by the writer; nothing more to add
+            self._closed = True
+            self._writer.stop()
+            _discard(self._file)
             return
         try:
             try:
@@ -381,7 +389,10 @@ class McapRecorder:
                     raise self._write_error(err) from err
 
     def _write_error(self, err: OSError) -> LogError:
-        return LogError(f"cannot write the recording {self.path}: {err.strerror or err}")
+        self._failed = True
+        cut = self._writer is not None and self._writer.cut_end_ns() is not None
+        kept = "; the recording is closed readable after its last complete chunk" if cut else ""
+        return LogError(f"cannot write the recording {self.path}: {err.strerror or err}{kept}")
 
     def __enter__(self) -> McapRecorder:
         return self

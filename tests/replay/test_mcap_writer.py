@@ -23,6 +23,7 @@ from support.mcap_writer_calls import drive
 
 from acquisition.stream import SampleBlock
 from replay.errors import LogError
+from replay.mcap_records import MAGIC
 from replay.mcapwriter import ThreadedWriter
 from replay.reader import open_log
 from replay.recorder import McapRecorder
@@ -115,6 +116,72 @@ def test_a_write_error_reaches_the_callers_thread() -> None:
         writer.finish()
     writer.finish()  # once finished, a second call is a no-op
     assert not _writer_threads()
+
+
+def test_a_full_disk_leaves_the_complete_chunks_readable(tmp_path: Path) -> None:
+    """The chunk that does not fit is cut off and the file closed: mcap's own reader and
+    ours read every message of the chunks written before it."""
+    stream = FailingStream(20_000)
+    writer = ThreadedWriter(stream, chunk_size=1000)
+    writer.start()
+    channel = writer.register_channel("/x", "", 0)
+    sent = 0
+    with pytest.raises(OSError, match="No space left"):
+        for k in range(1000):
+            writer.add_message(channel, k, bytes(100), k)
+            sent = k + 1
+            if k % 10 == 9:
+                writer.flush()
+    writer.stop()
+    kept_until = writer.cut_end_ns()
+    assert kept_until is not None and 0 < kept_until < sent
+    data = stream.getvalue()
+    assert len(data) <= 20_000 and data.endswith(MAGIC)
+    times = [m.log_time for _, _, m in make_reader(io.BytesIO(data)).iter_messages()]
+    assert times == list(range(kept_until + 1))  # every complete chunk, in order, nothing else
+
+
+class FullDiskFile(io.FileIO):
+    """A real file on a disk with ``limit`` bytes free: a write takes what fits (a short
+    count, as write(2) does), the next one fails with ENOSPC."""
+
+    limit = 60_000
+
+    def write(self, data: Any) -> int:
+        room = self.limit - self.tell()
+        if room <= 0:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return super().write(memoryview(data)[:room])
+
+
+def test_a_recording_cut_by_a_full_disk_replays_what_was_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import replay.recorder
+
+    monkeypatch.setattr(
+        replay.recorder, "open", lambda p, *_, **__: FullDiskFile(p, "w"), raising=False
+    )
+    layout = synthetic_layout()
+    items = synthetic_items(layout, 6.0, seed=3)
+    path = tmp_path / "full.mcap"
+    rec = McapRecorder(path, chunk_s=0.2)
+    rec.start(RecordingInfo(layout=layout, bench_text=BENCH_TEXT))
+    fed = []
+    with pytest.raises(LogError, match="No space left on device; the recording is closed readable"):
+        for item in items:
+            rec.on_item(item)
+            fed.append(item)
+        rec.close(None)
+    rec.close(None)
+    assert path.stat().st_size <= FullDiskFile.limit
+    log = open_log(path)
+    assert any("closed early" in line for line in log.report.lines())
+    got = list(log.items())
+    assert 0 < len(got) < len(fed)
+    assert_same_items(got, fed[: len(got)])  # what is in the file is what was fed
+    with open(path, "rb") as fh:  # and mcap's own reader reads it too
+        assert sum(1 for _ in make_reader(fh).iter_messages()) > 0
 
 
 def test_recording_to_a_full_disk_is_one_line(tmp_path: Path) -> None:
