@@ -12,14 +12,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from acquisition.channels import check_channels
 from estimator.result import Estimate, EstimateUpdate
 from ptinertia.config import Bench
-from ptinertia.runner import RunOptions, run_source
+from ptinertia.recorded_run import run_recording
+from ptinertia.runner import RunOptions
 from ptinertia.sinks import RunContext, Sink
-from ptinertia.to_acquisition import channel_needs
 from replay.reader import RecordedLog
-from replay.source import McapSource
 
 
 class MemorySink(Sink):
@@ -66,11 +64,9 @@ class Reprocessed:
 def reprocess_log(log: RecordedLog, bench: Bench, bench_text: str, where: str) -> Reprocessed:
     """Run the chain on the raw data of ``log`` with ``bench`` (``where`` names the log in
     messages: a channel the bench file needs and the log lacks)."""
-    source = McapSource(log)
-    check_channels(source.layout, channel_needs(bench), where)
     sink = MemorySink()
-    summary, doc = run_source(
-        bench, bench_text, source, log.source or "replay", RunOptions(quiet=True, sinks=(sink,))
+    summary, doc = run_recording(
+        log, where, bench, bench_text, RunOptions(quiet=True, sinks=(sink,))
     )
     ctx = sink.context
     return Reprocessed(

@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
-from acquisition.channels import check_channels
 from estimator.result import Z95
 from ptinertia.batch.cluster import ClusterSpec, failure_line, open_client, run_tasks
 from ptinertia.batch.plots import plot_campaign
@@ -27,10 +26,9 @@ from ptinertia.errors import user_error_types
 from ptinertia.no_estimate import no_estimate_reason
 from ptinertia.outputs import atomic_output
 from ptinertia.recorded_bench import replay_bench
-from ptinertia.runner import RunOptions, run_source, write_json
-from ptinertia.to_acquisition import channel_needs
+from ptinertia.recorded_run import run_recording
+from ptinertia.runner import RunOptions, write_json
 from replay.reader import open_log
-from replay.source import McapSource
 
 INERTIA_TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 COG_TERMS = ("Gx", "Gy", "Gz")
@@ -79,18 +77,8 @@ def replay_log(log_path: str, job: ReplayJob) -> LogResult:
 def _replay(log_path: Path, job: ReplayJob) -> LogResult:
     log = open_log(log_path)
     bench, bench_text = replay_bench(log, log_path, job.bench_path, job.mount_scale)
-    source = McapSource(log, speed=None)
-    check_channels(source.layout, channel_needs(bench), str(log_path))
-    options = RunOptions(
-        orders=job.orders,
-        corrections_off=job.corrections_off,
-        quiet=True,
-        attachments=dict(log.attachments),
-    )
-    summary, doc = run_source(bench, bench_text, source, log.source or "replay", options)
-    skipped = log.report.skipped_document()
-    if doc is not None and skipped:
-        doc["recording_skipped"] = skipped
+    options = RunOptions(orders=job.orders, corrections_off=job.corrections_off, quiet=True)
+    summary, doc = run_recording(log, str(log_path), bench, bench_text, options)
     warnings = tuple(log.report.lines())
     if doc is None or summary.estimate is None:
         reason = no_estimate_reason(summary.rejected, summary.orders_rejected)

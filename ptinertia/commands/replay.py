@@ -17,7 +17,6 @@ from pathlib import Path
 from typing import Any
 
 from acquisition.can.source import CanFrameSource
-from acquisition.channels import check_channels
 from ptinertia.commands.replay_campaign import add_campaign_arguments, replay_campaign
 from ptinertia.commands.run import (
     CORRECTIONS,
@@ -32,8 +31,8 @@ from ptinertia.errors import UsageError
 from ptinertia.no_estimate import no_estimate_reason
 from ptinertia.outputs import input_files
 from ptinertia.recorded_bench import replay_bench
-from ptinertia.runner import RunOptions, print_table, run_source, write_json
-from ptinertia.to_acquisition import channel_needs
+from ptinertia.recorded_run import run_recording
+from ptinertia.runner import RunOptions, print_table, write_json
 from ptinertia.to_can import can_plan
 from replay.reader import find_logs, open_log
 from replay.schemas import TOPIC_CAN
@@ -93,7 +92,6 @@ def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None)
     source: Any = McapSource(log, speed=parse_speed(args.speed))
     if args.dbc:
         source = redecoded_can(log, bench, args.dbc, log_path)
-    check_channels(source.layout, channel_needs(bench), str(log_path))
     sinks = recorder_sinks(args.record) + viewer_sinks(args.rerun, args.record)
     options = RunOptions(
         orders=parse_orders(args.orders),
@@ -101,12 +99,8 @@ def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None)
         quiet=args.quiet,
         live=getattr(source, "speed", None) is not None,
         sinks=tuple(sinks),
-        attachments=dict(log.attachments),
     )
-    summary, doc = run_source(bench, bench_text, source, log.source or "replay", options)
-    skipped = log.report.skipped_document()
-    if doc is not None and skipped:
-        doc["recording_skipped"] = skipped
+    summary, doc = run_recording(log, str(log_path), bench, bench_text, options, source)
     for line in log.report.lines():
         print(f"{log_path}: {line}", file=sys.stderr)
     if doc is None or summary.estimate is None:
