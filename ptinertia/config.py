@@ -301,14 +301,35 @@ def loads_bench(text: str, where: str = "bench", base_dir: Path | None = None) -
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{where}: not valid TOML ({err})") from None
     bench = parse_bench(data, where)
-    if base_dir is not None and bench.can.dbc and not Path(bench.can.dbc).is_absolute():
-        bench = bench.model_copy(
-            update={"can": bench.can.model_copy(update={"dbc": str(base_dir / bench.can.dbc)})}
+    if base_dir is not None:  # relative paths are relative to the bench file
+        paths = bench_file_paths(bench)
+        bench = with_bench_paths(
+            bench, {k: p if Path(p).is_absolute() else str(base_dir / p) for k, p in paths.items()}
         )
-    if isinstance(bench.gas, GasTrace) and base_dir is not None:
-        trace = Path(bench.gas.file)
-        if not trace.is_absolute():
-            bench = bench.model_copy(
-                update={"gas": GasTrace(model="trace", file=str(base_dir / trace))}
-            )
+    return bench
+
+
+# The keys of a bench file that name other files (relative to the bench file).
+DBC_KEY, GAS_FILE_KEY = "[can] dbc", "[gas] file"
+
+
+def bench_file_paths(bench: Bench) -> dict[str, str]:
+    """The files ``bench`` names, by key (``DBC_KEY``, ``GAS_FILE_KEY``)."""
+    paths = {}
+    if bench.can.dbc:
+        paths[DBC_KEY] = bench.can.dbc
+    if isinstance(bench.gas, GasTrace):
+        paths[GAS_FILE_KEY] = bench.gas.file
+    return paths
+
+
+def with_bench_paths(bench: Bench, paths: dict[str, str | None]) -> Bench:
+    """``bench`` with the file paths of ``paths`` (keys of :func:`bench_file_paths`)
+    replaced; None drops a DBC (a pressure trace cannot be dropped)."""
+    if DBC_KEY in paths:
+        can = bench.can.model_copy(update={"dbc": paths[DBC_KEY]})
+        bench = bench.model_copy(update={"can": can})
+    if GAS_FILE_KEY in paths and isinstance(bench.gas, GasTrace):
+        gas = bench.gas.model_copy(update={"file": paths[GAS_FILE_KEY]})
+        bench = bench.model_copy(update={"gas": gas})
     return bench

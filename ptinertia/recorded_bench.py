@@ -12,8 +12,14 @@ import shutil
 import tempfile
 from pathlib import Path, PurePath
 
-from ptinertia.config import Bench, load_bench, loads_bench
-from ptinertia.config_powertrain import GasTrace
+from ptinertia.config import (
+    GAS_FILE_KEY,
+    Bench,
+    bench_file_paths,
+    load_bench,
+    loads_bench,
+    with_bench_paths,
+)
 from ptinertia.errors import UsageError
 from replay.recorded_log import RecordedLog
 
@@ -56,18 +62,14 @@ def confined_to_attachments(bench: Bench, attachments: dict[str, bytes], log_pat
         path.write_bytes(data)
         return str(path)
 
-    if isinstance(bench.gas, GasTrace):
-        trace = extract(bench.gas.file)
-        if trace is None:
-            raise UsageError(
-                f"{log_path}: the recorded bench's [gas] file {bench.gas.file!r} is not attached "
-                "to the recording (paths in a recording resolve only to its attachments); "
-                "give the bench with --bench"
-            )
-        bench = bench.model_copy(update={"gas": GasTrace(model="trace", file=trace)})
-    if bench.can.dbc:
-        dbc = extract(bench.can.dbc)
-        bench = bench.model_copy(update={"can": bench.can.model_copy(update={"dbc": dbc})})
+    paths = {key: extract(path) for key, path in bench_file_paths(bench).items()}
+    if GAS_FILE_KEY in paths and paths[GAS_FILE_KEY] is None:
+        raise UsageError(
+            f"{log_path}: the recorded bench's [gas] file {bench_file_paths(bench)[GAS_FILE_KEY]!r} "
+            "is not attached to the recording (paths in a recording resolve only to its "
+            "attachments); give the bench with --bench"
+        )
+    bench = with_bench_paths(bench, paths)
     return bench
 
 

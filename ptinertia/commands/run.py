@@ -14,7 +14,7 @@ from typing import Any
 from acquisition.can.logs import is_can_log
 from ptinertia.commands.arg_types import finite_float
 from ptinertia.commands.arg_types import seed as seed_type
-from ptinertia.config import load_bench
+from ptinertia.config import DBC_KEY, bench_file_paths, load_bench
 from ptinertia.errors import UsageError
 from ptinertia.no_estimate import no_estimate_reason
 from ptinertia.outputs import REFUSE, WARN, check_output, input_files
@@ -171,15 +171,17 @@ def can_overrides(args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
-def dbc_attachment(dbc: str | None) -> dict[str, bytes]:
-    """The DBC a CAN run decodes with, as a recording attachment (name -> bytes)."""
-    if not dbc:
-        return {}
-    path = Path(dbc)
-    try:
-        return {path.name: path.read_bytes()}
-    except OSError:
-        return {}  # the source names an unreadable DBC in its own one-line error
+def file_attachments(paths: list[str]) -> dict[str, bytes]:
+    """The files a run reads besides its data (the DBC it decodes with, the bench's
+    pressure trace), as recording attachments (name -> bytes): a replay reads them from
+    the log, never from the user's disk (ptinertia.recorded_bench)."""
+    out = {}
+    for name in paths:
+        try:
+            out[Path(name).name] = Path(name).read_bytes()
+        except OSError:
+            pass  # the source or the gas model names an unreadable file in its own error
+    return out
 
 
 def viewer_sinks(mode: str | None, record: str | None) -> list[Sink]:
@@ -258,11 +260,15 @@ def run(args: argparse.Namespace) -> int:
         )
     overrides.update(can)
     recorders = recorder_sinks(args.record, args.record_level)
-    attachments: dict[str, bytes] = {}
+    files = bench_file_paths(bench)
+    if args.dbc:
+        files[DBC_KEY] = args.dbc
+    if not (is_can or is_can_file):
+        files.pop(DBC_KEY, None)  # a DBC is recorded with the CAN frames it decodes
     if (is_can or is_can_file) and recorders:
         # the raw frames and the DBC go into the log, so it can be decoded again (replay --dbc)
         overrides["frame_listener"] = recorders[0].on_can_frames  # type: ignore[attr-defined]
-        attachments = dbc_attachment(args.dbc or bench.can.dbc)
+    attachments = file_attachments(list(files.values())) if recorders else {}
     source = open_source(args.source, bench, **overrides)
     sinks = recorders + viewer_sinks(args.rerun, args.record)
     options = RunOptions(
