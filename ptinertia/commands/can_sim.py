@@ -19,7 +19,7 @@ from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
-from acquisition.can.bus import open_bus
+from acquisition.can.bus import frame_to_message, open_bus
 from acquisition.can.bus_load import bus_load
 from acquisition.can.encoder import FrameEncoder, TxFrame
 from acquisition.can.faults import FAULT_KINDS, FaultInjector, FaultRateError, FaultRates
@@ -141,8 +141,6 @@ class _Sender:
         self.max_late_s = 0.0
 
     def send(self, f: TxFrame) -> None:
-        import can  # on use: python-can loads its interfaces
-
         if self.pace:
             wait = self.t0_mono + f.time_s - time.monotonic()
             if wait > 0.001:
@@ -150,20 +148,13 @@ class _Sender:
             else:
                 self.max_late_s = max(self.max_late_s, -wait)
         m = f.message
-        msg = can.Message(
-            timestamp=self.t0_wall + f.time_s,
-            arbitration_id=m.frame_id,
-            is_extended_id=m.is_extended_id,
-            is_fd=m.is_fd,
-            bitrate_switch=m.is_fd,
-            data=f.data,
+        frame = RawFrame(
+            round((self.t0_wall + f.time_s) * 1e9), m.frame_id, m.is_extended_id, f.data, m.is_fd
         )
         if self.bus is not None:
-            self.bus.send(msg)
+            self.bus.send(frame_to_message(frame))
         if self.logger is not None:
-            self.logger(
-                RawFrame(round(msg.timestamp * 1e9), m.frame_id, m.is_extended_id, f.data, m.is_fd)
-            )
+            self.logger(frame)
         self.sent[m.name] += 1
 
 
