@@ -25,6 +25,23 @@ studies, whose worker processes pay the import once), and numba is imported on f
 use; a short ``ptinertia run`` never loads it. ``nogil=True``: the kernel releases the
 GIL, so a tracker on its own thread leaves the others running.
 
+Measured again (issue 24, later session; load average 3 to 19 on the 2 cores, so CPU
+figures, best of 10 to 30): the kernel's calls for a 10 s sweep of that load (0.5 s
+blocks) take 11-12 ms, the numpy sums 13-15 ms; the tracker runs at 210-280x real time
+either way. ``ptinertia run --duration 5`` starts in 0.92 s of CPU with the numpy sums,
+1.37 s with the kernel from a filled numba cache and 3.6 s with an empty one
+(``benchmarks/bench_pipeline.py``). So numba stays optional and off by default: it cannot
+make a short run faster, and on a long one it saves under 10 % of the tracker. Tried and
+left out: the sums as vectorised dot products over the samples (numba ``fastmath``
+reassociation; 10-20 % off the kernel, but a row's weight sum then differed at 1e-16
+between one call and one call per piece, and a sum that depends on the block cut breaks
+replay = live), four fixed partial sums per dot product (2.5x slower), a BLAS product
+per segment from inside the kernel, the carrier-times-taper product taken once per
+sample instead of per channel (no gain each). The samples come channel-fastest (the
+synthetic bench) or sample-fastest (the simulator): neither layout changes the figures.
+What the tracker spends beyond the sums is Python per block and per frame (frame
+assembly, leakage correction, angle lookup), which a kernel for the sums cannot remove.
+
 What stays identical and what does not: the base ``exp(-i delta / 2)`` is still made by
 numpy in single precision (its SIMD ``cos``/``sin`` round differently from libm's), the
 taper weights repeat :func:`dsp.frames.rise_table`'s arithmetic, so the carriers are
