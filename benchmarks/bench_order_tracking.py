@@ -23,6 +23,9 @@ the figures much (wall-clock is printed beside them).
    50 rpm/s (9 channels, 5120 Hz): angle-domain resampling + one-cycle DFT,
    phase-locked tracked harmonics, Vold-Kalman; accuracy against the exact
    amplitudes at each frame's rpm, and time.
+5. Side by side: issue 24's load (10 channels at 25.6 kHz, orders 1, 1.5, 2, edges, 0.5 s
+   blocks; :func:`issue_load`, which bench_pipeline.py also prints) with the numpy and the
+   compiled sums, and rota-order's best figure from 4., with the load average.
 """
 
 from __future__ import annotations
