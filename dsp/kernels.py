@@ -26,12 +26,15 @@ use; a short ``ptinertia run`` never loads it. ``nogil=True``: the kernel releas
 GIL, so a tracker on its own thread leaves the others running.
 
 Measured again (issue 24, later session; load average 3 to 19 on the 2 cores, so CPU
-figures, best of 10 to 30): the kernel's calls for a 10 s sweep of that load (0.5 s
-blocks) take 11-12 ms, the numpy sums 13-15 ms; the tracker runs at 210-280x real time
-either way. ``ptinertia run --duration 5`` starts in 0.92 s of CPU with the numpy sums,
-1.37 s with the kernel from a filled numba cache and 3.6 s with an empty one
-(``benchmarks/bench_pipeline.py``). So numba stays optional and off by default: it cannot
-make a short run faster, and on a long one it saves under 10 % of the tracker. Tried and
+figures, best of 5 to 30; ``benchmarks/bench_pipeline.py``): the kernel's calls for a 10 s
+sweep of that load (0.5 s blocks) take 11-12 ms, the numpy sums 13-15 ms; the whole
+tracker runs 224x -> 281x on that load with the kernel, 146x -> 184x on the live
+pipeline's 9 accelerometers + pressure spectrum (load 10), 291x -> 319x in 0.5 s blocks and
+350x -> 368x in 1 s blocks (load 15). ``ptinertia run --duration 5`` takes 1.01 s of CPU
+with the numpy sums, 1.51 s with the kernel from a filled numba cache and 3.6 s with an
+empty one (load 10; 0.92 s and 1.37 s at load 3). The kernel saves 0.05-0.08 s per minute
+of 10 channels at 25.6 kHz against 0.5 s for numba's import: it pays after some 6-10
+minutes of such data (the figures move by 10 % between runs on this shared machine). So numba stays optional and off by default. Tried and
 left out: the sums as vectorised dot products over the samples (numba ``fastmath``
 reassociation; 10-20 % off the kernel, but a row's weight sum then differed at 1e-16
 between one call and one call per piece, and a sum that depends on the block cut breaks
