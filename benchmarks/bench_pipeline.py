@@ -8,12 +8,16 @@ Prints:
    produced being in every sink;
 4. each stage on its own, per minute of data (simulator, MCAP reader, dsp, estimator): CPU
    seconds, and the best real-time factor live and replay could reach if the stages overlapped
-   perfectly on two cores (the budget against the 100x / 300x targets);
+   perfectly on two cores (the budget against the 100x / 300x targets); the issue's order-tracking
+   load (10 ch at 25.6 kHz, orders 1, 1.5, 2: bench_order_tracking.issue_load), numpy and compiled;
+   one run of a study (5120 Hz, realistic) with 0.1 s and 0.5 s blocks, and the simulator's share;
 5. RSS over a long sweep (``--hours``, default 1 h at 5120 Hz, recording on): growth;
 6. the cold start of a short CLI run, ``ptinertia run --duration 5``: wall and CPU, with the
    numpy segment sums (the default) and with the compiled ones (``PTINERTIA_NUMBA=1``), the
    latter with an empty numba cache (the first run after an install) and a filled one;
-7. the figures side by side: order tracking, estimator, replay, live with recording, simulator.
+7. the figures side by side: order tracking, estimator, replay, live with recording, simulator,
+   each with the load average when it was taken (CPU figures suffer less from other work than
+   wall figures, but not nothing: the cores' caches are shared).
 
 Usage: python benchmarks/bench_pipeline.py [--hours 1.0] [--skip-long]
 """
@@ -75,25 +79,32 @@ def live_and_replay(tmp: Path) -> Path:
     bench, source, text = _bench(25600.0, 60.0)
     channels = sum(len(g.channels) for g in source.layout.groups if g.rate_hz == 25600.0)
     log = tmp / "live.mcap"
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     _, doc = run_source(
         bench, text, source, "sim", RunOptions(quiet=True, sinks=(McapRecorder(log),))
     )
-    live = time.perf_counter() - t0
+    # process CPU counts every thread (source, processing, MCAP writer): CPU / wall is how
+    # many cores the run kept busy
+    live, live_cpu = time.perf_counter() - t0, time.process_time() - c0
     size_h = log.stat().st_size * 60 / 1e9
     print(f"live run, {channels} ch at 25.6 kHz + tacho edges + rpm, 60 s, MCAP on, viewer off:")
     print(
-        f"  {live:.1f} s = {60 / live:.0f}x real time;  MCAP {log.stat().st_size / 1e6:.0f} MB per minute, {size_h:.2f} GB per hour"
+        f"  {live:.1f} s = {60 / live:.0f}x real time (CPU {live_cpu:.1f} s: {live_cpu / live:.2f} "
+        f"cores busy);  MCAP {log.stat().st_size / 1e6:.0f} MB per minute, {size_h:.2f} GB per hour"
     )
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     _, again = run_source(bench, text, McapSource(log), "sim", RunOptions(quiet=True))
-    rep = time.perf_counter() - t0
+    rep, rep_cpu = time.perf_counter() - t0, time.process_time() - c0
     same = json.dumps(doc, sort_keys=True) == json.dumps(again, sort_keys=True)
     print(
-        f"replay: {rep:.1f} s = {60 / rep:.0f}x real time; result identical to the live run: {same}"
+        f"replay: {rep:.1f} s = {60 / rep:.0f}x real time (CPU {rep_cpu:.1f} s, "
+        f"{rep_cpu / rep:.2f} cores busy); result identical to the live run: {same}"
     )
-    FIGURES["live with recording"] = f"{60 / live:.0f}x (wall)"
-    FIGURES["replay"] = f"{60 / rep:.0f}x (wall), identical to live: {same}"
+    load = _load()
+    FIGURES["live with recording"] = (
+        f"{60 / live:.0f}x (wall; {live_cpu / live:.2f} cores busy; load {load})"
+    )
+    FIGURES["replay"] = f"{60 / rep:.0f}x (wall; load {load}), identical to live: {same}"
     return log
 
 
@@ -139,13 +150,14 @@ def stage_budget(log: Path) -> None:
 
     est, _ = _cpu_s(estimate)
     used = estimator.stats.used
-    FIGURES["order tracking (dsp stage)"] = (
+    load = _load()
+    FIGURES["dsp stage of this run"] = (
         f"{60 / dsp:.0f}x numpy"
         + ("" if dsp_compiled is None else f", {60 / dsp_compiled:.0f}x compiled sums")
-        + " (CPU, one core)"
+        + f" (CPU, one core; 9 accel + pressure spectrum; load {load})"
     )
-    FIGURES["estimator"] = f"{1e6 * est / max(used, 1):.0f} us per used frame (CPU)"
-    FIGURES["simulator"] = f"{60 / sim:.0f}x (CPU)"
+    FIGURES["estimator"] = f"{1e6 * est / max(used, 1):.0f} us per used frame (CPU; load {load})"
+    FIGURES["simulator"] = f"{60 / sim:.0f}x (CPU; load {load})"
     print("each stage alone, CPU seconds per minute of data (10 ch at 25.6 kHz):")
     print(
         f"  simulator {sim:.2f}  MCAP reader {reader:.2f}  dsp {dsp:.2f}  estimator {est:.2f}"
@@ -191,6 +203,55 @@ def _compiled_dsp(bench: Any, layout: Any, items: list[Any]) -> float | None:
         kernels.USE = False
 
 
+def order_tracking() -> None:
+    """The issue's order-tracking load (bench_order_tracking.issue_load), numpy and compiled."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from bench_order_tracking import issue_load
+
+    cpu, cpu_c = issue_load(30.0)
+    compiled = "" if cpu_c is None else f", {30 / cpu_c:.0f}x compiled sums"
+    FIGURES["order tracking, 10 ch, 1 1.5 2"] = (
+        f"{30 / cpu:.0f}x numpy sums{compiled} (CPU, one core; load {_load()})"
+    )
+
+
+def study_run() -> None:
+    """One run of a study (the i3 at 5120 Hz, realistic errors, 60 s): CPU of the whole run
+    with the simulator's 0.1 s blocks and with 0.5 s blocks, and of the simulator alone."""
+    from ptinertia.config import load_bench
+    from ptinertia.runner import RunOptions, run_source
+    from ptinertia.sources import REALISTIC_SIMULATION, open_source
+
+    bench = load_bench(I3)
+    text = I3.read_text()
+    cpu: dict[float, float] = {}
+    terms: dict[float, dict[str, Any]] = {}
+    for block in (0.1, 0.5):
+        source = open_source("sim", bench, **REALISTIC_SIMULATION, block_s=block)
+        t0 = time.process_time()
+        _, doc = run_source(bench, text, source, "sim", RunOptions(quiet=True))
+        cpu[block] = time.process_time() - t0
+        terms[block] = doc["inertia_kgm2"]["value"] if doc else {}
+    source = open_source("sim", bench, **REALISTIC_SIMULATION, block_s=0.1)
+    sim, _ = _cpu_s(lambda: sum(1 for _ in source))
+    moved = max(
+        (abs(terms[0.5][k] / v - 1) for k, v in terms[0.1].items() if v), default=float("nan")
+    )
+    print(
+        f"study run (i3, 5120 Hz, realistic, 60 s): CPU {cpu[0.1]:.2f} s with 0.1 s blocks, of "
+        f"which the simulator {sim:.2f} s ({100 * sim / cpu[0.1]:.0f} %); {cpu[0.5]:.2f} s with "
+        f"0.5 s blocks (inertia terms moved by {moved:.1e} relative)"
+    )
+    FIGURES["study run, 5120 Hz realistic"] = (
+        f"CPU {cpu[0.1]:.2f} s (simulator {100 * sim / cpu[0.1]:.0f} %), "
+        f"{cpu[0.5]:.2f} s with 0.5 s blocks (load {_load()})"
+    )
+
+
+def _load() -> str:
+    return f"{os.getloadavg()[0]:.1f}"
+
+
 def cold_start(repeat: int = 3) -> None:
     """``ptinertia run --duration 5`` as a user starts it: wall and CPU of the whole process."""
     exe = Path(sys.executable).parent / "ptinertia"
@@ -212,6 +273,7 @@ def cold_start(repeat: int = 3) -> None:
     numpy_path = best({"PTINERTIA_NUMBA": "0"})
     print(f"  numpy segment sums (default): {numpy_path}")
     FIGURES["cold start, run --duration 5"] = f"{numpy_path} (numpy sums, the default)"
+    load = _load()
     from dsp import kernels
 
     if not kernels.AVAILABLE:
@@ -223,7 +285,11 @@ def cold_start(repeat: int = 3) -> None:
         print(
             f"  compiled sums, empty numba cache (first run after an install): wall {wall:.2f} s, CPU {cpu:.2f} s"
         )
-        print(f"  compiled sums, numba cache filled: {best(env)}")
+        filled = best(env)
+        print(f"  compiled sums, numba cache filled: {filled}")
+        FIGURES["cold start, compiled sums"] = (
+            f"{filled} (cache filled), wall {wall:.2f} s, CPU {cpu:.2f} s (empty cache; load {load})"
+        )
 
 
 def paced_latency(tmp: Path) -> None:
@@ -285,12 +351,14 @@ def main() -> None:
     ap.add_argument("--hours", type=float, default=1.0)
     ap.add_argument("--skip-long", action="store_true")
     a = ap.parse_args()
-    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores (a shared machine)")
+    print(f"load average {_load()} on {os.cpu_count()} cores (a shared machine)")
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         log = live_and_replay(tmp)
         paced_latency(tmp)
         stage_budget(log)
+        order_tracking()
+        study_run()
         cold_start()
         if not a.skip_long:
             long_run(tmp, a.hours)
@@ -303,6 +371,7 @@ def main() -> None:
     )
     for name, figure in FIGURES.items():
         print(f"  {name:32s} {figure}")
+    print(f"load average at the end {_load()}")
 
 
 if __name__ == "__main__":

@@ -25,6 +25,26 @@ studies, whose worker processes pay the import once), and numba is imported on f
 use; a short ``ptinertia run`` never loads it. ``nogil=True``: the kernel releases the
 GIL, so a tracker on its own thread leaves the others running.
 
+Measured again (issue 24, later session; load average 3 to 19 on the 2 cores, so CPU
+figures, best of 5 to 30; ``benchmarks/bench_pipeline.py``): the kernel's calls for a 10 s
+sweep of that load (0.5 s blocks) take 11-12 ms, the numpy sums 13-15 ms; the whole
+tracker runs 224x -> 281x on that load with the kernel, 146x -> 184x on the live
+pipeline's 9 accelerometers + pressure spectrum (load 10), 291x -> 319x in 0.5 s blocks and
+350x -> 368x in 1 s blocks (load 15). ``ptinertia run --duration 5`` takes 1.01 s of CPU
+with the numpy sums, 1.51 s with the kernel from a filled numba cache and 3.6 s with an
+empty one (load 10; 0.92 s and 1.37 s at load 3). The kernel saves 0.05-0.08 s per minute
+of 10 channels at 25.6 kHz against 0.5 s for numba's import: it pays after some 6-10
+minutes of such data (the figures move by 10 % between runs on this shared machine). So numba stays optional and off by default. Tried and
+left out: the sums as vectorised dot products over the samples (numba ``fastmath``
+reassociation; 10-20 % off the kernel, but a row's weight sum then differed at 1e-16
+between one call and one call per piece, and a sum that depends on the block cut breaks
+replay = live), four fixed partial sums per dot product (2.5x slower), a BLAS product
+per segment from inside the kernel, the carrier-times-taper product taken once per
+sample instead of per channel (no gain each). The samples come channel-fastest (the
+synthetic bench) or sample-fastest (the simulator): neither layout changes the figures.
+What the tracker spends beyond the sums is Python per block and per frame (frame
+assembly, leakage correction, angle lookup), which a kernel for the sums cannot remove.
+
 What stays identical and what does not: the base ``exp(-i delta / 2)`` is still made by
 numpy in single precision (its SIMD ``cos``/``sin`` round differently from libm's), the
 taper weights repeat :func:`dsp.frames.rise_table`'s arithmetic, so the carriers are

@@ -7,9 +7,10 @@ never makes us drop samples: the backlog is measured and reported instead. A
 file or unpaced simulator gets a bounded queue (back-pressure keeps memory
 flat; nothing is lost either way).
 
-Samples are rounded to float32 before anything sees them: that is what the
-recorder stores, so a replay of the recording feeds the dsp stage exactly
-the same numbers and reproduces every estimate bit for bit.
+Samples are rounded to float32 before anything sees them (on the reader thread,
+beside the processing): that is what the recorder stores, so a replay of the
+recording feeds the dsp stage exactly the same numbers and reproduces every
+estimate bit for bit.
 """
 
 from __future__ import annotations
@@ -63,7 +64,8 @@ class RunSummary:
 
 
 class _Reader(threading.Thread):
-    """Pulls items from the source into the queue until exhausted or stopped."""
+    """Pulls items from the source into the queue, rounded as recorded (:func:`as_recorded`),
+    until exhausted or stopped."""
 
     def __init__(self, items: Iterable[StreamItem], q: queue.Queue[Any]) -> None:
         super().__init__(name="ptinertia-acquisition", daemon=True)
@@ -75,9 +77,13 @@ class _Reader(threading.Thread):
     def run(self) -> None:
         try:
             for item in self.items:
+                arrived = time.monotonic()
+                # the float32 rounding here, not on the processing thread: its casts release
+                # the GIL, so it runs beside the dsp on the other core (bit for bit the same)
+                item = as_recorded(item)
                 while not self.stop.is_set():
                     try:
-                        self.q.put((time.monotonic(), item), timeout=0.1)
+                        self.q.put((arrived, item), timeout=0.1)
                         break
                     except queue.Full:
                         continue
@@ -190,7 +196,6 @@ class Pipeline:
                 if item is _END:
                     break
                 self._backlog(enqueued)
-                item = as_recorded(item)
                 self.items += 1
                 for sink in self.sinks:
                     sink.on_item(item)
