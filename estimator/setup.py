@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
@@ -59,6 +60,25 @@ class Tolerances:
 
 
 @dataclass(frozen=True)
+class ModelInput:
+    """A model input the estimator takes as known, with its declared 1-sigma uncertainty
+    (propagated into the intervals as type B, :mod:`estimator.model_inputs`).
+
+    ``kind``: ``excitation``: ``d_excitation`` gives d(force N, moment N m about
+    ``reference_point``)/d(input) per order at an rpm (the gas model, the moving masses,
+    the crankcase pressure); ``spin_inertia``: the crank train's spin inertia, ``std``
+    in kg m^2 (the gyroscopic term); ``mount``: the stiffness of mount ``mount`` (its
+    index in ``mounts``), ``std`` relative.
+    """
+
+    name: str
+    kind: Literal["excitation", "spin_inertia", "mount"]
+    std: float
+    d_excitation: ExcitationFn | None = None
+    mount: int = -1
+
+
+@dataclass(frozen=True)
 class Gates:
     """Frame gating thresholds."""
 
@@ -100,6 +120,7 @@ class EstimatorSetup:
         (``frame.spectrum``); None when ``excitation`` includes a modelled gas torque.
         Measured in the frame's own crank angle, it turns with the motion under a
         reference offset or a 360 deg slip, so half orders need no sign hypothesis.
+    model_inputs : the model inputs taken as known, with their declared tolerances.
     """
 
     channels: tuple[str, ...]
@@ -123,6 +144,8 @@ class EstimatorSetup:
     tolerances: Tolerances = field(default_factory=Tolerances)
     gates: Gates = field(default_factory=Gates)
     gas_moment: GasMomentFn | None = None
+    # the model inputs whose declared tolerances join the type-B covariance
+    model_inputs: tuple[ModelInput, ...] = ()
 
     @property
     def n_sensors(self) -> int:

@@ -1,0 +1,158 @@
+"""From the bench file's declared model tolerances to the estimator's model inputs (type B).
+
+``[estimator]`` declares, 1 sigma, how well the bench file knows the inputs of the
+model the estimator takes as known (docs/bench-file.md):
+
+=================================  =========================================================
+``gas_tolerance_pct``              the gas model: a parametric model's heat release, a
+                                   trace's or a torque table's gas torque as a whole
+``spin_inertia_tolerance_pct``     ``[engine] crank_spin_inertia_kgm2``
+``piston_mass_tolerance_pct``      ``[engine] piston_mass_kg`` (reciprocating)
+``conrod_mass_tolerance_pct``      ``[engine] conrod_mass_kg`` (its big end rotates, its
+                                   small end reciprocates)
+``mount_stiffness_tolerance_pct``  each mount's stiffness, independently
+``crankcase_pressure_tolerance_pa`` ``[gas] crankcase_pressure_pa``
+=================================  =========================================================
+
+How each moves the equations is in :mod:`estimator.model_inputs`. The excitation's
+derivatives are taken here, once per set of orders: analytic for a gas-torque scale
+(the gas part itself), a central difference of the engine's excitation for the rest
+(the masses and the crankcase pressure enter it linearly, so the difference is exact;
+the heat release enters the Wiebe pressure smoothly, stepped by its own tolerance).
+
+What is estimated rather than declared: the mount stiffness scales with ``[estimator]
+mount_scale`` (the reactions scale like ``1/W^2`` along the sweep, the inertia terms do
+not; their tolerance then leaves the type-B part). The gas scale and the spin inertia
+are not: on the i3 the gas is the only roll excitation of order 1.5 and its roll
+equation holds ``Iyy`` against the gas torque alone, and the gyroscopic term is a
+fixed multiple of ``Omega'`` at each order, so each is confounded with the inertia it
+would correct; the masses move the inertia excitation, which scales with speed as the
+inertia terms' own response does. With a cylinder-pressure channel the gas is
+measured, and its tolerance does not apply.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import numpy as np
+import numpy.typing as npt
+
+from estimator.setup import Corrections, ExcitationFn, ModelInput
+from powertrain.engine import Engine
+from powertrain.gas import OrdersGas, ParametricGas
+from powertrain.half_orders import OrderExcitation
+from ptinertia import config
+
+#: (engine, step) -> the engine with the input moved by ``step`` (in the input's unit)
+Perturb = Callable[[Engine, float], Engine]
+
+
+def _difference(engine: Engine, perturb: Perturb, step: float, about: np.ndarray) -> ExcitationFn:
+    """d(excitation)/d(input) by a central difference of +-``step``, cached per set of orders."""
+    plus, minus = perturb(engine, step), perturb(engine, -step)
+    by_orders: dict[tuple[float, ...], OrderExcitation] = {}
+
+    def derivative(rpm: float, orders: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        key = tuple(np.asarray(orders, float).tolist())
+        if key not in by_orders:
+            a, b = plus.order_excitation(key, about), minus.order_excitation(key, about)
+            by_orders[key] = OrderExcitation(
+                *(
+                    (getattr(a, f.name) - getattr(b, f.name)) / (2 * step)
+                    for f in dataclasses.fields(OrderExcitation)
+                )
+            )
+        return by_orders[key].at(rpm)
+
+    return derivative
+
+
+def _gas_part(engine: Engine, about: np.ndarray) -> ExcitationFn:
+    """The gas part of the excitation: its derivative by a scale of the gas torque."""
+    del about  # the gas moment is a pure torque, the same about every point
+
+    def derivative(rpm: float, orders: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        return engine.gas_excitation(orders)
+
+    return derivative
+
+
+def _with_heat_release(engine: Engine, step: float) -> Engine:
+    gas = engine.gas
+    assert isinstance(gas, ParametricGas)
+    scaled = dataclasses.replace(gas, heat_release=gas.heat_release * (1 + step))
+    return dataclasses.replace(engine, gas=scaled)
+
+
+def _with_piston_mass(engine: Engine, step: float) -> Engine:
+    return dataclasses.replace(engine, piston_mass=engine.piston_mass * (1 + step))
+
+
+def _with_conrod_mass(engine: Engine, step: float) -> Engine:
+    return dataclasses.replace(engine, conrod_mass=engine.conrod_mass * (1 + step))
+
+
+def _with_crankcase(engine: Engine, step: float) -> Engine:
+    return dataclasses.replace(engine, crankcase_pressure=engine.crankcase_pressure + step)
+
+
+def model_inputs(
+    bench: config.Bench,
+    engine: Engine,
+    about: np.ndarray,
+    corrections: Corrections,
+    gas_measured: bool,
+    mounts: tuple[str, ...],
+) -> tuple[ModelInput, ...]:
+    """The model inputs of ``bench`` with a declared tolerance above zero.
+
+    ``engine``: the nominal engine; ``about``: the point the excitation moment is
+    taken about; ``corrections``: those in force (no spin inertia without the
+    gyroscopic term, no mount without the suspension, none for estimated mount
+    scales); ``gas_measured``: the gas torque comes from a pressure channel;
+    ``mounts``: the names of the mounts the estimator models. Relative tolerances are
+    relative (std 0.05 for 5 %); the spin inertia's std is in kg m^2, the
+    crankcase pressure's in Pa.
+    """
+    tol = bench.estimator
+    out: list[ModelInput] = []
+    gas = engine.gas
+    if tol.gas_tolerance_pct > 0 and gas is not None and not gas_measured:
+        rel = tol.gas_tolerance_pct / 100.0
+        if isinstance(gas, ParametricGas):
+            d_gas = _difference(engine, _with_heat_release, rel, about)
+        else:
+            d_gas = _gas_part(engine, about)
+        out.append(ModelInput("gas", "excitation", rel, d_excitation=d_gas))
+    spin = engine.crank_spin_inertia
+    if tol.spin_inertia_tolerance_pct > 0 and corrections.gyroscopic and spin > 0:
+        out.append(
+            ModelInput(
+                "spin_inertia", "spin_inertia", spin * tol.spin_inertia_tolerance_pct / 100.0
+            )
+        )
+    for name, pct, perturb in (
+        ("piston_mass", tol.piston_mass_tolerance_pct, _with_piston_mass),
+        ("conrod_mass", tol.conrod_mass_tolerance_pct, _with_conrod_mass),
+    ):
+        if pct > 0:
+            rel = pct / 100.0
+            out.append(
+                ModelInput(
+                    name, "excitation", rel, d_excitation=_difference(engine, perturb, rel, about)
+                )
+            )
+    pcc = tol.crankcase_pressure_tolerance_pa
+    if pcc > 0 and gas is not None and not isinstance(gas, OrdersGas):
+        d_pcc = _difference(engine, _with_crankcase, pcc, about)
+        out.append(ModelInput("crankcase_pressure", "excitation", pcc, d_excitation=d_pcc))
+    if (
+        tol.mount_stiffness_tolerance_pct > 0
+        and corrections.suspension
+        and not corrections.mount_scale
+    ):
+        rel = tol.mount_stiffness_tolerance_pct / 100.0
+        out += [ModelInput(f"mount:{name}", "mount", rel, mount=i) for i, name in enumerate(mounts)]
+    return tuple(out)
