@@ -65,16 +65,10 @@ def model_input_rows(
     g = np.asarray(lin.cog, float)
     per_force = 1.0 if mass_known else 1.0 / lin.mass  # translation rows per newton
     s = setup.crank_axis
-    # the pairs of one rpm share an excitation call (frames hold a few orders each)
-    rpms, at = np.unique(rpm, return_inverse=True)
     for j, inp in enumerate(inputs):
         if inp.kind == "excitation":
             assert inp.d_excitation is not None
-            df = np.zeros((n_p, 3), complex)
-            dm = np.zeros((n_p, 3), complex)
-            for k, r in enumerate(rpms):
-                sel = at == k
-                df[sel], dm[sel] = inp.d_excitation(float(r), h[sel])
+            df, dm = inp.d_excitation(rpm, h)
             out[:, :3, j] = -per_force * df
             out[:, 3:, j] = cross(g - setup.reference_point, df) - dm
         elif inp.kind == "spin_inertia":

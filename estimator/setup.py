@@ -17,6 +17,9 @@ import numpy as np
 
 # (rpm, orders) -> (force (n_o, 3) complex N, moment about reference_point (n_o, 3) complex N m)
 ExcitationFn = Callable[[float, np.ndarray], tuple[np.ndarray, np.ndarray]]
+#: (rpm (P,), orders (P,)) of P (frame, order) pairs -> (force (P, 3) complex N, moment
+#: about reference_point (P, 3) complex N m): the pairs of a batch in one call
+PairExcitationFn = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 #: (orders, pressure spectrum of a frame) -> (n_orders, 3) complex N m gas moment
 GasMomentFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -65,8 +68,8 @@ class ModelInput:
     (propagated into the intervals as type B, :mod:`estimator.model_inputs`).
 
     ``kind``: ``excitation``: ``d_excitation`` gives d(force N, moment N m about
-    ``reference_point``)/d(input) per order at an rpm (the gas model, the moving masses,
-    the crankcase pressure); ``spin_inertia``: the crank train's spin inertia, ``std``
+    ``reference_point``)/d(input) of (frame, order) pairs (the gas model, the moving
+    masses, the crankcase pressure); ``spin_inertia``: the crank train's spin inertia, ``std``
     in kg m^2 (the gyroscopic term); ``mount``: the stiffness of mount ``mount`` (its
     index in ``mounts``), ``std`` relative.
     """
@@ -74,7 +77,7 @@ class ModelInput:
     name: str
     kind: Literal["excitation", "spin_inertia", "mount"]
     std: float
-    d_excitation: ExcitationFn | None = None
+    d_excitation: PairExcitationFn | None = None
     mount: int = -1
 
 
