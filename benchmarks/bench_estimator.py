@@ -13,9 +13,16 @@ Prints:
 8. RLS update time per frame and estimator time per frame;
 9. ``--only noise``: a rigid body with noise alone at 40 and 30 dB over N seeds (the elastic
    modes reported: none may be), the elastic-mode scenario over 6 seeds (confirmed in each),
-   and the realistic seeds (no mode, and how many are flagged inconsistent).
+   and the realistic seeds (no mode, and how many are flagged inconsistent);
+10. ``--only model``: the model inputs drawn inside their declared tolerances
+   (``[estimator] gas_tolerance_pct`` and the rest: heat release, spin inertia, piston
+   and rod masses, each mount's stiffness; the draws of ``ptinertia study --vary
+   gas,spin_inertia,masses,mounts``) plus the realistic sensor errors, over N seeds:
+   error statistics and the coverage of the 95 % intervals per term, and the same
+   runs with the model tolerances left out of the intervals.
 
-Usage: python benchmarks/bench_estimator.py [--seeds 20] [--jobs 2] [--quick] [--only noise]
+Usage: python benchmarks/bench_estimator.py [--seeds 20] [--jobs 2] [--quick]
+[--only noise|model]
 """
 
 from __future__ import annotations
@@ -149,12 +156,15 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--quick", action="store_true", help="20 s sweeps, 4 seeds")
-    ap.add_argument("--only", choices=("noise",), help="only this part (see the docstring)")
+    ap.add_argument("--only", choices=("noise", "model"), help="only this part (see the docstring)")
     a = ap.parse_args()
     dur = {"duration_s": 20.0} if a.quick else {}
     seeds = 4 if a.quick else a.seeds
     if a.only == "noise":
         noise_alone(seeds, a.jobs, dur)
+        return
+    if a.only == "model":
+        model_inputs_drawn(seeds, a.jobs, dur)
         return
 
     cases: list[tuple[str, tuple[Path, dict[str, Any], tuple[str, ...], float | None]]] = [
@@ -368,6 +378,68 @@ def noise_alone(seeds: int, jobs: int, dur: dict[str, Any]) -> None:
         f"{sum(not d.get('consistent', True) for d in real)}/{seeds}; seeds with orders rejected "
         f"as non_rigid {sum(bool(d['frames']['orders_rejected'].get('non_rigid')) for d in real)}"
     )
+
+
+MODEL_INPUTS = ("gas", "spin_inertia", "masses", "mounts")
+NO_MODEL_TOLERANCES = {
+    "gas_tolerance_pct": 0.0,
+    "spin_inertia_tolerance_pct": 0.0,
+    "piston_mass_tolerance_pct": 0.0,
+    "conrod_mass_tolerance_pct": 0.0,
+    "mount_stiffness_tolerance_pct": 0.0,
+    "crankcase_pressure_tolerance_pa": 0.0,
+}
+
+
+def model_inputs_drawn(seeds: int, jobs: int, dur: dict[str, Any]) -> None:
+    """Part 10: model inputs drawn inside their declared tolerances, with the realistic errors."""
+    from ptinertia.batch.study import draw_run, run_seeds
+    from ptinertia.config import load_bench
+
+    bench = load_bench(I3)
+    draws = [draw_run(bench, MODEL_INPUTS, s) for s in run_seeds(0, seeds)]
+    runs = [(I3, {**dur, **REALISTIC, **d}, (), None) for d in draws]
+    without = [(*case, NO_MODEL_TOLERANCES) for case in runs]
+    docs = map_on_cluster(ClusterSpec(workers=jobs), run_case, runs + without)
+    tol = bench.estimator
+    print(
+        f"== realistic i3 with the model inputs drawn inside their declared tolerances, {seeds} "
+        f"seeds (1 sigma: heat release {tol.gas_tolerance_pct:g} %, spin inertia "
+        f"{tol.spin_inertia_tolerance_pct:g} %, pistons {tol.piston_mass_tolerance_pct:g} %, "
+        f"rods {tol.conrod_mass_tolerance_pct:g} %, each mount "
+        f"{tol.mount_stiffness_tolerance_pct:g} %)"
+    )
+    keys = ("heat_release_error_pct", "spin_inertia_error_pct", "piston_mass_error_pct")
+    for k in keys:
+        v = np.array([d[k] for d in draws])
+        print(f"   drawn {k}: {', '.join(f'{x:+.1f}' for x in v)}")
+    for label, group in (
+        ("model tolerances declared", docs[:seeds]),
+        ("model tolerances left out (0)", docs[seeds:]),
+    ):
+        errs = [errors(d) for d in group]
+        cov = [covered(d) for d in group]
+        print(f"-- {label}")
+        for k in (*TERMS, "cog_mm"):
+            v = np.array([e[k] for e in errs])
+            unit = "mm" if k == "cog_mm" else "%"
+            text = f"  {k:7} mean |err| {np.mean(np.abs(v)):6.2f} {unit}  max |err| {np.max(np.abs(v)):6.2f} {unit}"
+            if k in TERMS:
+                half = [
+                    100
+                    * 1.96
+                    * d["inertia_kgm2"]["std"][k]
+                    / abs(d["truth"]["inertia_kgm2"]["value"][k])
+                    for d in group
+                ]
+                text += f"  95% +- {np.median(half):6.2f} % (median)"
+                text += f"  covers truth in {sum(c[k] for c in cov)}/{seeds}"
+            else:
+                for g in ("Gx", "Gy", "Gz"):
+                    text += f"  {g} covered {sum(c[g] for c in cov)}/{seeds}"
+            print(text)
+        all_cov = sum(all(c.values()) for c in cov)
+        print(f"  all nine intervals cover the truth in {all_cov}/{seeds} seeds")
 
 
 if __name__ == "__main__":

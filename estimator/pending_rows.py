@@ -20,6 +20,7 @@ import numpy as np
 from estimator.elastic_tail import ELASTIC_TERMS
 from estimator.equations import Linearisation, ParameterLayout, frame_rows
 from estimator.kinematics import RigidFit, RigidMotion
+from estimator.model_inputs import model_input_rows
 from estimator.redundancy import redundancy_rows
 from estimator.setup import EstimatorSetup
 from estimator.systematic import motion_sensitivity
@@ -250,6 +251,19 @@ class RowAssembler:
             measured_moment=None if batch[0].measured_moment is None else cat("measured_moment"),
         )
         dr = r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[sel])
+        if self.setup.model_inputs:
+            # the model inputs' columns (zero in dm_real: they do not touch the readings)
+            n_model = len(self.setup.model_inputs)
+            dr[:, :, -n_model:] += r.whiten @ model_input_rows(
+                self.setup,
+                lin,
+                not self.layout.mass,
+                sg[:, None] * gamma_o,
+                sg[:, None] * omega_dot,
+                rep("origin"),
+                cat("orders"),
+                rep("rpm"),
+            )
         if self.cal and calibrate:
             # self-calibration: what was a systematic error becomes an unknown
             r.H[:, :, self.cal_cols] = dr[:, :, self.cal]

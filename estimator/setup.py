@@ -11,11 +11,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
 # (rpm, orders) -> (force (n_o, 3) complex N, moment about reference_point (n_o, 3) complex N m)
 ExcitationFn = Callable[[float, np.ndarray], tuple[np.ndarray, np.ndarray]]
+#: (rpm (P,), orders (P,)) of P (frame, order) pairs -> (force (P, 3) complex N, moment
+#: about reference_point (P, 3) complex N m): the pairs of a batch in one call
+PairExcitationFn = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 #: (orders, pressure spectrum of a frame) -> (n_orders, 3) complex N m gas moment
 GasMomentFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
@@ -56,6 +60,25 @@ class Tolerances:
     gain_rel: float = 0.01  # channel sensitivity, relative
     alignment_rad: float = float(np.radians(1.0))  # each sensor's orientation
     position_m: float = 0.002  # each sensor's position
+
+
+@dataclass(frozen=True)
+class ModelInput:
+    """A model input the estimator takes as known, with its declared 1-sigma uncertainty
+    (propagated into the intervals as type B, :mod:`estimator.model_inputs`).
+
+    ``kind``: ``excitation``: ``d_excitation`` gives d(force N, moment N m about
+    ``reference_point``)/d(input) of (frame, order) pairs (the gas model, the moving
+    masses, the crankcase pressure); ``spin_inertia``: the crank train's spin inertia, ``std``
+    in kg m^2 (the gyroscopic term); ``mount``: the stiffness of mount ``mount`` (its
+    index in ``mounts``), ``std`` relative.
+    """
+
+    name: str
+    kind: Literal["excitation", "spin_inertia", "mount"]
+    std: float
+    d_excitation: PairExcitationFn | None = None
+    mount: int = -1
 
 
 @dataclass(frozen=True)
@@ -100,6 +123,7 @@ class EstimatorSetup:
         (``frame.spectrum``); None when ``excitation`` includes a modelled gas torque.
         Measured in the frame's own crank angle, it turns with the motion under a
         reference offset or a 360 deg slip, so half orders need no sign hypothesis.
+    model_inputs : the model inputs taken as known, with their declared tolerances.
     """
 
     channels: tuple[str, ...]
@@ -123,6 +147,8 @@ class EstimatorSetup:
     tolerances: Tolerances = field(default_factory=Tolerances)
     gates: Gates = field(default_factory=Gates)
     gas_moment: GasMomentFn | None = None
+    # the model inputs whose declared tolerances join the type-B covariance
+    model_inputs: tuple[ModelInput, ...] = ()
 
     @property
     def n_sensors(self) -> int:

@@ -2,7 +2,9 @@
 and how each moves the rigid-body motion fitted from a frame.
 
 Per channel a relative gain error; per sensor a small rotation (alignment, rad)
-and a displacement (position, m) about/along the bench axes. The streaming
+and a displacement (position, m) about/along the bench axes. The model inputs'
+declared tolerances follow them (:mod:`estimator.model_inputs`): they do not
+touch the readings, only the equations of motion. The streaming
 estimator accumulates the sensitivity of its normal equations to them, which
 turns the declared tolerances into the type-B part of the covariance.
 """
@@ -17,18 +19,20 @@ from estimator.vec import cross
 
 
 def systematic_names(setup: EstimatorSetup) -> list[str]:
+    """The sensor errors, then the model inputs (``model:<name>``, :mod:`estimator.model_inputs`)."""
     names = [f"gain:{c}" for c in setup.channels]
     for s in range(setup.n_sensors):
         names += [f"align:{s}:{ax}" for ax in "xyz"]
         names += [f"pos:{s}:{ax}" for ax in "xyz"]
-    return names
+    return names + [f"model:{m.name}" for m in setup.model_inputs]
 
 
 def systematic_stds(setup: EstimatorSetup) -> np.ndarray:
     tol = setup.tolerances
     n_ch = len(setup.channels)
     per_sensor = [tol.alignment_rad] * 3 + [tol.position_m] * 3
-    return np.array([tol.gain_rel] * n_ch + per_sensor * setup.n_sensors)
+    model = [m.std for m in setup.model_inputs]
+    return np.array([tol.gain_rel] * n_ch + per_sensor * setup.n_sensors + model)
 
 
 def reading_sensitivity(
@@ -51,7 +55,9 @@ def reading_sensitivity(
     n_ch = len(setup.channels)
     assert fit.channels is not None
     used = fit.channels
-    out = np.zeros((len(gamma_o), len(used), n_ch + 6 * setup.n_sensors), complex)
+    # (the model inputs' columns stay zero: they do not touch the readings)
+    n_sys = n_ch + 6 * setup.n_sensors + len(setup.model_inputs)
+    out = np.zeros((len(gamma_o), len(used), n_sys), complex)
     n = setup.directions[used]  # (u, 3)
     r = setup.positions[used] - fit.origin  # (u, 3)
     gamma_p = gamma_o[:, None, :] + cross(omega_dot[:, None, :], r[None])  # (P, u, 3)

@@ -128,6 +128,14 @@ class Simulation(Section):
     max_order: Annotated[float, Field(ge=1, le=12)] = 6.0
     # the engine burns this much more (or less) than [gas] says: a gas model that is off
     heat_release_error_pct: Annotated[float, Field(gt=-100)] = 0.0
+    # the engine and mounts built differently from the bench file (the model inputs the
+    # estimator takes as known, with the tolerances of [estimator]): relative errors in %
+    spin_inertia_error_pct: Annotated[float, Field(gt=-100)] = 0.0
+    piston_mass_error_pct: Annotated[float, Field(gt=-100)] = 0.0
+    conrod_mass_error_pct: Annotated[float, Field(gt=-100)] = 0.0
+    # every mount's stiffness by one value, or one value per mount ([[mounts]] order)
+    mount_stiffness_error_pct: float | list[float] = 0.0
+    crankcase_pressure_error_pa: float = 0.0
     # accelerometer channels that read NaN all run (a broken cable, an open input)
     dead_channels: list[str] = Field(default_factory=list)
 
@@ -178,6 +186,16 @@ class EstimatorSettings(Section):
     gain_tolerance_pct: NonNegative = 1.0
     alignment_tolerance_deg: NonNegative = 1.0
     position_tolerance_m: NonNegative = 0.002
+    # declared 1-sigma uncertainty of the model inputs taken as known, propagated into the
+    # intervals (ptinertia/to_model_inputs.py); 0: known exactly. Gas: a parametric model's
+    # heat release, a trace's or torque table's gas torque (not used with a pressure channel)
+    gas_tolerance_pct: NonNegative = 5.0
+    spin_inertia_tolerance_pct: NonNegative = 5.0  # [engine] crank_spin_inertia_kgm2
+    piston_mass_tolerance_pct: NonNegative = 2.0  # [engine] piston_mass_kg (reciprocating)
+    conrod_mass_tolerance_pct: NonNegative = 1.0  # [engine] conrod_mass_kg
+    # each mount's stiffness, independently (not used with mount_scale: estimated then)
+    mount_stiffness_tolerance_pct: NonNegative = 15.0
+    crankcase_pressure_tolerance_pa: NonNegative = 2000.0  # [gas] crankcase_pressure_pa
     max_relative_residual: Positive = 0.05
     max_rpm_change: Positive = 0.03
     min_mode_ratio: NonNegative = 1.25

@@ -26,6 +26,7 @@ from powertrain.half_orders import OrderExcitation
 from powertrain.model import BenchModel
 from powertrain.pressure_torque import PressureTorqueMap, pressure_torque_map
 from ptinertia import config
+from ptinertia.to_model_inputs import model_inputs
 from ptinertia.to_physics import build_model
 
 #: Pa per unit of a cylinder-pressure channel.
@@ -176,6 +177,10 @@ def estimator_setup(
         return excitation_of(orders).at(rpm)
 
     mode_max = float(np.max(model.modes().frequency_hz)) if has_mounts else None
+    mounts = mount_stiffness(model) if corr.suspension else ()
+    declared = model_inputs(
+        bench, engine, reference, corr, pressure is not None, tuple(m.name for m in mounts)
+    )
     return EstimatorSetup(
         channels=model.channel_names,
         sensor_of_channel=sensor_of_channel,
@@ -187,7 +192,7 @@ def estimator_setup(
         cylinder_axis=np.asarray(c, float),
         spin_inertia=float(engine.crank_spin_inertia),
         excitation=excitation,
-        mounts=mount_stiffness(model) if corr.suspension else (),
+        mounts=mounts,
         mass_nominal=float(bench.powertrain.mass_kg),
         mass_known=bench.powertrain.mass_known,
         cog_nominal=reference,
@@ -199,4 +204,5 @@ def estimator_setup(
         gas_moment=None
         if pressure is None
         else gas_moment_from_pressure(engine, pressure, tuple(bench.dsp.orders)),
+        model_inputs=declared,
     )

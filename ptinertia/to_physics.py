@@ -221,6 +221,40 @@ def _true_gas(
     return bench.gas.model_copy(update={"heat_release_j": bench.gas.heat_release_j * scale})
 
 
+def _true_engine(bench: config.Bench, sim: config.Simulation) -> config_powertrain.Engine:
+    """The ``[engine]`` the simulated bench runs: its spin inertia and moving masses off
+    by ``[simulation]``'s relative errors."""
+    e = bench.engine
+    scale = {
+        "crank_spin_inertia_kgm2": sim.spin_inertia_error_pct,
+        "piston_mass_kg": sim.piston_mass_error_pct,
+        "conrod_mass_kg": sim.conrod_mass_error_pct,
+    }
+    update = {k: getattr(e, k) * (1 + pct / 100.0) for k, pct in scale.items() if pct}
+    return e.model_copy(update=update) if update else e
+
+
+def _true_mounts(bench: config.Bench, sim: config.Simulation) -> tuple[Mount, ...]:
+    """The mounts of the simulated bench: their stiffness off by ``[simulation]
+    mount_stiffness_error_pct`` (one value for all, or one per mount)."""
+    mounts = _mounts(bench)
+    pct = sim.mount_stiffness_error_pct
+    errors = [pct] * len(mounts) if isinstance(pct, int | float) else list(pct)
+    if len(errors) != len(mounts):
+        raise ConfigError(
+            f"[simulation] mount_stiffness_error_pct: expected one value or {len(mounts)} "
+            f"(one per mount), got {len(errors)}"
+        )
+    if any(e <= -100 for e in errors):
+        raise ConfigError(
+            f"[simulation] mount_stiffness_error_pct: must be above -100, got {errors}"
+        )
+    return tuple(
+        Mount(m.name, m.position, m.axes, m.stiffness * (1 + e / 100.0), m.loss_factor)
+        for m, e in zip(mounts, errors, strict=True)
+    )
+
+
 def build_simulated_model(
     bench: config.Bench, sim: config.Simulation | None = None
 ) -> tuple[BenchModel, dict[str, Any]]:
@@ -267,7 +301,10 @@ def build_simulated_model(
     )
     extra = (residual,) if sim.residual_unbalance_kgm > 0 else ()
     engine = build_engine(
-        bench.engine, gas_model(_true_gas(bench, sim)), extra, crankcase_pa(bench.gas)
+        _true_engine(bench, sim),
+        gas_model(_true_gas(bench, sim)),
+        extra,
+        crankcase_pa(bench.gas) + sim.crankcase_pressure_error_pa,
     )
     elastic = (
         None
@@ -280,7 +317,8 @@ def build_simulated_model(
         )
     )
     body = _body(bench)
-    model = BenchModel(body, _mounts(bench), engine, sensors, elastic_mode=elastic, gains=gains)
+    mounts = _true_mounts(bench, sim)
+    model = BenchModel(body, mounts, engine, sensors, elastic_mode=elastic, gains=gains)
     truth: dict[str, Any] = {
         "mass_kg": body.mass,
         "cog_m": body.cog.tolist(),
@@ -295,6 +333,10 @@ def build_simulated_model(
         "elastic_mode": None if sim.elastic_mode is None else sim.elastic_mode.model_dump(),
         "crank_spin_inertia_kgm2": engine.crank_spin_inertia,
         "heat_release_error_pct": sim.heat_release_error_pct,
+        "piston_mass_kg": engine.piston_mass,
+        "conrod_mass_kg": engine.conrod_mass,
+        "crankcase_pressure_pa": engine.crankcase_pressure,
+        "mount_stiffness_n_per_m": {m.name: m.stiffness.tolist() for m in mounts},
         "seed": sim.seed,
     }
     return model, truth

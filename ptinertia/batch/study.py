@@ -16,11 +16,14 @@ or its ``[simulation]`` values where the estimator declares none):
 - ``position``: each sensor moved by ``position_tolerance_m`` in a random direction;
 - ``unbalance``: a residual unbalance of ``[simulation] residual_unbalance_kgm``
   (0.5 g m if unset) at a uniformly drawn angle;
-- ``gas``: the engine burns ``N(0, s)`` % more than ``[gas]`` says, ``s`` the
-  bench's ``heat_release_error_pct`` (10 % if unset); needs the parametric gas model.
+- ``gas``: the engine burns ``N(0, gas_tolerance_pct)`` % more than ``[gas]`` says
+  (needs the parametric gas model: the heat release is what is off);
+- ``spin_inertia``: the crank train spins with ``N(0, spin_inertia_tolerance_pct)`` %
+  more inertia than ``[engine]`` says;
+- ``masses``: the pistons and the rods weigh ``N(0, piston_mass_tolerance_pct)`` and
+  ``N(0, conrod_mass_tolerance_pct)`` % more;
+- ``mounts``: each mount ``N(0, mount_stiffness_tolerance_pct)`` % stiffer, independently.
 
-``spin_inertia`` and ``mounts`` are accepted but not yet simulated: the simulator
-has no key for an error in them today, so they change nothing (the study says so).
 Errors not varied keep the bench's ``[simulation]`` values.
 """
 
@@ -51,11 +54,11 @@ from ptinertia.no_estimate import no_estimate_reason
 from ptinertia.runner import RunOptions, run_source
 from ptinertia.sources import REALISTIC_SIMULATION, open_source
 
-SIMULATED = ("noise", "gain", "alignment", "position", "unbalance", "gas")
-NOT_SIMULATED = ("spin_inertia", "mounts")
+SIMULATED = (
+    "noise", "gain", "alignment", "position", "unbalance", "gas", "spin_inertia", "masses", "mounts",
+)  # fmt: skip
 STUDY_BLOCK_S = 0.5  # s of simulated stream per block in a study run
 DEFAULT_VARY = ("noise", "gain", "alignment", "position", "unbalance")
-DEFAULT_GAS_ERROR_PCT = 10.0
 BENCH_LAYOUT = "bench"
 
 
@@ -75,19 +78,15 @@ class RunResult:
     error: str | None = None
 
 
-def parse_vary(text: str | None) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """``--vary`` as (simulated names, accepted names not yet simulated); unknown -> UsageError."""
+def parse_vary(text: str | None) -> tuple[str, ...]:
+    """``--vary`` as the names of the errors to draw; an unknown name -> UsageError."""
     if text is None:
-        return DEFAULT_VARY, ()
+        return DEFAULT_VARY
     names = tuple(dict.fromkeys(v.strip() for v in text.split(",") if v.strip()))
-    known = (*SIMULATED, *NOT_SIMULATED)
     for name in names:
-        if name not in known:
-            raise UsageError(f"--vary: unknown error {name!r}; known: {', '.join(known)}")
-    return (
-        tuple(n for n in names if n in SIMULATED),
-        tuple(n for n in names if n in NOT_SIMULATED),
-    )
+        if name not in SIMULATED:
+            raise UsageError(f"--vary: unknown error {name!r}; known: {', '.join(SIMULATED)}")
+    return names
 
 
 def run_seeds(seed: int, runs: int) -> list[np.random.SeedSequence]:
@@ -104,6 +103,8 @@ def draw_run(bench: Bench, vary: Sequence[str], seed: np.random.SeedSequence) ->
     sim_seed = int(rng.integers(0, 2**31 - 1))
     angle_deg = float(rng.uniform(0.0, 360.0))
     gas_draw = float(rng.standard_normal())
+    spin_draw, piston_draw, conrod_draw = (float(x) for x in rng.standard_normal(3))
+    mount_draws = rng.standard_normal(len(bench.mounts))
     sim, tol = bench.simulation, bench.estimator
     out: dict[str, Any] = {"seed": sim_seed}
     if "noise" in vary:
@@ -119,10 +120,24 @@ def draw_run(bench: Bench, vary: Sequence[str], seed: np.random.SeedSequence) ->
             sim.residual_unbalance_kgm or REALISTIC_SIMULATION["residual_unbalance_kgm"]
         )
         out["residual_unbalance_deg"] = angle_deg
+    # the model inputs, each inside the tolerance the estimator declares for it
     if "gas" in vary:
-        sigma = abs(sim.heat_release_error_pct) or DEFAULT_GAS_ERROR_PCT
-        out["heat_release_error_pct"] = max(sigma * gas_draw, -90.0)
+        out["heat_release_error_pct"] = _relative(tol.gas_tolerance_pct * gas_draw)
+    if "spin_inertia" in vary:
+        out["spin_inertia_error_pct"] = _relative(tol.spin_inertia_tolerance_pct * spin_draw)
+    if "masses" in vary:
+        out["piston_mass_error_pct"] = _relative(tol.piston_mass_tolerance_pct * piston_draw)
+        out["conrod_mass_error_pct"] = _relative(tol.conrod_mass_tolerance_pct * conrod_draw)
+    if "mounts" in vary:
+        out["mount_stiffness_error_pct"] = [
+            _relative(tol.mount_stiffness_tolerance_pct * float(x)) for x in mount_draws
+        ]
     return out
+
+
+def _relative(pct: float) -> float:
+    """A drawn relative error in %, kept above -90 % (a part cannot lose its mass)."""
+    return max(pct, -90.0)
 
 
 def load_layouts(path: str | None, bench: Bench) -> list[Layout]:

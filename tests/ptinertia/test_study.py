@@ -5,12 +5,14 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from ptinertia.batch.study import DEFAULT_VARY, draw_run, parse_vary, run_seeds
 from ptinertia.cli import main
-from ptinertia.config import Bench
+from ptinertia.config import Bench, Simulation
 from ptinertia.errors import UsageError
+from ptinertia.to_physics import build_simulated_model
 
 LAYOUTS = """
 [[layouts]]
@@ -46,9 +48,48 @@ def test_draws_follow_the_declared_tolerances(i3: Bench) -> None:
     assert "noise_snr_db" not in d and "residual_unbalance_kgm" not in d
 
 
+def test_model_inputs_are_drawn_from_their_declared_tolerances_and_simulated(i3: Bench) -> None:
+    vary = ("gas", "spin_inertia", "masses", "mounts")
+    draws = [draw_run(i3, vary, s) for s in run_seeds(3, 400)]
+    tol = i3.estimator
+    for key, sigma in (
+        ("heat_release_error_pct", tol.gas_tolerance_pct),
+        ("spin_inertia_error_pct", tol.spin_inertia_tolerance_pct),
+        ("piston_mass_error_pct", tol.piston_mass_tolerance_pct),
+        ("conrod_mass_error_pct", tol.conrod_mass_tolerance_pct),
+    ):
+        v = np.array([d[key] for d in draws])
+        assert np.std(v) == pytest.approx(sigma, rel=0.12), key  # 400 draws: 3.5 % 1-sigma
+        assert abs(np.mean(v)) < 0.2 * sigma, key
+    mounts = np.array([d["mount_stiffness_error_pct"] for d in draws])
+    assert mounts.shape == (400, len(i3.mounts))
+    assert np.std(mounts, axis=0) == pytest.approx(tol.mount_stiffness_tolerance_pct, rel=0.12)
+    assert abs(np.corrcoef(mounts.T)[0, 1]) < 0.15  # each mount on its own
+    # varying the model inputs leaves the sensor draws (and the run's seed) as they were
+    assert [d["seed"] for d in draws[:5]] == [
+        draw_run(i3, DEFAULT_VARY, s)["seed"] for s in run_seeds(3, 5)
+    ]
+    # the simulator builds what was drawn
+    d = draws[0]
+    sim = Simulation.model_validate({**i3.simulation.model_dump(), **d})
+    model, truth = build_simulated_model(i3, sim)
+    e = i3.engine
+    assert truth["crank_spin_inertia_kgm2"] == pytest.approx(
+        e.crank_spin_inertia_kgm2 * (1 + d["spin_inertia_error_pct"] / 100)
+    )
+    assert truth["piston_mass_kg"] == pytest.approx(
+        e.piston_mass_kg * (1 + d["piston_mass_error_pct"] / 100)
+    )
+    assert model.engine.conrod_mass == pytest.approx(
+        e.conrod_mass_kg * (1 + d["conrod_mass_error_pct"] / 100)
+    )
+    for m, built, pct in zip(i3.mounts, model.mounts, d["mount_stiffness_error_pct"], strict=True):
+        assert built.stiffness == pytest.approx(np.array(m.stiffness_n_per_m) * (1 + pct / 100))
+
+
 def test_vary_names() -> None:
-    assert parse_vary(None) == (DEFAULT_VARY, ())
-    assert parse_vary("gain,mounts,gas") == (("gain", "gas"), ("mounts",))
+    assert parse_vary(None) == DEFAULT_VARY
+    assert parse_vary("gain,mounts,gas") == ("gain", "mounts", "gas")
     with pytest.raises(UsageError, match="'wind'"):
         parse_vary("gain,wind")
 
