@@ -25,6 +25,14 @@ def finite_float(text: str) -> float:
     return value
 
 
+def positive_float(text: str) -> float:
+    """A finite float > 0 (a duration, a rate)."""
+    value = finite_float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+    return value
+
+
 def rpm(text: str) -> float:
     """A crank speed in rev/min, 0 < rpm <= MAX_RPM."""
     value = finite_float(text)

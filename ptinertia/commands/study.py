@@ -24,6 +24,7 @@ from typing import Any, TextIO
 from ptinertia.batch.cluster import add_cluster_arguments, spec_from_args
 from ptinertia.batch.study import load_layouts, parse_vary, run_study
 from ptinertia.batch.study_stats import TermStats
+from ptinertia.commands.arg_types import positive_float
 from ptinertia.config import load_bench
 from ptinertia.paths import DEFAULT_BENCH
 
@@ -53,7 +54,10 @@ def add_parser(sub: Any, name: str, help_text: str) -> None:
     p.add_argument("--layouts", metavar="L.toml", help="candidate sensor layouts to compare")
     p.add_argument("--seed", type=int, default=0, help="the study's seed (default 0)")
     p.add_argument(
-        "--duration", type=float, metavar="S", help="sweep duration in s (default: the bench's)"
+        "--duration",
+        type=positive_float,
+        metavar="S",
+        help="sweep duration in s (default: the bench's)",
     )
     p.add_argument("--out", required=True, metavar="DIR", help="tables and plot go here")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

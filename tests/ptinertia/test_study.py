@@ -122,10 +122,16 @@ def test_bad_study_inputs_are_one_line(tmp_path: Path, capsys: pytest.CaptureFix
     for argv in (
         ["--vary", "gain,wind"],
         ["--runs", "0"],
+        ["--duration", "-1"],  # refused by argparse, before any run is drawn
+        ["--duration", "nan"],
+        ["--seed", "-1"],
         ["--layouts", str(tmp_path / "missing.toml")],
         ["--scheduler", "tcp://nowhere"],
     ):
-        code = main(["study", "--out", str(tmp_path / "o"), "--quiet", *argv])
+        try:
+            code = main(["study", "--out", str(tmp_path / "o"), "--quiet", *argv])
+        except SystemExit as stop:  # argparse's own one line
+            code = stop.code
         err = capsys.readouterr().err.strip()
         assert code == 2, argv
         assert "\n" not in err and "Traceback" not in err, err
