@@ -41,6 +41,7 @@ from estimator.hypotheses import (
     DECIDE_RATIO,
     Accumulator,
     add_frame,
+    add_frames,
     better_sign,
     half_order_report,
 )
@@ -51,7 +52,7 @@ from estimator.partial_pairs import PartialPairs
 from estimator.pending_rows import FrameQueue, PendingFrame, RowAssembler
 from estimator.redundancy import calibrated_names
 from estimator.result import Estimate, EstimatorStats, build_estimate
-from estimator.rigidity import excess_beyond, noise_levels
+from estimator.rigidity import excess_many, noise_levels_many
 from estimator.rls import RlsSolution, RlsState, rls_solve
 from estimator.setup import EstimatorSetup
 from estimator.systematic import systematic_names, systematic_stds
@@ -123,51 +124,137 @@ class InertiaEstimator:
         return self.update_many([frame])[0]
 
     def update_many(self, frames: Sequence[FrameLike]) -> list[FrameOutcome]:
-        """:meth:`update` for consecutive frames, their arithmetic done together.
+        """:meth:`update` for consecutive frames (a block of a replay, a study, a file),
+        their arithmetic done together: the same decisions and the same bits as one
+        frame at a time.
 
-        The decisions are taken frame by frame in stream order, as :meth:`update`
-        would; only the rigid fits and the curvature gate run on all frames at once
-        (the per-call overhead of numpy dominates at one frame's size).
+        The frame gates, the channel masks and the channel noise run on the whole
+        block; the rigid fits, the curvature, the noise levels and the order gates that
+        remember nothing on each run of frames fitted alike; what remembers earlier
+        frames (the residual baseline, the elastic-mode window, the smoothed noise,
+        the relinearisations) frame by frame in stream order. A relinearisation that
+        changes the channel weights changes the fits of the frames after it: those
+        are fitted again (see :meth:`_fit_run`).
         """
         outcomes: list[FrameOutcome | None] = [None] * len(frames)
         elastic_before = self.elastic
-        todo: list[tuple[int, RigidFit, np.ndarray]] = []  # (index, geometry, readings)
+        gated: list[int] = []
         for i, frame in enumerate(frames):
             if self.setup.gates.independent_frames and overlaps_previous(frame):
                 self.stats.skipped += 1
                 outcomes[i] = FrameOutcome(frame.time_s, frame.rpm, (), {}, "overlapping", {})
                 continue
             reason = frame_gate(frame, self.setup.gates)
-            if reason is None:
-                reason, fitted = self.channels.select(frame)
             if reason is not None:
                 outcomes[i] = self._reject(frame, reason)
+            else:
+                gated.append(i)
+        screened = self.channels.screen([frames[i] for i in gated])
+        todo = [(i, *s) for i, s in zip(gated, screened, strict=True)]
+        at = 0
+        while at < len(todo):
+            i, used = todo[at][:2]
+            reason, fit = self.channels.choose(used)
+            if reason is not None:
+                outcomes[i] = self._reject(frames[i], reason)
+                at += 1
                 continue
-            assert fitted is not None
-            todo.append((i, *fitted))
-
-        # Fit runs of consecutive frames with the same channels and orders together.
-        def same_fit(item: tuple[int, RigidFit, np.ndarray]) -> tuple[int, tuple[float, ...]]:
-            return id(item[1]), tuple(frames[item[0]].orders)
-
-        # the channel noise only moves while frames are selected (above): one level per fit
-        variance = self.channels.channel_noise.variance()
-        for _, group in itertools.groupby(todo, key=same_fit):
-            run = list(group)
-            first_index, fit, _ = run[0]
-            levels = noise_levels(fit, variance)
-            readings = np.stack([r for _, _, r in run])  # (n, k, u)
-            motions = fit.fit_many(readings)
-            powers = np.mean(readings.real**2 + readings.imag**2, axis=2)  # (n, k)
-            orders = np.asarray(frames[first_index].orders, dtype=float)
-            bends = self.gates.curvature([frames[i] for i, _, _ in run], orders, motions, fit)
-            for j, (i, fitter, r) in enumerate(run):
-                outcomes[i] = self._use(
-                    frames[i], fitter, motions[j], orders, r, powers[j], bends[j], levels
+            assert fit is not None
+            # the run of frames fitted alike: the same channels and orders
+            end = at + 1
+            key = (used.tobytes(), tuple(frames[i].orders))
+            while (
+                end < len(todo)
+                and (
+                    todo[end][1].tobytes(),
+                    tuple(frames[todo[end][0]].orders),
                 )
+                == key
+            ):
+                end += 1
+            at += self._fit_run(frames, todo[at:end], fit, outcomes)
+        self.channels.channel_noise.release(self.channels.channel_noise.estimates)
         if elastic_before is None and self.elastic is not None and frames:
             self._events.append(elastic_mode_event(self.elastic, frames[-1].time_s))
         return [o for o in outcomes if o is not None]
+
+    def _fit_run(
+        self,
+        frames: Sequence[FrameLike],
+        run: list[tuple[int, np.ndarray, np.ndarray, Any, int]],
+        fit: RigidFit,
+        outcomes: list[FrameOutcome | None],
+    ) -> int:
+        """Fit, gate and queue a run of screened frames (index, used channels, their
+        columns, channel noise variance and estimate count) with the same channels and orders, ``fit``
+        the geometry of the first; returns how many were done: all, or those up to a
+        relinearisation that changed the channel weights (the rest are fitted anew)."""
+        setup = self.setup
+        index = [r[0] for r in run]
+        first = frames[index[0]]
+        orders = np.asarray(first.orders, dtype=float)
+        readings = np.stack([frames[i].amplitudes[:, c[u]] for i, u, c, _, _ in run])  # (n, k, u)
+        x, residual_rms, relative, noise_var = fit.fit_arrays(readings)
+        motions = fit.motions(x, residual_rms, relative, noise_var)
+        powers = np.mean(readings.real**2 + readings.imag**2, axis=2)  # (n, k)
+        run_frames = [frames[i] for i in index]
+        history = self.gates.motion_history.copy()
+        bends = self.gates.curvature(run_frames, orders, motions, fit)
+        rpm = np.array([f.rpm for f in run_frames], dtype=float)
+        force, moment = zip(*(setup.excitation(f.rpm, orders) for f in run_frames), strict=True)
+        force_a, moment_a = np.stack(force), np.stack(moment)
+        gas: list[np.ndarray | None] = [None] * len(run)
+        if setup.gas_moment is not None:
+            for j, f in enumerate(run_frames):
+                spectrum = getattr(f, "spectrum", None)
+                if spectrum is not None and np.all(np.isfinite(spectrum)):
+                    gas[j] = setup.gas_moment(orders, spectrum)
+                    moment_a[j] = moment_a[j] + gas[j]
+        why, floor = self.gates.screen_orders(rpm, orders, force_a, moment_a, bends, powers)
+        mean, q = noise_levels_many(fit, [r[3] for r in run])
+        share, beyond = excess_many(relative, noise_var, fit, mean, q)
+        order_list = orders.tolist()
+        generation = self.channels.generation
+        for j, i in enumerate(index):
+            frame = frames[i]
+            if j:
+                _, again = self.channels.choose(run[j][1])  # counts a missing sensor's frames
+                assert again is fit, "a run's geometry changed without a relinearisation"
+            # the channel weights a relinearisation measures: from the frames so far
+            self.channels.channel_noise.release(run[j][4])
+            if setup.gas_moment is not None and gas[j] is None:
+                outcomes[i] = self._reject(frame, "no_pressure")
+                continue
+            rejected, residuals, ks = self.gates.judge(
+                frame.rpm,
+                order_list,
+                why[j].tolist(),
+                relative[j].tolist(),
+                share[j].tolist(),
+                beyond[j].tolist(),
+            )
+            outcomes[i] = self._use(
+                frame,
+                fit,
+                motions[j],
+                orders,
+                readings[j],
+                powers[j],
+                force_a[j],
+                moment_a[j],
+                gas[j],
+                floor[j],
+                rejected,
+                residuals,
+                ks,
+            )
+            if self.channels.generation != generation and j + 1 < len(run):
+                # the next frames are fitted with the new weights: the curvature
+                # history must hold this run's motions only up to here
+                self.gates.motion_history = history
+                self.gates.curvature(run_frames[: j + 1], orders, motions[: j + 1], fit)
+                return j + 1
+        return len(run)
 
     def take_events(self) -> list[SourceEvent]:
         """What the estimator has to report since the last call (an elastic mode confirmed)."""
@@ -182,23 +269,16 @@ class InertiaEstimator:
         orders: np.ndarray,
         readings: np.ndarray,
         power: np.ndarray,
-        curvature: np.ndarray,
-        noise: tuple[float, float] | None,
+        force: np.ndarray,
+        moment: np.ndarray,
+        gas: np.ndarray | None,
+        floor: np.ndarray,
+        rejected: dict[float, str],
+        residuals: dict[float, float],
+        ks: list[int],
     ) -> FrameOutcome:
-        """Gate a fitted frame's orders, queue the usable ones (``noise``: noise_levels)."""
-        setup = self.setup
-        force, moment = setup.excitation(frame.rpm, orders)
-        gas = None
-        if setup.gas_moment is not None:
-            spectrum = getattr(frame, "spectrum", None)
-            if spectrum is None or not np.all(np.isfinite(spectrum)):
-                return self._reject(frame, "no_pressure")
-            gas = setup.gas_moment(orders, spectrum)
-            moment = moment + gas
-        excess = excess_beyond(motion, fitter, noise)
-        rejected, residuals, ks, floor = self.gates.judge_orders(
-            frame.rpm, orders, motion, force, moment, curvature, power, excess
-        )
+        """Queue a gated frame's usable orders ``ks`` (``rejected``: why the others
+        were not), and relinearise when due."""
         for why in rejected.values():
             self.stats.orders_rejected[why] += 1
         if not ks:
@@ -285,9 +365,13 @@ class InertiaEstimator:
             Ha = with_tail(Hs, f_hz)
             # one update per frame, in stream order: the same sums whatever the batch
             for a, b in itertools.pairwise(bounds):
-                # the frame's redundancy rows (already discounted with the frame's own)
-                own = None if kin is None else (kin[0][a:b], kin[1][a:b], kin[2][a:b])
                 self.misfit.add(sign_, orders[a:b], Hs[a:b], ys[a:b])
+            if kin is None:
+                self.acc[sign_] = add_frames(self.acc[sign_], Ha, ys, drs, bounds, self.forgetting)
+                continue
+            for a, b in itertools.pairwise(bounds):
+                # the frame's redundancy rows (already discounted with the frame's own)
+                own = (kin[0][a:b], kin[1][a:b], kin[2][a:b])
                 self.acc[sign_] = add_frame(
                     self.acc[sign_], Ha[a:b], ys[a:b], drs[a:b], self.forgetting, own
                 )
