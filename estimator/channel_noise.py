@@ -107,6 +107,7 @@ class ChannelNoise:
         self._held: collections.deque[np.ndarray] = collections.deque()
         self.estimates = 0  # per-frame estimates made so far
         self._released = 0  # of which in _kept
+        self._variance: np.ndarray | None = None  # variance(), kept as _recent changes
 
     def add(self, revolution: int, orders: tuple[float, ...], amplitudes: np.ndarray) -> None:
         """One frame: its revolution number (frames 720 deg apart differ by 2) and its
@@ -163,6 +164,8 @@ class ChannelNoise:
             self._recent.append(medians[i] / median_bias(len(diffs[i])))
         windows = _window_variances(self._recent[max(before - RECENT + 1, 0) :])
         self._recent = self._recent[-RECENT:]
+        if windows:
+            self._variance = windows[-1]
         # the variance after each frame: the window ending at its latest estimate
         now = prior
         first = RECENT - 1 - min(before, RECENT - 1)  # first new estimate with a full window
@@ -178,9 +181,7 @@ class ChannelNoise:
         """(n_channels,) the current noise variance of the real (and of the imaginary)
         part of an order amplitude, (m/s^2)^2, NaN for a channel not measured lately
         (None until ``RECENT`` frames have been measured)."""
-        if len(self._recent) < RECENT:
-            return None
-        return _window_variances(self._recent[-RECENT:])[0]
+        return self._variance
 
     def weights(self) -> np.ndarray | None:
         """(n_channels,) inverse noise variances, the median channel's 1, within

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from acquisition.stream import SourceEvent
+from estimator.channel_noise import ChannelNoise
 from estimator.streaming import InertiaEstimator
 from ptinertia.config import load_bench
 from ptinertia.paths import EXAMPLES_DIR
@@ -78,3 +79,34 @@ def test_blocks_of_any_size_give_the_bits_of_one_frame_at_a_time(stream) -> None
     assert np.array_equal(a.cov, b.cov)
     assert np.array_equal(a.cov_systematic, b.cov_systematic)
     assert a.channel_weights == b.channel_weights
+
+
+def test_channel_noise_of_a_block_is_that_of_its_frames_one_at_a_time() -> None:
+    # revolutions 720 deg apart with a gap (a lost frame breaks the chain), a channel
+    # that goes missing for a while, two order sets
+    rng = np.random.default_rng(4)
+    revs = [*range(0, 40, 2), *range(46, 90, 2)]
+    frames = []
+    for j, rev in enumerate(revs):
+        orders = (1.0, 1.5, 2.0) if j % 9 else (1.0, 2.0)
+        x = rng.normal(size=(len(orders), 5)) + 1j * rng.normal(size=(len(orders), 5))
+        if 20 <= j < 26:
+            x[:, 3] = np.nan
+        frames.append((rev, orders, x))
+    single, blocked = ChannelNoise(5), ChannelNoise(5)
+    after_each = []
+    for f in frames:
+        single.add(*f)
+        after_each.append(single.variance())
+    got = []
+    at = 0
+    while at < len(frames):
+        size = int(rng.integers(1, 12))
+        got += [v for v, _ in blocked.add_many(frames[at : at + size])]
+        at += size
+    blocked.release(blocked.estimates)
+    assert sum(v is not None for v in after_each) > 20
+    for a, b in zip(after_each, got, strict=True):
+        assert (a is None and b is None) or np.array_equal(a, b, equal_nan=True)
+    assert single.weights() is not None
+    assert np.array_equal(single.weights(), blocked.weights())
