@@ -28,6 +28,10 @@ TACHO_FLAGS = frozenset({"no_tacho", "tacho_resync", "angle_ambiguous", "angle_r
 ELASTIC_WINDOW = 5
 ELASTIC_CONFIRM = 3
 
+# OrderGates.judge: why each rejected order was rejected, every order's relative
+# residual, the indices of the orders that passed
+Judged = tuple[dict[float, str], dict[float, float], list[int]]
+
 # why an order is rejected by the gates that remember nothing (OrderGates.screen_orders)
 ORDER_REASONS = ("", "no_excitation", "near_rigid_modes", "off_mass_line", "neighbour_leakage")
 
@@ -130,7 +134,7 @@ class OrderGates:
         relative: list[float],
         share: list[float],
         beyond: list[float],
-    ) -> tuple[dict[float, str], dict[float, float], list[int]]:
+    ) -> Judged:
         """The order gates of one fitted frame, in stream order: those of
         :meth:`screen_orders` (``why``, one of its rows) and the residual gate.
 

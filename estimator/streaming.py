@@ -35,7 +35,8 @@ from estimator.equations import (
     parameter_scale,
     relinearise_due,
 )
-from estimator.gating import FrameLike, OrderGates, frame_gate, overlaps_previous
+from estimator.fitted_runs import FittedRun, Screened, fit_run, run_end
+from estimator.gating import FrameLike, Judged, OrderGates, frame_gate, overlaps_previous
 from estimator.hypotheses import (
     DECIDE_AFTER_FRAMES,
     DECIDE_RATIO,
@@ -45,14 +46,13 @@ from estimator.hypotheses import (
     better_sign,
     half_order_report,
 )
-from estimator.kinematics import RigidFit, RigidMotion
+from estimator.kinematics import RigidFit
 from estimator.misfit import MisfitSample, misfit_report, misfits
 from estimator.outcome import FrameOutcome
 from estimator.partial_pairs import PartialPairs
 from estimator.pending_rows import FrameQueue, PendingFrame, RowAssembler
 from estimator.redundancy import calibrated_names
 from estimator.result import Estimate, EstimatorStats, build_estimate
-from estimator.rigidity import excess_many, noise_levels_many
 from estimator.rls import RlsSolution, RlsState, rls_solve
 from estimator.setup import EstimatorSetup
 from estimator.systematic import systematic_names, systematic_stds
@@ -124,17 +124,11 @@ class InertiaEstimator:
         return self.update_many([frame])[0]
 
     def update_many(self, frames: Sequence[FrameLike]) -> list[FrameOutcome]:
-        """:meth:`update` for consecutive frames (a block of a replay, a study, a file),
-        their arithmetic done together: the same decisions and the same bits as one
-        frame at a time.
-
-        The frame gates, the channel masks and the channel noise run on the whole
-        block; the rigid fits, the curvature, the noise levels and the order gates that
-        remember nothing on each run of frames fitted alike; what remembers earlier
-        frames (the residual baseline, the elastic-mode window, the smoothed noise,
-        the relinearisations) frame by frame in stream order. A relinearisation that
-        changes the channel weights changes the fits of the frames after it: those
-        are fitted again (see :meth:`_fit_run`).
+        """:meth:`update` for consecutive frames (a block of a replay, a study, a file):
+        the same decisions and bits as one frame at a time, the arithmetic of runs of
+        frames fitted alike done together (:mod:`estimator.fitted_runs`); what
+        remembers earlier frames (the residual baseline, the elastic-mode window, the
+        smoothed noise, the relinearisations) runs frame by frame in stream order.
         """
         outcomes: list[FrameOutcome | None] = [None] * len(frames)
         elastic_before = self.elastic
@@ -144,35 +138,21 @@ class InertiaEstimator:
                 self.stats.skipped += 1
                 outcomes[i] = FrameOutcome(frame.time_s, frame.rpm, (), {}, "overlapping", {})
                 continue
-            reason = frame_gate(frame, self.setup.gates)
-            if reason is not None:
-                outcomes[i] = self._reject(frame, reason)
-            else:
+            if (reason := frame_gate(frame, self.setup.gates)) is None:
                 gated.append(i)
+            else:
+                outcomes[i] = self._reject(frame, reason)
         screened = self.channels.screen([frames[i] for i in gated])
-        todo = [(i, *s) for i, s in zip(gated, screened, strict=True)]
+        todo = [Screened(i, *s) for i, s in zip(gated, screened, strict=True)]
         at = 0
         while at < len(todo):
-            i, used = todo[at][:2]
-            reason, fit = self.channels.choose(used)
+            reason, fit = self.channels.choose(todo[at].used)
             if reason is not None:
-                outcomes[i] = self._reject(frames[i], reason)
+                outcomes[todo[at].position] = self._reject(frames[todo[at].position], reason)
                 at += 1
                 continue
             assert fit is not None
-            # the run of frames fitted alike: the same channels and orders
-            end = at + 1
-            key = (used.tobytes(), tuple(frames[i].orders))
-            while (
-                end < len(todo)
-                and (
-                    todo[end][1].tobytes(),
-                    tuple(frames[todo[end][0]].orders),
-                )
-                == key
-            ):
-                end += 1
-            at += self._fit_run(frames, todo[at:end], fit, outcomes)
+            at += self._fit_run(frames, todo[at : run_end(frames, todo, at)], fit, outcomes)
         self.channels.channel_noise.release(self.channels.channel_noise.estimates)
         if elastic_before is None and self.elastic is not None and frames:
             self._events.append(elastic_mode_event(self.elastic, frames[-1].time_s))
@@ -181,78 +161,33 @@ class InertiaEstimator:
     def _fit_run(
         self,
         frames: Sequence[FrameLike],
-        run: list[tuple[int, np.ndarray, np.ndarray, Any, int]],
+        run: list[Screened],
         fit: RigidFit,
         outcomes: list[FrameOutcome | None],
     ) -> int:
-        """Fit, gate and queue a run of screened frames (index, used channels, their
-        columns, channel noise variance and estimate count) with the same channels and orders, ``fit``
-        the geometry of the first; returns how many were done: all, or those up to a
-        relinearisation that changed the channel weights (the rest are fitted anew)."""
-        setup = self.setup
-        index = [r[0] for r in run]
-        first = frames[index[0]]
-        orders = np.asarray(first.orders, dtype=float)
-        readings = np.stack([frames[i].amplitudes[:, c[u]] for i, u, c, _, _ in run])  # (n, k, u)
-        x, residual_rms, relative, noise_var = fit.fit_arrays(readings)
-        motions = fit.motions(x, residual_rms, relative, noise_var)
-        powers = np.mean(readings.real**2 + readings.imag**2, axis=2)  # (n, k)
-        run_frames = [frames[i] for i in index]
+        """Fit, gate and queue a run of frames fitted alike with ``fit``; returns how many
+        were done: all, or those up to a relinearisation that changed the channel
+        weights (the rest are fitted anew)."""
         history = self.gates.motion_history.copy()
-        bends = self.gates.curvature(run_frames, orders, motions, fit)
-        rpm = np.array([f.rpm for f in run_frames], dtype=float)
-        force, moment = zip(*(setup.excitation(f.rpm, orders) for f in run_frames), strict=True)
-        force_a, moment_a = np.stack(force), np.stack(moment)
-        gas: list[np.ndarray | None] = [None] * len(run)
-        if setup.gas_moment is not None:
-            for j, f in enumerate(run_frames):
-                spectrum = getattr(f, "spectrum", None)
-                if spectrum is not None and np.all(np.isfinite(spectrum)):
-                    gas[j] = setup.gas_moment(orders, spectrum)
-                    moment_a[j] = moment_a[j] + gas[j]
-        why, floor = self.gates.screen_orders(rpm, orders, force_a, moment_a, bends, powers)
-        mean, q = noise_levels_many(fit, [r[3] for r in run])
-        share, beyond = excess_many(relative, noise_var, fit, mean, q)
-        order_list = orders.tolist()
+        r = fit_run(self.setup, self.gates, fit, frames, run)
+        order_list = r.orders.tolist()
         generation = self.channels.generation
-        for j, i in enumerate(index):
-            frame = frames[i]
+        for j, i in enumerate(r.index):
             if j:
-                _, again = self.channels.choose(run[j][1])  # counts a missing sensor's frames
+                _, again = self.channels.choose(run[j].used)  # counts a missing sensor's frames
                 assert again is fit, "a run's geometry changed without a relinearisation"
-            # the channel weights a relinearisation measures: from the frames so far
-            self.channels.channel_noise.release(run[j][4])
-            if setup.gas_moment is not None and gas[j] is None:
-                outcomes[i] = self._reject(frame, "no_pressure")
+            self.channels.channel_noise.release(run[j].estimates)  # weights: frames so far
+            if self.setup.gas_moment is not None and r.gas[j] is None:
+                outcomes[i] = self._reject(frames[i], "no_pressure")
                 continue
-            rejected, residuals, ks = self.gates.judge(
-                frame.rpm,
-                order_list,
-                why[j].tolist(),
-                relative[j].tolist(),
-                share[j].tolist(),
-                beyond[j].tolist(),
-            )
-            outcomes[i] = self._use(
-                frame,
-                fit,
-                motions[j],
-                orders,
-                readings[j],
-                powers[j],
-                force_a[j],
-                moment_a[j],
-                gas[j],
-                floor[j],
-                rejected,
-                residuals,
-                ks,
-            )
+            judged = self.gates.judge(frames[i].rpm, order_list, *r.gate_inputs(j))
+            outcomes[i] = self._use(frames[i], fit, r, j, judged)
             if self.channels.generation != generation and j + 1 < len(run):
                 # the next frames are fitted with the new weights: the curvature
                 # history must hold this run's motions only up to here
                 self.gates.motion_history = history
-                self.gates.curvature(run_frames[: j + 1], orders, motions[: j + 1], fit)
+                done = [frames[k] for k in r.index[: j + 1]]
+                self.gates.curvature(done, r.orders, r.motions[: j + 1], fit)
                 return j + 1
         return len(run)
 
@@ -262,41 +197,19 @@ class InertiaEstimator:
         return events
 
     def _use(
-        self,
-        frame: FrameLike,
-        fitter: RigidFit,
-        motion: RigidMotion,
-        orders: np.ndarray,
-        readings: np.ndarray,
-        power: np.ndarray,
-        force: np.ndarray,
-        moment: np.ndarray,
-        gas: np.ndarray | None,
-        floor: np.ndarray,
-        rejected: dict[float, str],
-        residuals: dict[float, float],
-        ks: list[int],
+        self, frame: FrameLike, fitter: RigidFit, run: FittedRun, j: int, judged: Judged
     ) -> FrameOutcome:
-        """Queue a gated frame's usable orders ``ks`` (``rejected``: why the others
-        were not), and relinearise when due."""
+        """Queue the usable orders of frame ``j`` of a fitted run (``judged``: the order
+        gates' verdict, :meth:`OrderGates.judge`), and relinearise when due."""
+        rejected, residuals, ks = judged
         for why in rejected.values():
             self.stats.orders_rejected[why] += 1
         if not ks:
             counts = Counter(rejected.values())
             return self._reject(frame, counts.most_common(1)[0][0] if counts else "no_orders")
+        motion, orders = run.motions[j], run.orders
         self.queue.add(
-            frame.rpm,
-            self.cycle_unknown,
-            fitter,
-            motion,
-            np.array(ks),
-            orders,
-            readings,
-            power,
-            force,
-            moment,
-            floor,
-            gas,
+            frame.rpm, self.cycle_unknown, fitter, motion, np.array(ks), orders, *run.queued(j)
         )
         # (the sign hypotheses of the fully measured frames: frames with an unseen
         # motion decide their own, see estimator.partial_pairs)
