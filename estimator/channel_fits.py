@@ -82,7 +82,7 @@ class ChannelFits:
         """Why a screened frame's channels cannot be fitted (None when they can) and,
         when they can, the geometry of its used channels (frame by frame: it counts
         how long a sensor has been missing, and the geometry follows the weights)."""
-        if used.sum() < 6:
+        if used.tobytes() not in self._fitters and used.sum() < 6:  # (cached: six or more)
             return "too_few_channels", None
         if (fitter := self.fitter(used)) is None:
             return "sensor_geometry", None

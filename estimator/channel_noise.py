@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import collections
 import functools
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -74,10 +75,14 @@ class ThinnedSample:
         self._seen = 0
 
     def add(self, item: Any) -> None:
+        self.add_made(lambda: item)
+
+    def add_made(self, make: Callable[[], Any]) -> None:
+        """:meth:`add` of ``make()``, called only when the item is kept."""
         self._seen += 1
         if self._seen % self._stride:
             return
-        self.items.append(item)
+        self.items.append(make())
         if len(self.items) >= self.capacity:
             self.items = self.items[::2]
             self._stride *= 2

@@ -139,6 +139,19 @@ def add_frames(
         )
     state, total = acc.state, acc.sens
     lam = forgetting
+    if lam == 1.0:
+        # lam * x is x: the frames' sums added one after the other in stream order, as
+        # numpy's reduction along the first axis adds them (np.add.accumulate: a 1-d
+        # np.sum would add pairwise)
+        return Accumulator(
+            RlsState(
+                info=np.add.reduce(np.concatenate([state.info[None], info]), axis=0),
+                vec=np.add.reduce(np.concatenate([state.vec[None], vec]), axis=0),
+                yty=float(np.add.accumulate(np.concatenate([[state.yty], yty]))[-1]),
+                rows=state.rows + 12 * float(np.sum(sizes)),
+            ),
+            np.add.reduce(np.concatenate([total[None], sens]), axis=0),
+        )
     for f in range(n_f):
         # Lambda <- lam Lambda + H^T H ;  S <- lam S + H^T dr  (rows already whitened)
         state = RlsState(
