@@ -189,8 +189,8 @@ class RigidFit:
         complex, and the residual RMS, relative residual and noise variance
         (n_frames, n_orders) of :class:`RigidMotion`."""
         n_f, n_o, n_ch = amplitudes.shape
-        # one matrix product per frame: a product over all frames' rows at once gives
-        # other bits for other block sizes (the BLAS kernel depends on the row count)
+        # one matrix product per frame, as a frame alone gets it: a product over all
+        # the frames' rows at once may take another BLAS kernel for another row count
         y3 = amplitudes * self.sw
         x3 = np.matmul(y3, self.pinv.T)  # (n_f, n_o, 6)
         resid3 = y3 - np.matmul(x3, self.jw.T)
