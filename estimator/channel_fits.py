@@ -100,9 +100,9 @@ class ChannelFits:
         cols = self._columns_of(frames[0].channels)
         present = cols >= 0
         at = np.where(present, cols, 0)
-        amps = np.stack([f.amplitudes for f in frames])[:, :, at]  # (n, k, n_setup)
+        amps = np.array([f.amplitudes for f in frames])[:, :, at]  # (n, k, n_setup)
         finite = np.isfinite(amps).all(axis=1)
-        ok = np.stack([np.asarray(f.channel_ok, bool) for f in frames])[:, at]
+        ok = np.array([np.asarray(f.channel_ok, bool) for f in frames])[:, at]
         return [(row, cols) for row in present & ok & finite]
 
     def fitter(self, used: np.ndarray) -> RigidFit | None:

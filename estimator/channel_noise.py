@@ -158,7 +158,7 @@ class ChannelNoise:
         for i, d in enumerate(diffs):
             by_k.setdefault(len(d), []).append(i)
         for at in by_k.values():
-            d = np.stack([diffs[i] for i in at])
+            d = np.array([diffs[i] for i in at])
             per_order = (d.real**2 + d.imag**2) / 12.0  # 6 Var per part, two parts
             for i, m in zip(at, np.median(per_order, axis=1), strict=True):
                 medians[i] = m
@@ -216,5 +216,9 @@ def _window_variances(recent: list[np.ndarray]) -> list[np.ndarray]:
     total = stack[:n] + stack[1 : n + 1]
     for j in range(2, RECENT):
         total = total + stack[j : n + j]
-    finite = np.all(np.isfinite(np.lib.stride_tricks.sliding_window_view(stack, RECENT, 0)), -1)
+    # no channel missing in a run: no non-finite estimate between its ends (counts)
+    missing = np.concatenate(
+        [np.zeros((1, stack.shape[1]), int), np.cumsum(~np.isfinite(stack), 0)]
+    )
+    finite = missing[RECENT:] == missing[:n]
     return list(np.where(finite, total / RECENT, np.nan))

@@ -187,7 +187,7 @@ class OrderGates:
         none = np.full((len(orders), 3), np.nan + 0j)
         r0, r1, (w0, w1) = self.motion_history.get(key, (-(10**9), -(10**9), (none, none)))
         seq_rev = np.array([r0, r1] + [revs[j] for j in at])
-        seq_w = np.stack([w0, w1] + [motions[j].omega_dot for j in at])  # (2 + n, k, 3)
+        seq_w = np.array([w0, w1] + [motions[j].omega_dot for j in at])  # (2 + n, k, 3)
         w = seq_w[2:]
         chained = (seq_rev[1:-1] == seq_rev[2:] - 2) & (seq_rev[:-2] == seq_rev[2:] - 4)
         size = np.maximum(np.sqrt(np.sum(w.real**2 + w.imag**2, axis=2)), 1e-300)  # (n, k)
@@ -196,7 +196,7 @@ class OrderGates:
         # what noise alone puts into a second difference of three fits (sqrt 6
         # sigma), sigma from this frame's rigid-fit residual: only the excess bends
         trace = np.array([np.trace(motions[j].cov_unit[3:, 3:]) for j in at])
-        noise = np.stack([motions[j].noise_var for j in at])  # (n, k)
+        noise = np.array([motions[j].noise_var for j in at])  # (n, k)
         sigma = np.sqrt(2 * noise * trace[:, None]) / size
         excess = np.maximum(0.0, bend - 3 * np.sqrt(6.0) * sigma)
         excess = np.where(chained[:, None] & np.isfinite(excess), excess, 0.0)

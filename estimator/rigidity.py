@@ -131,7 +131,7 @@ def noise_levels_many(
         at.append(j)
     if not var_list or var_list[0].shape != fit.sw.shape:
         return mean, q
-    var = np.stack(var_list)  # (m, n_ch)
+    var = np.array(var_list)  # (m, n_ch)
     d = fit.sw**2 * var
     m = fit.residual_projector
     s1 = np.sum(np.diag(m) * d, axis=1)  # sum l = tr(M D), per frame
