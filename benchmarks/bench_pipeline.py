@@ -18,6 +18,10 @@ Prints:
 7. the figures side by side: order tracking, estimator, replay, live with recording, simulator,
    each with the load average when it was taken (CPU figures suffer less from other work than
    wall figures, but not nothing: the cores' caches are shared).
+8. the estimator alone on the 60 s log's frames (issue 24: <= 60 us per used frame), best of
+   three: fed as the blocks replay and studies hand it, and one frame at a time as a live
+   run may, with the share of the row assembly (rows, sensitivities, RLS sums); and the
+   replay of the log again, best of three (>= 300x).
 
 Usage: python benchmarks/bench_pipeline.py [--hours 1.0] [--skip-long]
 """
@@ -252,6 +256,85 @@ def _load() -> str:
     return f"{os.getloadavg()[0]:.1f}"
 
 
+def estimator_alone(log: Path, repeat: int = 3) -> None:
+    """The estimator on the frames of the 60 s log: CPU per used frame, blocks and single
+    frames, best of ``repeat`` (each run from a fresh estimator, published as the pipeline
+    does as fast as possible: an estimate every 0.5 s of stream)."""
+    from acquisition.stream import SourceEvent
+    from ptinertia.pipeline import as_recorded
+    from ptinertia.runner import processing_chain
+    from replay.source import McapSource
+
+    bench, source, _ = _bench(25600.0, 60.0)
+    tracker, _ = processing_chain(bench, source.layout)
+    blocks = []
+    for item in McapSource(log):
+        if not isinstance(item := as_recorded(item), SourceEvent):
+            blocks.append(tracker.feed(item)[0])
+    blocks.append(tracker.finish()[0])
+
+    def once(single: bool) -> tuple[float, float, int]:
+        estimator = processing_chain(bench, source.layout)[1]
+        rows = [0.0]
+        flush = estimator._flush
+
+        def timed_flush() -> None:  # the row assembly and the RLS sums
+            t0 = time.process_time()
+            flush()
+            rows[0] += time.process_time() - t0
+
+        estimator._flush = timed_flush  # type: ignore[method-assign]
+        t0 = time.process_time()
+        _feed(estimator, blocks, single)
+        return time.process_time() - t0, rows[0], estimator.stats.used
+
+    print(f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)")
+    for single in (False, True):
+        best = min((once(single) for _ in range(repeat)), key=lambda r: r[0])
+        cpu, rows, used = best
+        how = "one frame at a time (live)" if single else "in blocks (replay, studies)"
+        print(
+            f"estimator alone, {how}: {1e6 * cpu / used:.0f} us per used frame (CPU, best of "
+            f"{repeat}, {used} frames), of which row assembly and RLS sums {1e6 * rows / used:.0f} us"
+        )
+        if not single:
+            FIGURES["estimator alone, blocks"] = f"{1e6 * cpu / used:.0f} us per used frame (CPU)"
+
+
+def _feed(estimator: Any, blocks: list[list[Any]], single: bool) -> None:
+    published = -float("inf")
+    for frames in blocks:
+        if single:
+            outcomes = [estimator.update(f) for f in frames]
+        else:
+            outcomes = estimator.update_many(frames) if frames else []
+        used = [f for f, o in zip(frames, outcomes, strict=True) if o.reason is None]
+        if used and used[-1].time_s - published >= 0.5:
+            published = used[-1].time_s
+            estimator.estimate(final=False)
+    estimator.estimate()
+
+
+def replay_repeated(log: Path, repeat: int = 3) -> None:
+    """Replay of the 60 s log, best of ``repeat`` (wall and CPU): the replay figure on a
+    shared machine."""
+    from ptinertia.runner import RunOptions, run_source
+    from replay.source import McapSource
+
+    bench, _, text = _bench(25600.0, 60.0)
+    walls, cpus = [], []
+    for _ in range(repeat):
+        t0, c0 = time.perf_counter(), time.process_time()
+        run_source(bench, text, McapSource(log), "sim", RunOptions(quiet=True))
+        walls.append(time.perf_counter() - t0)
+        cpus.append(time.process_time() - c0)
+    print(
+        f"replay, best of {repeat}: {60 / min(walls):.0f}x real time (wall), "
+        f"{60 / min(cpus):.0f}x per CPU second (all threads)"
+    )
+    FIGURES["replay, best of 3"] = f"{60 / min(walls):.0f}x (wall), {60 / min(cpus):.0f}x (CPU)"
+
+
 def cold_start(repeat: int = 3) -> None:
     """``ptinertia run --duration 5`` as a user starts it: wall and CPU of the whole process."""
     exe = Path(sys.executable).parent / "ptinertia"
@@ -359,6 +442,8 @@ def main() -> None:
         stage_budget(log)
         order_tracking()
         study_run()
+        estimator_alone(log)
+        replay_repeated(log)
         cold_start()
         if not a.skip_long:
             long_run(tmp, a.hours)

@@ -10,6 +10,8 @@ taken up at each relinearisation), or equal.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from estimator.channel_noise import ChannelNoise
@@ -42,13 +44,45 @@ class ChannelFits:
         self.weights = setup.channel_weights
         self._measure_weights = setup.corrections.channel_weights and setup.channel_weights is None
         self._unseen_run = 0  # consecutive gated frames fitted with a rotation unseen
+        self.generation = 0  # counts the weight changes (each makes new fit geometries)
 
-    def select(self, frame: FrameLike) -> tuple[str | None, tuple[RigidFit, np.ndarray] | None]:
-        """Why a gated frame's channels cannot be fitted (None when they can) and, when
-        they can, the geometry of its used channels and their readings (k, u) complex."""
-        used, cols = self.channel_mask(frame)
-        self.track_noise(frame, used, cols)
-        if used.sum() < 6:
+    def screen(self, frames: list[FrameLike]) -> list[tuple[np.ndarray, np.ndarray, Any, int]]:
+        """The usable channels of gated frames, their noise tracked: per frame the
+        usable setup channels (bool), their columns in the frame, and the channel
+        noise variance and estimate count as they stand after the frame
+        (:meth:`ChannelNoise.add_many`; release that count before the channel
+        weights may be refreshed, and everything at the end of the block).
+
+        Frames sharing their channels and orders are masked with one array call."""
+        masks: list[tuple[np.ndarray, np.ndarray]] = []
+        start = 0
+        for end in range(1, len(frames) + 1):
+            if end < len(frames) and _same_layout(frames[end], frames[start]):
+                continue
+            masks.extend(self._masks(frames[start:end]))
+            start = end
+        tracked: list[tuple[int, tuple[float, ...], np.ndarray] | None] = []
+        for frame, (used, cols) in zip(frames, masks, strict=True):
+            if (rev := revolution(frame)) is not None:
+                x = np.where(used, frame.amplitudes[:, np.where(used, cols, 0)], np.nan)
+                tracked.append((rev, tuple(frame.orders), x))
+            else:
+                tracked.append(None)
+        noise = self.channel_noise
+        now = (noise.variance(), noise.estimates)  # until the block's first tracked frame
+        variances = iter(noise.add_many([t for t in tracked if t is not None]))
+        after = []
+        for t in tracked:
+            if t is not None:
+                now = next(variances)
+            after.append(now)
+        return [(u, c, v, n) for (u, c), (v, n) in zip(masks, after, strict=True)]
+
+    def choose(self, used: np.ndarray) -> tuple[str | None, RigidFit | None]:
+        """Why a screened frame's channels cannot be fitted (None when they can) and,
+        when they can, the geometry of its used channels (frame by frame: it counts
+        how long a sensor has been missing, and the geometry follows the weights)."""
+        if used.tobytes() not in self._fitters and used.sum() < 6:  # (cached: six or more)
             return "too_few_channels", None
         if (fitter := self.fitter(used)) is None:
             return "sensor_geometry", None
@@ -58,20 +92,18 @@ class ChannelFits:
             self._unseen_run += 1
             if self._unseen_run < UNSEEN_AFTER_FRAMES:
                 return "sensor_geometry", None
-        return None, (fitter, frame.amplitudes[:, cols[used]])
+        return None, fitter
 
-    def channel_mask(self, frame: FrameLike) -> tuple[np.ndarray, np.ndarray]:
-        """Usable setup channels (bool) and, per setup channel, its column in the frame."""
-        cols = self._columns.get(frame.channels)
-        if cols is None:
-            index = {c: i for i, c in enumerate(frame.channels)}
-            cols = np.array([index.get(name, -1) for name in self.setup.channels])
-            self._columns[frame.channels] = cols
+    def _masks(self, frames: list[FrameLike]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Usable setup channels (bool: present, flagged good, finite) and, per setup
+        channel, its column in the frame, of frames with the same channels and orders."""
+        cols = self._columns_of(frames[0].channels)
         present = cols >= 0
         at = np.where(present, cols, 0)
-        finite = np.isfinite(frame.amplitudes[:, at]).all(axis=0)
-        ok = present & np.asarray(frame.channel_ok, bool)[at] & finite
-        return ok, cols
+        amps = np.array([f.amplitudes for f in frames])[:, :, at]  # (n, k, n_setup)
+        finite = np.isfinite(amps).all(axis=1)
+        ok = np.array([np.asarray(f.channel_ok, bool) for f in frames])[:, at]
+        return [(row, cols) for row in present & ok & finite]
 
     def fitter(self, used: np.ndarray) -> RigidFit | None:
         """The geometry decomposition of these channels (None: degenerate), cached per mask."""
@@ -87,13 +119,14 @@ class ChannelFits:
                 self._fitters[key] = None
         return self._fitters[key]
 
-    def track_noise(self, frame: FrameLike, used: np.ndarray, cols: np.ndarray) -> None:
-        """Add a gated frame's amplitudes to the channel noise estimate (its level is
-        the rigidity gate's reference, its ratios the weights when measured)."""
-        if (rev := revolution(frame)) is None:
-            return
-        x = np.where(used, frame.amplitudes[:, np.where(used, cols, 0)], np.nan)
-        self.channel_noise.add(rev, tuple(frame.orders), x)
+    def _columns_of(self, channels: tuple[str, ...]) -> np.ndarray:
+        """Per setup channel, its column among ``channels`` (-1: absent), cached."""
+        cols = self._columns.get(channels)
+        if cols is None:
+            index = {c: i for i, c in enumerate(channels)}
+            cols = np.array([index.get(name, -1) for name in self.setup.channels])
+            self._columns[channels] = cols
+        return cols
 
     def refresh_weights(self) -> None:
         """Weigh the channels by their measured noise from now on (new frames' fits)."""
@@ -105,9 +138,15 @@ class ChannelFits:
         if self.weights is None or np.max(np.abs(np.log(w / self.weights))) > WEIGHT_CHANGE:
             self.weights = w
             self._fitters.clear()
+            self.generation += 1
 
     def measured_weights(self) -> dict[str, float] | None:
         """The channels' weights in the rigid fit when measured from their noise, by name."""
         if not self._measure_weights or self.weights is None:
             return None
         return dict(zip(self.setup.channels, self.weights.tolist(), strict=True))
+
+
+def _same_layout(a: FrameLike, b: FrameLike) -> bool:
+    """The two frames' amplitudes have the same channels and orders count."""
+    return a.channels == b.channels and a.amplitudes.shape == b.amplitudes.shape

@@ -33,7 +33,9 @@ kept ones stay spread over the whole sweep.
 
 from __future__ import annotations
 
+import collections
 import functools
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -73,10 +75,14 @@ class ThinnedSample:
         self._seen = 0
 
     def add(self, item: Any) -> None:
+        self.add_made(lambda: item)
+
+    def add_made(self, make: Callable[[], Any]) -> None:
+        """:meth:`add` of ``make()``, called only when the item is kept."""
         self._seen += 1
         if self._seen % self._stride:
             return
-        self.items.append(item)
+        self.items.append(make())
         if len(self.items) >= self.capacity:
             self.items = self.items[::2]
             self._stride *= 2
@@ -101,34 +107,86 @@ class ChannelNoise:
         self._history: dict[tuple[Any, ...], tuple[int, np.ndarray, int, np.ndarray]] = {}
         self._kept = ThinnedSample(CAPACITY)  # per-frame variance estimates along the sweep
         self._recent: list[np.ndarray] = []  # the last RECENT bias-corrected estimates
+        # estimates of a block not in _kept yet: a block's later frames must not weigh
+        # the channels of a relinearisation at one of its earlier frames (release)
+        self._held: collections.deque[np.ndarray] = collections.deque()
+        self.estimates = 0  # per-frame estimates made so far
+        self._released = 0  # of which in _kept
+        self._variance: np.ndarray | None = None  # variance(), kept as _recent changes
 
     def add(self, revolution: int, orders: tuple[float, ...], amplitudes: np.ndarray) -> None:
         """One frame: its revolution number (frames 720 deg apart differ by 2) and its
         (k, n_channels) complex amplitudes, NaN for channels it lacks."""
-        key = (orders, revolution % 2)
-        last = self._history.get(key)
-        x = np.asarray(amplitudes, complex)
-        if last is not None:
+        self.add_many([(revolution, orders, np.asarray(amplitudes, complex))])
+        self.release(self.estimates)
+
+    def release(self, upto: int) -> None:
+        """Let the first ``upto`` per-frame estimates count in :meth:`weights`."""
+        while self._released < upto:
+            self._kept.add(self._held.popleft())
+            self._released += 1
+
+    def add_many(
+        self, frames: list[tuple[int, tuple[float, ...], np.ndarray]]
+    ) -> list[tuple[np.ndarray | None, int]]:
+        """:meth:`add` for consecutive frames, (revolution, orders, amplitudes) each, the
+        medians of all frames taken in one call; returns :meth:`variance` as it stands
+        after each frame (the same arrays, bit for bit, as adding one at a time), and
+        ``estimates`` then. The frames' estimates count in :meth:`weights` once
+        released (:meth:`release`)."""
+        prior = self.variance()
+        made = self.estimates
+        chained: list[int] = []  # frames with a second difference, in order
+        diffs: list[np.ndarray] = []
+        for j, (revolution, orders, x) in enumerate(frames):
+            key = (orders, revolution % 2)
+            last = self._history.get(key)
+            if last is None:
+                self._history[key] = (revolution - 10**6, x, revolution, x)
+                continue
             r0, x0, r1, x1 = last
             if r1 == revolution - 2 and r0 == revolution - 4:
-                d = x - 2 * x1 + x0
-                per_order = (d.real**2 + d.imag**2) / 12.0  # 6 Var per part, two parts
-                median = np.median(per_order, axis=0)
-                self._kept.add(median)
-                self._recent = [*self._recent[-(RECENT - 1) :], median / median_bias(len(x))]
+                diffs.append(x - 2 * x1 + x0)
+                chained.append(j)
             self._history[key] = (r1, x1, revolution, x)
-        else:
-            self._history[key] = (revolution - 10**6, x, revolution, x)
+        out: list[tuple[np.ndarray | None, int]] = []
+        if not chained:
+            return [(prior, made)] * len(frames)
+        # frames of one block track the same orders: one median call per order count
+        medians: dict[int, np.ndarray] = {}
+        by_k: dict[int, list[int]] = {}
+        for i, d in enumerate(diffs):
+            by_k.setdefault(len(d), []).append(i)
+        for at in by_k.values():
+            d = np.array([diffs[i] for i in at])
+            per_order = (d.real**2 + d.imag**2) / 12.0  # 6 Var per part, two parts
+            for i, m in zip(at, np.median(per_order, axis=1), strict=True):
+                medians[i] = m
+        before = len(self._recent)
+        self.estimates += len(chained)
+        for i in range(len(chained)):
+            self._held.append(medians[i])
+            self._recent.append(medians[i] / median_bias(len(diffs[i])))
+        windows = _window_variances(self._recent[max(before - RECENT + 1, 0) :])
+        self._recent = self._recent[-RECENT:]
+        if windows:
+            self._variance = windows[-1]
+        # the variance after each frame: the window ending at its latest estimate
+        now = prior
+        first = RECENT - 1 - min(before, RECENT - 1)  # first new estimate with a full window
+        step = 0
+        for j in range(len(frames)):
+            if step < len(chained) and chained[step] == j:
+                now = windows[step - first] if step >= first else None
+                step += 1
+            out.append((now, made + step))
+        return out
 
     def variance(self) -> np.ndarray | None:
         """(n_channels,) the current noise variance of the real (and of the imaginary)
         part of an order amplitude, (m/s^2)^2, NaN for a channel not measured lately
         (None until ``RECENT`` frames have been measured)."""
-        if len(self._recent) < RECENT:
-            return None
-        stack = np.array(self._recent)
-        with np.errstate(invalid="ignore"):
-            return np.where(np.all(np.isfinite(stack), axis=0), np.mean(stack, axis=0), np.nan)
+        return self._variance
 
     def weights(self) -> np.ndarray | None:
         """(n_channels,) inverse noise variances, the median channel's 1, within
@@ -145,3 +203,22 @@ class ChannelNoise:
         w = np.ones(self.n_channels)
         w[known] = np.clip(ref / np.maximum(var, 1e-300), 1.0 / MAX_WEIGHT_RATIO, MAX_WEIGHT_RATIO)
         return w
+
+
+def _window_variances(recent: list[np.ndarray]) -> list[np.ndarray]:
+    """The mean of each run of ``RECENT`` consecutive estimates of ``recent``, NaN for a
+    channel missing in one of them: summed in stream order, as ``np.mean(axis=0)`` of
+    each run sums it (so one frame at a time and a block give the same bits)."""
+    if len(recent) < RECENT:
+        return []
+    stack = np.array(recent)  # (m, n_channels)
+    n = len(recent) - RECENT + 1
+    total = stack[:n] + stack[1 : n + 1]
+    for j in range(2, RECENT):
+        total = total + stack[j : n + j]
+    # no channel missing in a run: no non-finite estimate between its ends (counts)
+    missing = np.concatenate(
+        [np.zeros((1, stack.shape[1]), int), np.cumsum(~np.isfinite(stack), 0)]
+    )
+    finite = missing[RECENT:] == missing[:n]
+    return list(np.where(finite, total / RECENT, np.nan))

@@ -28,6 +28,13 @@ TACHO_FLAGS = frozenset({"no_tacho", "tacho_resync", "angle_ambiguous", "angle_r
 ELASTIC_WINDOW = 5
 ELASTIC_CONFIRM = 3
 
+# OrderGates.judge: why each rejected order was rejected, every order's relative
+# residual, the indices of the orders that passed
+Judged = tuple[dict[float, str], dict[float, float], list[int]]
+
+# why an order is rejected by the gates that remember nothing (OrderGates.screen_orders)
+ORDER_REASONS = ("", "no_excitation", "near_rigid_modes", "off_mass_line", "neighbour_leakage")
+
 
 class FrameLike(Protocol):
     """The fields of ``dsp.frames.OrderFrame`` the estimator reads."""
@@ -72,74 +79,85 @@ class OrderGates:
             tuple[tuple[float, ...], bytes | None], tuple[int, int, tuple[np.ndarray, np.ndarray]]
         ] = {}
 
-    def judge_orders(
+    def screen_orders(
         self,
-        rpm: float,
+        rpm: np.ndarray,
         orders: np.ndarray,
-        motion: RigidMotion,
         force: np.ndarray,
         moment: np.ndarray,
         curvature: np.ndarray,
         power: np.ndarray,
-        excess: tuple[np.ndarray, np.ndarray] | None = None,
-    ) -> tuple[dict[float, str], dict[float, float], list[int], np.ndarray]:
-        """The order gates of one fitted frame.
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The order gates that remember nothing, for n fitted frames at once.
 
         Parameters
         ----------
-        rpm : the frame's crank speed.
-        orders : (k,) its orders.
-        motion : its fitted rigid motion.
-        force, moment : (k, 3) complex, the excitation per order (N, N m).
-        curvature : (k,) the mass-line curvature (:meth:`curvature`).
-        power : (k,) the fitted channels' mean square readings per order, (m/s^2)^2.
-        excess : (k,) twice, the relative residual less the channel noise's mean and
-            beyond its quantile (:func:`estimator.rigidity.excess_residual`); None:
-            the whole residual.
+        rpm : (n,) the frames' crank speeds.
+        orders : (k,) their orders.
+        force, moment : (n, k, 3) complex, the excitation per order (N, N m).
+        curvature : (n, k) the mass-line curvature (:meth:`curvature`).
+        power : (n, k) the fitted channels' mean square readings per order, (m/s^2)^2.
 
         Returns
         -------
-        rejected : why each rejected order was rejected.
-        residuals : every order's relative rigidity residual.
-        used : the indices of the orders that passed.
-        floor : (k,) the channel variance the dsp errs by near a mode, (m/s^2)^2.
+        why : (n, k) int, the index in ``ORDER_REASONS`` of why each order is
+            rejected (0: not by these gates; :meth:`judge` adds the residual gate).
+        floor : (n, k) the channel variance the dsp errs by near a mode, (m/s^2)^2.
         """
         # Excitation level per order (force times a typical 0.3 m arm, plus moment):
         # an order the engine does not excite carries no information, only noise.
-        level = 0.3 * np.sqrt(np.sum(np.abs(force) ** 2, axis=1)) + np.sqrt(
-            np.sum(np.abs(moment) ** 2, axis=1)
+        level = 0.3 * np.sqrt(np.sum(np.abs(force) ** 2, axis=2)) + np.sqrt(
+            np.sum(np.abs(moment) ** 2, axis=2)
         )
-        excited = level > 1e-6 * max(float(level.max()), 1e-300)
+        excited = level > 1e-6 * np.maximum(level.max(axis=1, keepdims=True), 1e-300)
+        top = self.setup.mode_max_hz
+        if top is None:
+            near = np.zeros(level.shape, dtype=bool)
+        else:
+            near = orders[None, :] * rpm[:, None] / 60.0 < self.setup.gates.min_mode_ratio * top
         max_curvature = self.setup.gates.max_curvature
-        off_line = curvature > max_curvature
         leak_var = neighbour_leakage(orders, curvature, power)
         leaking = leak_var > max_curvature**2 * power
-        rejected: dict[float, str] = {}
-        residuals: dict[float, float] = {}
-        used: list[int] = []
-        share, beyond = (motion.relative_residual,) * 2 if excess is None else excess
-        for k, h in enumerate(orders.tolist()):
-            residuals[h] = float(motion.relative_residual[k])
-            why = (
-                "no_excitation"
-                if not excited[k]
-                else "near_rigid_modes"
-                if self.near_modes(h, rpm)
-                else "off_mass_line"
-                if off_line[k]
-                else "neighbour_leakage"
-                if leaking[k]
-                else self.residual(h, rpm, float(motion.relative_residual[k]), share[k], beyond[k])
-            )
-            if why:
-                rejected[h] = why
-            else:
-                used.append(k)
+        why = np.select(
+            [~excited, near, curvature > max_curvature, leaking], [1, 2, 3, 4], default=0
+        )
         # Near a mode the dsp errs by about the bend of the motion across its window,
         # and by what a bending neighbour leaks in: error floors of the readings, so
         # the intervals carry them.
-        floor = curvature**2 * power + leak_var
-        return rejected, residuals, used, floor
+        return why, curvature**2 * power + leak_var
+
+    def judge(
+        self,
+        rpm: float,
+        orders: list[float],
+        why: list[int],
+        relative: list[float],
+        share: list[float],
+        beyond: list[float],
+    ) -> Judged:
+        """The order gates of one fitted frame, in stream order: those of
+        :meth:`screen_orders` (``why``, one of its rows) and the residual gate.
+
+        ``relative`` is each order's relative rigidity residual, ``share`` and
+        ``beyond`` that less the channel noise's mean and beyond its quantile
+        (:func:`estimator.rigidity.excess_beyond`). Returns why each rejected order
+        was rejected, every order's relative residual, and the orders that passed.
+        """
+        rejected: dict[float, str] = {}
+        residuals: dict[float, float] = {}
+        used: list[int] = []
+        for k, h in enumerate(orders):
+            residuals[h] = relative[k]
+            reason = (
+                ORDER_REASONS[why[k]]
+                if why[k]
+                else self.residual(h, rpm, relative[k], share[k], beyond[k])
+            )
+            if reason:
+                rejected[h] = reason
+            else:
+                used.append(k)
+        return rejected, residuals, used
 
     def curvature(
         self,
@@ -169,7 +187,7 @@ class OrderGates:
         none = np.full((len(orders), 3), np.nan + 0j)
         r0, r1, (w0, w1) = self.motion_history.get(key, (-(10**9), -(10**9), (none, none)))
         seq_rev = np.array([r0, r1] + [revs[j] for j in at])
-        seq_w = np.stack([w0, w1] + [motions[j].omega_dot for j in at])  # (2 + n, k, 3)
+        seq_w = np.array([w0, w1] + [motions[j].omega_dot for j in at])  # (2 + n, k, 3)
         w = seq_w[2:]
         chained = (seq_rev[1:-1] == seq_rev[2:] - 2) & (seq_rev[:-2] == seq_rev[2:] - 4)
         size = np.maximum(np.sqrt(np.sum(w.real**2 + w.imag**2, axis=2)), 1e-300)  # (n, k)
@@ -178,18 +196,13 @@ class OrderGates:
         # what noise alone puts into a second difference of three fits (sqrt 6
         # sigma), sigma from this frame's rigid-fit residual: only the excess bends
         trace = np.array([np.trace(motions[j].cov_unit[3:, 3:]) for j in at])
-        noise = np.stack([motions[j].noise_var for j in at])  # (n, k)
+        noise = np.array([motions[j].noise_var for j in at])  # (n, k)
         sigma = np.sqrt(2 * noise * trace[:, None]) / size
         excess = np.maximum(0.0, bend - 3 * np.sqrt(6.0) * sigma)
         excess = np.where(chained[:, None] & np.isfinite(excess), excess, 0.0)
         out[at] = excess
         self.motion_history[key] = (int(seq_rev[-2]), int(seq_rev[-1]), (seq_w[-2], seq_w[-1]))
         return out
-
-    def near_modes(self, h: float, rpm: float) -> bool:
-        """Order h at ``rpm`` too close to the rigid-body modes for the mass line."""
-        top = self.setup.mode_max_hz
-        return top is not None and h * rpm / 60.0 < self.setup.gates.min_mode_ratio * top
 
     def residual(
         self, h: float, rpm: float, relative: float, share: float, excess: float
@@ -248,13 +261,14 @@ def _leak_matrix(orders: tuple[float, ...]) -> np.ndarray:
 
 
 def neighbour_leakage(orders: np.ndarray, bend: np.ndarray, power: np.ndarray) -> np.ndarray:
-    """(k,) channel variance, (m/s^2)^2, that the bending of the nearby orders leaks
-    into each order (from their relative bend and mean-square readings).
+    """(..., k) channel variance, (m/s^2)^2, that the bending of the nearby orders leaks
+    into each order (from their relative bend and mean-square readings, (..., k)).
 
     Measured on the simulated i3 in 30-60 rpm/s sweeps just above its modes, where
     H1.5 and H1 bend by 2-15 %: the H2 error is 0.3-0.9 times this estimate.
     """
-    return _leak_matrix(tuple(orders.tolist())) @ (bend**2 * power)
+    # one matrix-vector product per frame (as for one frame alone: the same bits)
+    return np.matmul(_leak_matrix(tuple(orders.tolist())), (bend**2 * power)[..., None])[..., 0]
 
 
 def revolution(frame: FrameLike) -> int | None:

@@ -103,6 +103,67 @@ def add_frame(
     return Accumulator(state, sens)
 
 
+def add_frames(
+    acc: Accumulator,
+    H: np.ndarray,
+    y: np.ndarray,
+    dr: np.ndarray,
+    bounds: np.ndarray,
+    forgetting: float = 1.0,
+) -> Accumulator:
+    """:func:`add_frame` for consecutive frames (no redundancy rows): frame f's rows
+    are ``H[bounds[f]:bounds[f + 1]]`` (pairs, 12, n), ``y`` and ``dr`` alike.
+
+    Each frame's products are formed as :func:`add_frame` forms them (the same
+    bits), those of all frames with as many orders in one call, and added to the
+    state in stream order: the per-call overhead of numpy, not the arithmetic,
+    is what a frame costs at these sizes.
+    """
+    n = H.shape[-1]
+    starts = np.asarray(bounds[:-1])
+    sizes = np.diff(bounds)
+    n_f = len(sizes)
+    info, vec = np.empty((n_f, n, n)), np.empty((n_f, n))
+    yty, sens = np.empty(n_f), np.empty((n_f, n, dr.shape[-1]))
+    for k in np.unique(sizes).tolist():
+        fs = np.flatnonzero(sizes == k)
+        pick = (starts[fs][:, None] + np.arange(k)).ravel()
+        Hk, yk = H[pick].reshape(len(fs), 12 * k, n), y[pick].reshape(len(fs), 12 * k)
+        # rls_update's H^T W H and H^T W y, W = 1 (H^T times the weights: a copy)
+        Ht = Hk.transpose(0, 2, 1) * np.ones(12 * k)
+        info[fs] = np.matmul(Ht, Hk)
+        vec[fs] = np.matmul(Ht, yk[:, :, None])[:, :, 0]
+        yty[fs] = np.sum(yk * yk, axis=1)
+        sens[fs] = np.einsum(
+            "fkip,fkis->fps", Hk.reshape(len(fs), k, 12, n), dr[pick].reshape(len(fs), k, 12, -1)
+        )
+    state, total = acc.state, acc.sens
+    lam = forgetting
+    if lam == 1.0:
+        # lam * x is x: the frames' sums added one after the other in stream order, as
+        # numpy's reduction along the first axis adds them (np.add.accumulate: a 1-d
+        # np.sum would add pairwise)
+        return Accumulator(
+            RlsState(
+                info=np.add.reduce(np.concatenate([state.info[None], info]), axis=0),
+                vec=np.add.reduce(np.concatenate([state.vec[None], vec]), axis=0),
+                yty=float(np.add.accumulate(np.concatenate([[state.yty], yty]))[-1]),
+                rows=state.rows + 12 * float(np.sum(sizes)),
+            ),
+            np.add.reduce(np.concatenate([total[None], sens]), axis=0),
+        )
+    for f in range(n_f):
+        # Lambda <- lam Lambda + H^T H ;  S <- lam S + H^T dr  (rows already whitened)
+        state = RlsState(
+            info=lam * state.info + info[f],
+            vec=lam * state.vec + vec[f],
+            yty=lam * state.yty + float(yty[f]),
+            rows=lam * state.rows + 12 * int(sizes[f]),
+        )
+        total = forgetting * total + sens[f]
+    return Accumulator(state, total)
+
+
 def better_sign(rss: dict[int, float]) -> tuple[int, float]:
     """The half-order sign hypothesis with the smaller weighted residual ``rss``, and the
     other's residual over its (infinite when the better one fits exactly)."""

@@ -14,6 +14,7 @@ channel positions: it keeps the columns well scaled.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -159,6 +160,11 @@ class RigidFit:
             redundancy=u_all[:, len(s) :],
         )
 
+    @functools.cached_property
+    def residual_projector(self) -> np.ndarray:
+        """(n_ch, n_ch) ``I - J_w J_w^+``: the weighted readings' part no rigid motion makes."""
+        return np.eye(self.sw.size) - self.jw @ self.pinv
+
     @property
     def rank(self) -> int:
         """How many rigid-body motions the channels determine (6, or 5 with ``null``)."""
@@ -174,11 +180,22 @@ class RigidFit:
         The frames are fitted together (a few array operations for all of them);
         each frame's result depends on its own amplitudes only.
         """
+        return self.motions(*self.fit_arrays(amplitudes))
+
+    def fit_arrays(
+        self, amplitudes: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`fit_many` as arrays: ``[gamma_O, Omega']`` (n_frames, n_orders, 6)
+        complex, and the residual RMS, relative residual and noise variance
+        (n_frames, n_orders) of :class:`RigidMotion`."""
         n_f, n_o, n_ch = amplitudes.shape
+        # one matrix product per frame, as a frame alone gets it: a product over all
+        # the frames' rows at once may take another BLAS kernel for another row count
+        y3 = amplitudes * self.sw
+        x3 = np.matmul(y3, self.pinv.T)  # (n_f, n_o, 6)
+        resid3 = y3 - np.matmul(x3, self.jw.T)
         a = amplitudes.reshape(n_f * n_o, n_ch)
-        y = a * self.sw
-        x = y @ self.pinv.T  # (n_f n_o, 6)
-        resid = y - x @ self.jw.T
+        x, resid = x3.reshape(n_f * n_o, 6), resid3.reshape(n_f * n_o, n_ch)
         dof = max(self.sw.size - self.rank, 1)
         resid_ss = np.sum(resid.real**2 + resid.imag**2, axis=1)
         residual_rms = np.sqrt(resid_ss / dof / self.mean_w)
@@ -186,18 +203,30 @@ class RigidFit:
         with np.errstate(divide="ignore", invalid="ignore"):
             relative = np.where(signal_rms > 0, residual_rms / signal_rms, 0.0)
         noise_var = resid_ss / (2 * dof)
+        shape = (n_f, n_o)
+        return (
+            x.reshape(n_f, n_o, 6),
+            residual_rms.reshape(shape),
+            relative.reshape(shape),
+            noise_var.reshape(shape),
+        )
+
+    def motions(
+        self, x: np.ndarray, residual_rms: np.ndarray, relative: np.ndarray, noise_var: np.ndarray
+    ) -> list[RigidMotion]:
+        """The :class:`RigidMotion` of each frame from :meth:`fit_arrays`."""
         return [
             RigidMotion(
                 origin=self.origin,
-                gamma_o=x[i : i + n_o, :3],
-                omega_dot=x[i : i + n_o, 3:],
+                gamma_o=x[i, :, :3],
+                omega_dot=x[i, :, 3:],
                 cov_unit=self.cov_unit,
-                residual_rms=residual_rms[i : i + n_o],
-                relative_residual=relative[i : i + n_o],
-                noise_var=noise_var[i : i + n_o],
+                residual_rms=residual_rms[i],
+                relative_residual=relative[i],
+                noise_var=noise_var[i],
                 gain=self.gain,
             )
-            for i in range(0, n_f * n_o, n_o)
+            for i in range(len(x))
         ]
 
 

@@ -70,7 +70,7 @@ class MisfitSample:
         """One frame's whitened rows: orders (p,), H (p, 12, n), y (p, 12). They are
         copied: views would keep the whole flush batch they were cut from alive."""
         kept = self._rows.setdefault(sign, ThinnedSample(CAPACITY))
-        kept.add((np.array(orders, float), H.copy(), y.copy()))
+        kept.add_made(lambda: (np.array(orders, float), H.copy(), y.copy()))
 
     def copy_sign(self, src: int, dst: int) -> None:
         """Start hypothesis ``dst`` from ``src``'s sample (the hypotheses split)."""

@@ -94,23 +94,25 @@ class FrameQueue:
         floor = max(1e-16 * float(np.mean(power)), 1e-30)
         redundancy = self._redundancy_raw(fit, motion, readings, ks)
         var = self._noise_var(self._raw_noise_var(motion, ks, redundancy), ks, orders, floor)
-        var = np.maximum(var, dsp_var[ks])
-        h = orders[ks]
+        # every order used (the common case): the frame's arrays as they are, no copies
+        at: slice | np.ndarray = slice(None) if len(ks) == len(orders) else ks
+        var = np.maximum(var, dsp_var[at])
+        h = orders[at]
         self.frames.append(
             PendingFrame(
-                gamma_o=motion.gamma_o[ks],
-                omega_dot=motion.omega_dot[ks],
+                gamma_o=motion.gamma_o[at],
+                omega_dot=motion.omega_dot[at],
                 origin=motion.origin,
                 cov_unit=motion.cov_unit,
                 orders=h,
                 rpm=float(rpm),
-                force=force[ks],
-                moment=moment[ks],
+                force=force[at],
+                moment=moment[at],
                 var=var,
                 fit=fit,
-                amplitudes=readings[ks],
+                amplitudes=readings[at],
                 half=((2 * h) % 2 == 1) & cycle_unknown,
-                measured_moment=None if gas is None else gas[ks],
+                measured_moment=None if gas is None else gas[at],
                 redundancy=redundancy,
             )
         )
@@ -151,11 +153,12 @@ class FrameQueue:
         """Per-order channel noise variance, smoothed over frames (3 dof per frame is noisy),
         floored so noise-free data keep finite weights."""
         out = []
-        for k in ks:
+        smoothed = self.noise_var
+        for k in ks.tolist():
             h = float(orders[k])
             raw = float(raw_var[k])
-            var = 0.8 * self.noise_var[h] + 0.2 * raw if h in self.noise_var else raw
-            self.noise_var[h] = var
+            var = 0.8 * smoothed[h] + 0.2 * raw if h in smoothed else raw
+            smoothed[h] = var
             out.append(max(var, floor))
         return np.array(out)
 

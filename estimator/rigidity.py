@@ -59,7 +59,7 @@ def noise_quantile(fit: RigidFit, variance: np.ndarray) -> tuple[float, float, f
     dof : the effective degrees of freedom ``h`` (``2 (n - rank)`` when the weights
         are the inverse noise variances).
     """
-    m = np.eye(fit.sw.size) - fit.jw @ fit.pinv  # the weighted residual projector
+    m = fit.residual_projector
     d = fit.sw**2 * np.asarray(variance, float)
     s1 = float(np.sum(np.diag(m) * d))  # sum l = tr(M D)
     s2 = float(np.sum(m**2 * np.outer(d, d)))  # sum l^2 = tr(M D M D)
@@ -108,6 +108,62 @@ def excess_beyond(
     def beyond(c: float) -> np.ndarray:
         with np.errstate(divide="ignore", invalid="ignore"):
             return rel * np.sqrt(np.where(rss > c, 1.0 - c / rss, 0.0))
+
+    return beyond(mean), beyond(q)
+
+
+def noise_levels_many(
+    fit: RigidFit, variances: list[np.ndarray | None]
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`noise_levels` of the frames fitted with ``fit``, one channel noise
+    ``variance`` per frame (frames in a row often share one: each distinct one is
+    done once): (n,) means and (n,) quantiles, NaN where the noise is unknown."""
+    mean, q = np.full(len(variances), np.nan), np.full(len(variances), np.nan)
+    rows: dict[int, int] = {}  # id of a variance -> its row in ``var``
+    var_list: list[np.ndarray] = []
+    at: list[int] = []
+    for j, v in enumerate(variances):
+        if v is None:
+            continue
+        if id(v) not in rows:
+            rows[id(v)] = len(var_list)
+            var_list.append(np.asarray(v, float) if fit.channels is None else v[fit.channels])
+        at.append(j)
+    if not var_list or var_list[0].shape != fit.sw.shape:
+        return mean, q
+    var = np.array(var_list)  # (m, n_ch)
+    d = fit.sw**2 * var
+    m = fit.residual_projector
+    s1 = np.sum(np.diag(m) * d, axis=1)  # sum l = tr(M D), per frame
+    # sum l^2 = tr(M D M D), each summed as one frame's (n_ch, n_ch) array is
+    s2 = np.sum((m**2 * (d[:, :, None] * d[:, None, :])).reshape(len(d), -1), axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        g, h = s2 / s1, 2.0 * s1**2 / s2
+        some = (s1 > 0) & (s2 > 0)
+        q_all = np.where(some, g * 2.0 * gammainccinv(h / 2.0, 1.0 - NOISE_QUANTILE), 0.0)
+    mean_all = np.where(some, 2.0 * s1, 0.0)
+    known = np.all(np.isfinite(var), axis=1)
+    pick = np.array([rows[id(variances[j])] for j in at])
+    mean[at] = np.where(known[pick], mean_all[pick], np.nan)
+    q[at] = np.where(known[pick], q_all[pick], np.nan)
+    return mean, q
+
+
+def excess_many(
+    relative: np.ndarray, noise_var: np.ndarray, fit: RigidFit, mean: np.ndarray, q: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`excess_beyond` of n frames fitted with ``fit``: their (n, k) relative
+    residuals and noise variances, the (n,) noise levels of :func:`noise_levels_many`
+    (NaN: unknown, the whole residual)."""
+    dof = max(fit.sw.size - fit.rank, 1)
+    rss = 2.0 * dof * noise_var  # noise_var = rss / (2 dof)
+    known = np.isfinite(mean)[:, None]
+
+    def beyond(c: np.ndarray) -> np.ndarray:
+        c = c[:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            part = relative * np.sqrt(np.where(rss > c, 1.0 - c / rss, 0.0))
+        return np.where(known, part, relative)
 
     return beyond(mean), beyond(q)
 

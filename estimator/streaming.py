@@ -35,23 +35,24 @@ from estimator.equations import (
     parameter_scale,
     relinearise_due,
 )
-from estimator.gating import FrameLike, OrderGates, frame_gate, overlaps_previous
+from estimator.fitted_runs import FittedRun, Screened, fit_run, run_end
+from estimator.gating import FrameLike, Judged, OrderGates, frame_gate, overlaps_previous
 from estimator.hypotheses import (
     DECIDE_AFTER_FRAMES,
     DECIDE_RATIO,
     Accumulator,
     add_frame,
+    add_frames,
     better_sign,
     half_order_report,
 )
-from estimator.kinematics import RigidFit, RigidMotion
+from estimator.kinematics import RigidFit
 from estimator.misfit import MisfitSample, misfit_report, misfits
 from estimator.outcome import FrameOutcome
 from estimator.partial_pairs import PartialPairs
 from estimator.pending_rows import FrameQueue, PendingFrame, RowAssembler
 from estimator.redundancy import calibrated_names
 from estimator.result import Estimate, EstimatorStats, build_estimate
-from estimator.rigidity import excess_beyond, noise_levels
 from estimator.rls import RlsSolution, RlsState, rls_solve
 from estimator.setup import EstimatorSetup
 from estimator.systematic import systematic_names, systematic_stds
@@ -123,51 +124,72 @@ class InertiaEstimator:
         return self.update_many([frame])[0]
 
     def update_many(self, frames: Sequence[FrameLike]) -> list[FrameOutcome]:
-        """:meth:`update` for consecutive frames, their arithmetic done together.
-
-        The decisions are taken frame by frame in stream order, as :meth:`update`
-        would; only the rigid fits and the curvature gate run on all frames at once
-        (the per-call overhead of numpy dominates at one frame's size).
+        """:meth:`update` for consecutive frames (a block of a replay, a study, a file):
+        the same decisions and bits as one frame at a time, the arithmetic of runs of
+        frames fitted alike done together (:mod:`estimator.fitted_runs`); what
+        remembers earlier frames (the residual baseline, the elastic-mode window, the
+        smoothed noise, the relinearisations) runs frame by frame in stream order.
         """
         outcomes: list[FrameOutcome | None] = [None] * len(frames)
         elastic_before = self.elastic
-        todo: list[tuple[int, RigidFit, np.ndarray]] = []  # (index, geometry, readings)
+        gated: list[int] = []
         for i, frame in enumerate(frames):
             if self.setup.gates.independent_frames and overlaps_previous(frame):
                 self.stats.skipped += 1
                 outcomes[i] = FrameOutcome(frame.time_s, frame.rpm, (), {}, "overlapping", {})
                 continue
-            reason = frame_gate(frame, self.setup.gates)
-            if reason is None:
-                reason, fitted = self.channels.select(frame)
-            if reason is not None:
+            if (reason := frame_gate(frame, self.setup.gates)) is None:
+                gated.append(i)
+            else:
                 outcomes[i] = self._reject(frame, reason)
+        screened = self.channels.screen([frames[i] for i in gated])
+        todo = [Screened(i, *s) for i, s in zip(gated, screened, strict=True)]
+        at = 0
+        while at < len(todo):
+            reason, fit = self.channels.choose(todo[at].used)
+            if reason is not None:
+                outcomes[todo[at].position] = self._reject(frames[todo[at].position], reason)
+                at += 1
                 continue
-            assert fitted is not None
-            todo.append((i, *fitted))
-
-        # Fit runs of consecutive frames with the same channels and orders together.
-        def same_fit(item: tuple[int, RigidFit, np.ndarray]) -> tuple[int, tuple[float, ...]]:
-            return id(item[1]), tuple(frames[item[0]].orders)
-
-        # the channel noise only moves while frames are selected (above): one level per fit
-        variance = self.channels.channel_noise.variance()
-        for _, group in itertools.groupby(todo, key=same_fit):
-            run = list(group)
-            first_index, fit, _ = run[0]
-            levels = noise_levels(fit, variance)
-            readings = np.stack([r for _, _, r in run])  # (n, k, u)
-            motions = fit.fit_many(readings)
-            powers = np.mean(readings.real**2 + readings.imag**2, axis=2)  # (n, k)
-            orders = np.asarray(frames[first_index].orders, dtype=float)
-            bends = self.gates.curvature([frames[i] for i, _, _ in run], orders, motions, fit)
-            for j, (i, fitter, r) in enumerate(run):
-                outcomes[i] = self._use(
-                    frames[i], fitter, motions[j], orders, r, powers[j], bends[j], levels
-                )
+            assert fit is not None
+            at += self._fit_run(frames, todo[at : run_end(frames, todo, at)], fit, outcomes)
+        self.channels.channel_noise.release(self.channels.channel_noise.estimates)
         if elastic_before is None and self.elastic is not None and frames:
             self._events.append(elastic_mode_event(self.elastic, frames[-1].time_s))
         return [o for o in outcomes if o is not None]
+
+    def _fit_run(
+        self,
+        frames: Sequence[FrameLike],
+        run: list[Screened],
+        fit: RigidFit,
+        outcomes: list[FrameOutcome | None],
+    ) -> int:
+        """Fit, gate and queue a run of frames fitted alike with ``fit``; returns how many
+        were done: all, or those up to a relinearisation that changed the channel
+        weights (the rest are fitted anew)."""
+        history = self.gates.motion_history.copy()
+        r = fit_run(self.setup, self.gates, fit, frames, run)
+        order_list = r.orders.tolist()
+        generation = self.channels.generation
+        for j, i in enumerate(r.index):
+            if j:
+                _, again = self.channels.choose(run[j].used)  # counts a missing sensor's frames
+                assert again is fit, "a run's geometry changed without a relinearisation"
+            self.channels.channel_noise.release(run[j].estimates)  # weights: frames so far
+            if self.setup.gas_moment is not None and r.gas[j] is None:
+                outcomes[i] = self._reject(frames[i], "no_pressure")
+                continue
+            judged = self.gates.judge(frames[i].rpm, order_list, *r.gate_inputs(j))
+            outcomes[i] = self._use(frames[i], fit, r, j, judged)
+            if self.channels.generation != generation and j + 1 < len(run):
+                # the next frames are fitted with the new weights: the curvature
+                # history must hold this run's motions only up to here
+                self.gates.motion_history = history
+                done = [frames[k] for k in r.index[: j + 1]]
+                self.gates.curvature(done, r.orders, r.motions[: j + 1], fit)
+                return j + 1
+        return len(run)
 
     def take_events(self) -> list[SourceEvent]:
         """What the estimator has to report since the last call (an elastic mode confirmed)."""
@@ -175,48 +197,19 @@ class InertiaEstimator:
         return events
 
     def _use(
-        self,
-        frame: FrameLike,
-        fitter: RigidFit,
-        motion: RigidMotion,
-        orders: np.ndarray,
-        readings: np.ndarray,
-        power: np.ndarray,
-        curvature: np.ndarray,
-        noise: tuple[float, float] | None,
+        self, frame: FrameLike, fitter: RigidFit, run: FittedRun, j: int, judged: Judged
     ) -> FrameOutcome:
-        """Gate a fitted frame's orders, queue the usable ones (``noise``: noise_levels)."""
-        setup = self.setup
-        force, moment = setup.excitation(frame.rpm, orders)
-        gas = None
-        if setup.gas_moment is not None:
-            spectrum = getattr(frame, "spectrum", None)
-            if spectrum is None or not np.all(np.isfinite(spectrum)):
-                return self._reject(frame, "no_pressure")
-            gas = setup.gas_moment(orders, spectrum)
-            moment = moment + gas
-        excess = excess_beyond(motion, fitter, noise)
-        rejected, residuals, ks, floor = self.gates.judge_orders(
-            frame.rpm, orders, motion, force, moment, curvature, power, excess
-        )
+        """Queue the usable orders of frame ``j`` of a fitted run (``judged``: the order
+        gates' verdict, :meth:`OrderGates.judge`), and relinearise when due."""
+        rejected, residuals, ks = judged
         for why in rejected.values():
             self.stats.orders_rejected[why] += 1
         if not ks:
             counts = Counter(rejected.values())
             return self._reject(frame, counts.most_common(1)[0][0] if counts else "no_orders")
+        motion, orders = run.motions[j], run.orders
         self.queue.add(
-            frame.rpm,
-            self.cycle_unknown,
-            fitter,
-            motion,
-            np.array(ks),
-            orders,
-            readings,
-            power,
-            force,
-            moment,
-            floor,
-            gas,
+            frame.rpm, self.cycle_unknown, fitter, motion, np.array(ks), orders, *run.queued(j)
         )
         # (the sign hypotheses of the fully measured frames: frames with an unseen
         # motion decide their own, see estimator.partial_pairs)
@@ -285,9 +278,13 @@ class InertiaEstimator:
             Ha = with_tail(Hs, f_hz)
             # one update per frame, in stream order: the same sums whatever the batch
             for a, b in itertools.pairwise(bounds):
-                # the frame's redundancy rows (already discounted with the frame's own)
-                own = None if kin is None else (kin[0][a:b], kin[1][a:b], kin[2][a:b])
                 self.misfit.add(sign_, orders[a:b], Hs[a:b], ys[a:b])
+            if kin is None:
+                self.acc[sign_] = add_frames(self.acc[sign_], Ha, ys, drs, bounds, self.forgetting)
+                continue
+            for a, b in itertools.pairwise(bounds):
+                # the frame's redundancy rows (already discounted with the frame's own)
+                own = (kin[0][a:b], kin[1][a:b], kin[2][a:b])
                 self.acc[sign_] = add_frame(
                     self.acc[sign_], Ha[a:b], ys[a:b], drs[a:b], self.forgetting, own
                 )

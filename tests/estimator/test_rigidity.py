@@ -14,7 +14,13 @@ from support.estimator_runs import I3, run
 
 from estimator.channel_noise import RECENT, ChannelNoise, median_bias
 from estimator.kinematics import RigidFit
-from estimator.rigidity import NOISE_QUANTILE, excess_residual, noise_quantile
+from estimator.rigidity import (
+    NOISE_QUANTILE,
+    excess_many,
+    excess_residual,
+    noise_levels_many,
+    noise_quantile,
+)
 
 ORDERS = (1.0, 1.5, 2.0, 3.0, 4.5)
 
@@ -97,3 +103,23 @@ def test_noise_alone_never_confirms_an_elastic_mode(snr_db: float, seed: int) ->
     # before the noise test each of these confirmed "H1.5 non-rigid from 99-106 Hz"
     doc = run(I3, {"noise_snr_db": snr_db, "seed": seed, "duration_s": 15.0})
     assert doc["elastic_mode"] is None
+
+
+def test_the_noise_levels_of_many_frames_are_those_of_each_frame_alone() -> None:
+    # the block path (noise_levels_many, excess_many) against the one-frame reference,
+    # bit for bit: unknown noise (None, a NaN channel), nil noise and measured noise
+    pos, dirs = _geometry()
+    rng = np.random.default_rng(8)
+    fit = RigidFit.of(pos, dirs, rng.uniform(0.5, 2.0, 9)).on_channels(np.arange(9))
+    amps = rng.normal(size=(7, 3, 9)) + 1j * rng.normal(size=(7, 3, 9))
+    measured = rng.uniform(0.1, 2.0, 9)
+    missing = measured.copy()
+    missing[4] = np.nan
+    variances = [None, measured, measured, np.zeros(9), missing, 0.01 * measured, None]
+    _, _, relative, noise_var = fit.fit_arrays(amps)
+    share, beyond = excess_many(relative, noise_var, fit, *noise_levels_many(fit, variances))
+    for j, (motion, var) in enumerate(zip(fit.fit_many(amps), variances, strict=True)):
+        one_share, one_beyond = excess_residual(motion, fit, var)
+        assert np.array_equal(share[j], one_share)
+        assert np.array_equal(beyond[j], one_beyond)
+    assert np.any(beyond < relative) and np.any(beyond == relative)

@@ -1,0 +1,125 @@
+"""Runs of frames fitted alike: the streaming estimator's arithmetic for many frames at once.
+
+A block of frames (a replay's chunk, a study's sweep, an acquisition read) holds runs
+of consecutive frames with the same usable channels and orders: one rigid-fit
+geometry serves the whole run. Everything that does not remember earlier frames is
+done here for the whole run in a few array operations (numpy's per-call overhead,
+not the arithmetic, is what a frame costs at these sizes): the rigid fits, the
+mass-line curvature (which remembers, in stream order, the run's own motions), the
+excitation, the noise levels and the order gates that remember nothing. The gates
+that remember, the queue and the relinearisations stay frame by frame in
+:meth:`estimator.streaming.InertiaEstimator.update_many`.
+
+Every array operation here treats each frame alone (elementwise, or one matrix
+product per frame): a frame gets the same bits in a run of one as in a run of fifty.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from estimator.gating import FrameLike, OrderGates
+from estimator.kinematics import RigidFit, RigidMotion
+from estimator.rigidity import excess_many, noise_levels_many
+from estimator.setup import EstimatorSetup
+
+
+class Screened(NamedTuple):
+    """A gated frame with its channels screened (:meth:`estimator.channel_fits.ChannelFits.screen`)."""
+
+    position: int  # its position in the block
+    used: np.ndarray  # (n_setup,) bool, the usable setup channels
+    cols: np.ndarray  # (n_setup,) their columns in the frame
+    variance: Any  # the channel noise variance after the frame (n_setup,), or None
+    estimates: int  # the channel noise's estimate count after the frame
+
+
+def run_end(frames: Sequence[FrameLike], todo: list[Screened], at: int) -> int:
+    """The end of the run starting at ``todo[at]``: the frames after it with the same
+    usable channels and the same orders."""
+    key = (todo[at].used.tobytes(), tuple(frames[todo[at].position].orders))
+    end = at + 1
+    while end < len(todo) and key == (
+        todo[end].used.tobytes(),
+        tuple(frames[todo[end].position].orders),
+    ):
+        end += 1
+    return end
+
+
+@dataclass(frozen=True)
+class FittedRun:
+    """A run's fits and what the gates that remember nothing make of them; the arrays'
+    leading axes are (frame, order)."""
+
+    index: list[int]  # the frames' positions in the block
+    orders: np.ndarray  # (k,)
+    readings: np.ndarray  # (n, k, u) complex, the fitted channels' amplitudes, m/s^2
+    motions: list[RigidMotion]
+    power: np.ndarray  # (n, k) the readings' mean square per order, (m/s^2)^2
+    force: np.ndarray  # (n, k, 3) complex, the excitation force, N
+    moment: np.ndarray  # (n, k, 3) complex, the excitation moment with the gas's, N m
+    gas: list[np.ndarray | None]  # (k, 3) the measured gas moment; None without pressure
+    why: np.ndarray  # (n, k) int, OrderGates.screen_orders
+    floor: np.ndarray  # (n, k) the dsp's error floor near a mode, (m/s^2)^2
+    relative: np.ndarray  # (n, k) the relative rigidity residual
+    share: np.ndarray  # (n, k) that less the channel noise's mean
+    beyond: np.ndarray  # (n, k) that beyond the channel noise's quantile
+
+    def gate_inputs(self, j: int) -> tuple[list[int], list[float], list[float], list[float]]:
+        """Frame ``j``'s rows of ``why``, ``relative``, ``share``, ``beyond``, as the
+        residual gate takes them (:meth:`estimator.gating.OrderGates.judge`)."""
+        return (
+            self.why[j].tolist(), self.relative[j].tolist(), self.share[j].tolist(),
+            self.beyond[j].tolist(),
+        )  # fmt: skip
+
+    def queued(self, j: int) -> tuple[Any, ...]:
+        """Frame ``j``'s readings, power, force, moment, floor and gas, as
+        :meth:`estimator.pending_rows.FrameQueue.add` takes them."""
+        return (
+            self.readings[j], self.power[j], self.force[j], self.moment[j], self.floor[j],
+            self.gas[j],
+        )  # fmt: skip
+
+
+def fit_run(
+    setup: EstimatorSetup,
+    gates: OrderGates,
+    fit: RigidFit,
+    frames: Sequence[FrameLike],
+    run: list[Screened],
+) -> FittedRun:
+    """Fit a run of screened frames with ``fit`` and apply the gates that remember
+    nothing (the curvature gate's history takes the run's motions)."""
+    index = [s.position for s in run]
+    run_frames = [frames[i] for i in index]
+    orders = np.asarray(run_frames[0].orders, dtype=float)
+    readings = np.stack(
+        [f.amplitudes[:, s.cols[s.used]] for f, s in zip(run_frames, run, strict=True)]
+    )
+    x, residual_rms, relative, noise_var = fit.fit_arrays(readings)
+    motions = fit.motions(x, residual_rms, relative, noise_var)
+    power = np.mean(readings.real**2 + readings.imag**2, axis=2)
+    bends = gates.curvature(run_frames, orders, motions, fit)
+    rpm = np.array([f.rpm for f in run_frames], dtype=float)
+    excitation = [setup.excitation(f.rpm, orders) for f in run_frames]
+    force, moment = np.stack([f for f, _ in excitation]), np.stack([m for _, m in excitation])
+    gas: list[np.ndarray | None] = [None] * len(run)
+    if setup.gas_moment is not None:
+        for j, f in enumerate(run_frames):
+            spectrum = getattr(f, "spectrum", None)
+            if spectrum is not None and np.all(np.isfinite(spectrum)):
+                gas[j] = setup.gas_moment(orders, spectrum)
+                moment[j] = moment[j] + gas[j]
+    why, floor = gates.screen_orders(rpm, orders, force, moment, bends, power)
+    mean, q = noise_levels_many(fit, [s.variance for s in run])
+    share, beyond = excess_many(relative, noise_var, fit, mean, q)
+    return FittedRun(
+        index, orders, readings, motions, power, force, moment, gas, why, floor,
+        relative, share, beyond,
+    )  # fmt: skip
