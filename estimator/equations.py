@@ -11,10 +11,16 @@ with the known excitation ``F_exc``, ``M_R`` (moment about the fixed point R),
 mount reactions ``f_i = -K_i u_i = K_i gamma_i / W^2`` (complex stiffness,
 ``u_i = -gamma_i / W^2``), gyroscopic term ``Omega x H = (J / (i h)) Omega' x s``
 (``Omega = Omega' / (i W)``, ``H = J w s``) and, at h = 1 only, the residual
-static unbalance ``F_unb = w^2 z (c - i t)``, ``z = m r exp(-i beta)``.
+unbalance of the crank: the static part ``F_unb = w^2 z (c - i t)``,
+``z = m r exp(-i beta)``, acting at ``P_u`` (``setup.unbalance_point``, on the
+crank axis), and the couple part ``i w^2 q (c - i t)`` (kg m^2). A point
+unbalance z at ``a`` m along s from ``P_u`` is the static part z at ``P_u`` and
+the couple ``a s x F_unb = i w^2 (a z) (c - i t)`` (``s x (c - i t) = i (c - i
+t)``), so q = a z; a two-plane (dynamic) unbalance adds a q of any phase. Both
+are linear: the location is ``a = Re(q conj z) / |z|^2`` (:mod:`estimator.result`).
 
-Unknowns theta: the six inertia terms, G, [z as two reals], [1/m], [crank
-offset d]. Everything is linear in theta except ``G x F_unb`` and the offset;
+Unknowns theta: the six inertia terms, G, [z and q as two reals each], [1/m],
+[crank offset d]. Everything is linear in theta except ``G x F_unb`` and the offset;
 those two are linearised about the current estimate (both are small: a 1 mm
 cog error times a 50 N unbalance force is 5e-5 of a 1000 N m H1 moment).
 With an unknown mass the translation is divided by m and the unknowns become
@@ -58,7 +64,7 @@ class ParameterLayout:
     def names(self) -> tuple[str, ...]:
         names = [*INERTIA_TERMS, "Gx", "Gy", "Gz"]
         if self.unbalance:
-            names += ["unb_re", "unb_im"]
+            names += ["unb_re", "unb_im", "unb_couple_re", "unb_couple_im"]
         if self.mass:
             names += ["inv_mass"]
         if self.offset:
@@ -86,6 +92,8 @@ def parameter_scale(
             scale.append(inertia)
         elif name.startswith("G"):
             scale.append(0.1)
+        elif name.startswith("unb_couple"):
+            scale.append(1e-4)  # 1 g m 0.1 m off P_u, kg m^2 (not divided by m: no force)
         elif name.startswith("unb"):
             scale.append(1e-3 / (mass_nominal if layout.mass else 1.0))
         elif name == "inv_mass":
@@ -105,14 +113,15 @@ class Linearisation:
     inertia: np.ndarray
     mass: float
     mount_scale: np.ndarray | None = None  # (n_mounts,) current stiffness scales; None: 1
+    unbalance: complex = 0j  # current static unbalance parameter (z, or z / m), kg m
 
 
 def linearisation_at(
     layout: ParameterLayout, theta: np.ndarray, observable: np.ndarray, mass: float
 ) -> Linearisation:
     """The linearisation point of an estimate ``theta``: its inertia and cog, its mass
-    (``mass`` where 1/m is not determined or not positive) and its mount stiffness
-    scales (1 where not determined)."""
+    (``mass`` where 1/m is not determined or not positive), its mount stiffness
+    scales (1 where not determined) and its static unbalance (0 where not determined)."""
     if layout.mass and observable[layout.index("inv_mass")]:
         inv = theta[layout.index("inv_mass")]
         if inv > 0:
@@ -121,8 +130,17 @@ def linearisation_at(
     if layout.mount_scales:
         at = [layout.index(f"kscale:{m}") for m in layout.mount_scales]
         scales = np.where(observable[at], theta[at], 1.0)
+    unbalance = 0j
+    if layout.unbalance:
+        at = [layout.index("unb_re"), layout.index("unb_im")]
+        if np.all(observable[at]):
+            unbalance = complex(theta[at[0]], theta[at[1]])
     return Linearisation(
-        cog=theta[6:9].copy(), inertia=inertia_matrix(*theta[:6]), mass=mass, mount_scale=scales
+        cog=theta[6:9].copy(),
+        inertia=inertia_matrix(*theta[:6]),
+        mass=mass,
+        mount_scale=scales,
+        unbalance=unbalance,
     )
 
 
@@ -302,6 +320,14 @@ def frame_rows(
             ht[first, :, ia], ht[first, :, ib] = -col_a, -col_b
             hr[first, :, ia] = -unb_scale * cross(arm, col_a)
             hr[first, :, ib] = -unb_scale * cross(arm, col_b)
+            # G x F_unb about (G0, z0): G x F0 + G0 x F_unb - G0 x F0 (the line above
+            # holds G0 x F_unb): an early row's cog error then costs (G - G0) x (F - F0)
+            f0 = unb_scale * lin.unbalance * col_a  # (n_1, 3)
+            hr[first, :, 6:9] -= skew_batch(f0)
+            yr[first] += cross(lin.cog, f0)
+            # the couple i w^2 q (c - i t) = q_re col_b - q_im col_a, a moment only
+            qa, qb = layout.index("unb_couple_re"), layout.index("unb_couple_im")
+            hr[first, :, qa], hr[first, :, qb] = -col_b, col_a
 
     # d residual / d measurement, complex (n_o, 6, 6) on [gamma_O, Omega'].
     d_c = np.empty((n_o, 6, 6), complex)
