@@ -366,17 +366,3 @@ def frame_rows(
     return FrameRows(
         H=whiten @ H, y=np.einsum("oij,oj->oi", whiten, y), whiten=whiten, d_meas=d_real
     )
-
-
-# The linearised terms (G x F_unb, row weighting) move slowly once a few frames are in:
-# refresh them every few used frames rather than solving after every frame, more
-# often while the estimate still moves (each refresh costs a solve and a row batch).
-RELINEARISE_EVERY = 8
-RELINEARISE_EVERY_LATER = 32
-RELINEARISE_LATER_AFTER = 64
-
-
-def relinearise_due(used: int) -> bool:
-    """True after the used frames at which the linearisation point is refreshed."""
-    every = RELINEARISE_EVERY if used <= RELINEARISE_LATER_AFTER else RELINEARISE_EVERY_LATER
-    return used % every == 1

@@ -33,7 +33,6 @@ from estimator.equations import (
     ParameterLayout,
     linearisation_at,
     parameter_scale,
-    relinearise_due,
 )
 from estimator.gating import FrameLike, OrderGates, frame_gate, overlaps_previous
 from estimator.hypotheses import (
@@ -50,16 +49,12 @@ from estimator.outcome import FrameOutcome
 from estimator.partial_pairs import PartialPairs
 from estimator.pending_rows import FrameQueue, PendingFrame, RowAssembler
 from estimator.redundancy import calibrated_names
+from estimator.relinearise import relinearise, relinearise_due
 from estimator.result import Estimate, EstimatorStats, build_estimate
 from estimator.rigidity import excess_beyond, noise_levels
 from estimator.rls import RlsSolution, RlsState, rls_solve
 from estimator.setup import EstimatorSetup
 from estimator.systematic import systematic_names, systematic_stds
-
-# Gauss-Newton steps on the first used frame before its rows are kept (see
-# InertiaEstimator._settle_first_frame): the harness's 1 cm nominal cog error leaves
-# 1e-8 of the unbalance after one, round-off after two.
-FIRST_FRAME_ITERATIONS = 2
 
 
 class InertiaEstimator:
@@ -232,35 +227,9 @@ class InertiaEstimator:
         # (Counted in used frames, not queued ones: an early flush for a published
         # estimate must not move the relinearisation points.)
         if relinearise_due(self.stats.used):
-            if self.stats.used == 1:
-                self._settle_first_frame()
-            self._flush()
-            self._relinearise()
+            relinearise(self)
         used_orders = tuple(float(orders[k]) for k in ks)
         return FrameOutcome(frame.time_s, frame.rpm, used_orders, rejected, None, residuals, motion)
-
-    def _settle_first_frame(self) -> None:
-        """Linearise the first frame's rows about that frame's own solution.
-
-        Rows stay in the sums all run, linearised where they were built. The first
-        frame's would be linearised about the nominal cog (centimetres off) and no
-        unbalance, and ``(G - G0) x F_unb`` then costs the whole run (0.1 % of a
-        5e-4 kg m unbalance with a 1 cm cog error, 60 frames of the harness). So
-        Gauss-Newton on that frame alone: solve it, move the linearisation point,
-        build its rows again (``FIRST_FRAME_ITERATIONS`` times, the trial sums
-        dropped); the caller then adds them once. Frames of an unseen motion are
-        left to :mod:`estimator.partial_pairs`.
-        """
-        pending = list(self.queue.frames)
-        if not self.layout.unbalance or any(p.fit.null is not None for p in pending):
-            return
-        acc, misfit, equal = dict(self.acc), self.misfit.copy(), self._hypotheses_equal
-        for _ in range(FIRST_FRAME_ITERATIONS):
-            self.queue.frames = list(pending)
-            self._flush()
-            self._relinearise()
-            self.acc, self.misfit, self._hypotheses_equal = dict(acc), misfit.copy(), equal
-        self.queue.frames = pending
 
     def _reject(self, frame: FrameLike, reason: str) -> FrameOutcome:
         self.stats.rejected[reason] += 1
