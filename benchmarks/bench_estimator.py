@@ -15,9 +15,10 @@ Prints:
    modes reported: none may be), the elastic-mode scenario over 6 seeds (confirmed in each),
    and the realistic seeds (no mode, and how many are flagged inconsistent);
 10. ``--only unbalance``: a residual unbalance off the reference point (1 g m at 120 deg,
-   80 mm along the crank): noise-free, and with the realistic errors over N seeds (errors,
+   80 mm along the crank), with ``[estimator] unbalance_location = true``: noise-free,
+   and with the realistic errors over N seeds (errors,
    the unbalance's amplitude, phase and location, and how often each interval holds the
-   truth); the inline 4 with its realistic 0.5 g m over min(N, 10) seeds.
+   truth); the inline 4 with its realistic 0.5 g m over min(N, 10) seeds, located too.
 
 Usage: python benchmarks/bench_estimator.py [--seeds 20] [--jobs 2] [--quick]
        [--only noise|unbalance]
@@ -412,9 +413,12 @@ def unbalance_covered(doc: dict[str, Any]) -> dict[str, bool]:
 
 def unbalance_located(seeds: int, jobs: int, dur: dict[str, Any]) -> None:
     """Part 10: an unbalance off the reference point, located; the inline 4's unbalance."""
-    off = [(I3, {**dur, **OFF_CENTRE}, (), None)]
-    real = [(I3, {**dur, **REALISTIC, **OFF_CENTRE, "seed": s}, (), None) for s in range(seeds)]
-    i4 = [(I4, {**dur, **REALISTIC, "seed": s}, (), None) for s in range(min(seeds, 10))]
+    located = {"unbalance_location": True}  # [estimator] unbalance_location = true
+    off = [(I3, {**dur, **OFF_CENTRE}, (), None, located)]
+    real = [
+        (I3, {**dur, **REALISTIC, **OFF_CENTRE, "seed": s}, (), None, located) for s in range(seeds)
+    ]
+    i4 = [(I4, {**dur, **REALISTIC, "seed": s}, (), None, located) for s in range(min(seeds, 10))]
     docs = map_on_cluster(ClusterSpec(workers=jobs), run_case, off + real + i4)
     clean, real_docs, i4_docs = docs[0], docs[1 : 1 + seeds], docs[1 + seeds :]
     print("== i3, 1 g m unbalance at 120 deg 80 mm along the crank from the reference point")

@@ -57,6 +57,7 @@ class ParameterLayout:
     unbalance: bool
     mass: bool
     offset: bool
+    couple: bool = False  # the unbalance's couple q too (with ``unbalance``)
     mount_scales: tuple[str, ...] = ()  # mounts whose stiffness scale is estimated
     calibrate: tuple[str, ...] = ()  # systematic parameters estimated (sensor gains, alignment)
 
@@ -64,7 +65,9 @@ class ParameterLayout:
     def names(self) -> tuple[str, ...]:
         names = [*INERTIA_TERMS, "Gx", "Gy", "Gz"]
         if self.unbalance:
-            names += ["unb_re", "unb_im", "unb_couple_re", "unb_couple_im"]
+            names += ["unb_re", "unb_im"]
+            if self.couple:
+                names += ["unb_couple_re", "unb_couple_im"]
         if self.mass:
             names += ["inv_mass"]
         if self.offset:
@@ -113,15 +116,14 @@ class Linearisation:
     inertia: np.ndarray
     mass: float
     mount_scale: np.ndarray | None = None  # (n_mounts,) current stiffness scales; None: 1
-    unbalance: complex = 0j  # current static unbalance parameter (z, or z / m), kg m
 
 
 def linearisation_at(
     layout: ParameterLayout, theta: np.ndarray, observable: np.ndarray, mass: float
 ) -> Linearisation:
     """The linearisation point of an estimate ``theta``: its inertia and cog, its mass
-    (``mass`` where 1/m is not determined or not positive), its mount stiffness
-    scales (1 where not determined) and its static unbalance (0 where not determined)."""
+    (``mass`` where 1/m is not determined or not positive) and its mount stiffness
+    scales (1 where not determined)."""
     if layout.mass and observable[layout.index("inv_mass")]:
         inv = theta[layout.index("inv_mass")]
         if inv > 0:
@@ -130,17 +132,8 @@ def linearisation_at(
     if layout.mount_scales:
         at = [layout.index(f"kscale:{m}") for m in layout.mount_scales]
         scales = np.where(observable[at], theta[at], 1.0)
-    unbalance = 0j
-    if layout.unbalance:
-        at = [layout.index("unb_re"), layout.index("unb_im")]
-        if np.all(observable[at]):
-            unbalance = complex(theta[at[0]], theta[at[1]])
     return Linearisation(
-        cog=theta[6:9].copy(),
-        inertia=inertia_matrix(*theta[:6]),
-        mass=mass,
-        mount_scale=scales,
-        unbalance=unbalance,
+        cog=theta[6:9].copy(), inertia=inertia_matrix(*theta[:6]), mass=mass, mount_scale=scales
     )
 
 
@@ -320,14 +313,9 @@ def frame_rows(
             ht[first, :, ia], ht[first, :, ib] = -col_a, -col_b
             hr[first, :, ia] = -unb_scale * cross(arm, col_a)
             hr[first, :, ib] = -unb_scale * cross(arm, col_b)
-            # G x F_unb about (G0, z0): G x F0 + G0 x F_unb - G0 x F0 (the line above
-            # holds G0 x F_unb): an early row's cog error then costs (G - G0) x (F - F0)
-            f0 = unb_scale * lin.unbalance * col_a  # (n_1, 3)
-            hr[first, :, 6:9] -= skew_batch(f0)
-            yr[first] += cross(lin.cog, f0)
-            # the couple i w^2 q (c - i t) = q_re col_b - q_im col_a, a moment only
-            qa, qb = layout.index("unb_couple_re"), layout.index("unb_couple_im")
-            hr[first, :, qa], hr[first, :, qb] = -col_b, col_a
+            if layout.couple:  # i w^2 q (c - i t) = q_re col_b - q_im col_a, a moment only
+                qa, qb = layout.index("unb_couple_re"), layout.index("unb_couple_im")
+                hr[first, :, qa], hr[first, :, qb] = -col_b, col_a
 
     # d residual / d measurement, complex (n_o, 6, 6) on [gamma_O, Omega'].
     d_c = np.empty((n_o, 6, 6), complex)

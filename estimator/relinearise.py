@@ -54,15 +54,17 @@ def relinearise_due(used: int) -> bool:
     return used % every == 1
 
 
-# Gauss-Newton steps on the first used frame before its rows are kept: the harness's
-# 1 cm nominal cog error leaves 1e-8 of the unbalance after one, round-off after two.
-FIRST_FRAME_ITERATIONS = 2
+# Gauss-Newton steps on the first used frame before its rows are kept: with the
+# harness's 1 cm nominal cog error the inertia is 2e-9 off after two, round-off after three.
+FIRST_FRAME_ITERATIONS = 3
 
 
 def relinearise(est: Relinearised) -> None:
     """Add the queued frames' rows and refresh the linearisation point (after the first
-    used frame, settled first when the unbalance is estimated)."""
-    if est.stats.used == 1 and est.setup.corrections.unbalance:
+    used frame, settled first when the unbalance is located: with its couple free, the
+    first frame's ``G x F_unb`` error is no longer tied down by the rest)."""
+    corr = est.setup.corrections
+    if est.stats.used == 1 and corr.unbalance and corr.unbalance_location:
         settle_first_frame(est)
     est._flush()
     est._relinearise()

@@ -72,6 +72,7 @@ class InertiaEstimator:
         corr = setup.corrections
         self.layout = ParameterLayout(
             unbalance=corr.unbalance,
+            couple=corr.unbalance and corr.unbalance_location,
             mass=not setup.mass_known,
             offset=corr.crank_offset,
             mount_scales=tuple(m.name for m in setup.mounts) if corr.mount_scale else (),

@@ -70,8 +70,8 @@ def unbalance_report(
 
     Returns
     -------
-    ``mr_kgm``, ``angle_deg`` (value, std) of the static part; ``reference_point_m``
-    (``P_u``); with the couple estimated: ``axial_m`` (the location along s from
+    ``mr_kgm``, ``angle_deg`` (value, std) of the static part, ``point_m`` where it
+    acts; with the couple estimated: ``reference_point_m`` (``P_u``), ``axial_m`` (the location along s from
     ``P_u``, None when the static part is not detected), ``point_m`` (``P_u + a s``,
     else ``P_u``), ``couple_kgm2`` and ``couple_angle_deg`` (what no point unbalance
     explains; the whole couple about ``P_u`` when the static part is not detected).
@@ -93,10 +93,10 @@ def unbalance_report(
         "mr_kgm": mr,
         "angle_deg": angle,
         "point_m": point.tolist(),
-        "reference_point_m": point.tolist(),
     }
     if not couple:
         return out
+    out["reference_point_m"] = point.tolist()
     q = complex(values[2], values[3])
     jq = np.zeros((2, n))
     jq[:, 2:4] = np.eye(2)

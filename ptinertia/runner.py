@@ -50,6 +50,7 @@ def make_estimator(
         suspension=s.suspension and "suspension" not in corrections_off,
         gyroscopic=s.gyroscopic and "gyroscopic" not in corrections_off,
         unbalance=s.unbalance and "unbalance" not in corrections_off,
+        unbalance_location=s.unbalance_location and "unbalance" not in corrections_off,
         crank_offset=s.crank_offset and "crank_offset" not in corrections_off,
         mount_scale=s.mount_scale and "mount_scale" not in corrections_off,
         self_calibration=self_calibration,

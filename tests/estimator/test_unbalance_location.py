@@ -16,6 +16,7 @@ from support.estimator_harness import AXIS_C, AXIS_S, UNB_POINT, Body, frames, m
 from support.estimator_runs import I3, cog_error_m, rel_errors, run
 
 from estimator.equations import Linearisation, ParameterLayout, frame_rows
+from estimator.setup import Corrections
 from estimator.streaming import InertiaEstimator
 from estimator.unbalance import unbalance_report
 from powertrain.balancing import Unbalance, add_balancing_loads
@@ -26,7 +27,8 @@ Z = 1e-3 * np.exp(-1j * BETA)  # 1 g m at 120 deg
 
 
 def _estimate(body: Body, **kw: object) -> InertiaEstimator:
-    est = InertiaEstimator(make_setup(body, **kw))
+    located = Corrections(unbalance_location=True)
+    est = InertiaEstimator(make_setup(body, corrections=located, **kw))
     for f in frames(body, RPMS):
         est.update(f)
     return est
@@ -83,7 +85,7 @@ def test_the_columns_are_the_simulators_point_unbalance(mass_known: bool) -> Non
 
     body = Body()
     setup = make_setup(body, mass_known=mass_known)
-    layout = ParameterLayout(unbalance=True, mass=not mass_known, offset=False)
+    layout = ParameterLayout(unbalance=True, mass=not mass_known, offset=False, couple=True)
     lin = Linearisation(cog=cog, inertia=body.inertia, mass=mass)
     motion = rng.normal(size=(1, 6)) + 1j * rng.normal(size=(1, 6))
     rows = frame_rows(
@@ -151,6 +153,7 @@ def test_noise_free_i3_with_an_off_centre_unbalance_through_the_dsp() -> None:
             "residual_unbalance_deg": 120.0,
             "residual_unbalance_axial_m": 0.08,
         },
+        estimator={"unbalance_location": True},
     )
     errs = rel_errors(doc)
     assert max(abs(e) for e in errs.values()) < 5e-4, errs  # every term within 0.05 %

@@ -1,7 +1,7 @@
 """An order with no known load, driven by the estimated unbalance alone, is used.
 
 A balanced inline 4 has no known order-1 load; its residual unbalance drives an
-order-1 response all the same. With the unbalance estimated, that order is used
+order-1 response all the same. With the unbalance located (its couple free), that order is used
 where the rigid motion (not noise) explains its readings and it is well above the
 rigid-body modes; otherwise it stays out as ``no_excitation``.
 """
@@ -21,6 +21,7 @@ from estimator.setup import Corrections
 from estimator.streaming import InertiaEstimator
 
 RPMS = np.linspace(1500, 4500, 60)
+LOCATED = Corrections(unbalance_location=True)
 Z = 5e-4 * np.exp(-1j * np.radians(40.0))
 
 
@@ -40,7 +41,7 @@ def _run(body: Body, **kw: object) -> tuple[InertiaEstimator, list[FrameOutcome]
 
 def test_the_unbalance_alone_drives_a_used_order_one() -> None:
     body = Body(unbalance=Z)
-    est, outcomes = _run(body)
+    est, outcomes = _run(body, corrections=LOCATED)
     assert all(1.0 in o.used_orders for o in outcomes)
     e = est.estimate()
     unb = e.unbalance()
@@ -50,8 +51,11 @@ def test_the_unbalance_alone_drives_a_used_order_one() -> None:
     np.testing.assert_allclose(e.inertia, body.inertia, rtol=0, atol=1e-9)
 
 
-def test_without_the_unbalance_correction_order_one_stays_out() -> None:
-    est, outcomes = _run(Body(unbalance=Z), corrections=Corrections(unbalance=False))
+@pytest.mark.parametrize(
+    "corrections", [Corrections(unbalance=False), Corrections(unbalance_location=False)]
+)
+def test_without_the_located_unbalance_order_one_stays_out(corrections: Corrections) -> None:
+    est, outcomes = _run(Body(unbalance=Z), corrections=corrections)
     assert not any(1.0 in o.used_orders for o in outcomes)
     assert est.stats.orders_rejected["no_excitation"] == len(RPMS)
 
@@ -59,7 +63,8 @@ def test_without_the_unbalance_correction_order_one_stays_out() -> None:
 def test_order_one_with_no_known_load_is_used_only_well_above_the_modes() -> None:
     mode_hz = 20.0  # order 1 of 1500-4500 rpm is 25-75 Hz
     setup = dataclasses.replace(
-        make_setup(Body(unbalance=Z), excitation_fn=balanced), mode_max_hz=mode_hz
+        make_setup(Body(unbalance=Z), excitation_fn=balanced, corrections=LOCATED),
+        mode_max_hz=mode_hz,
     )
     est = InertiaEstimator(setup)
     body = Body(unbalance=Z)

@@ -101,11 +101,12 @@ def respond(
     rpm: float,
     orders: np.ndarray,
     with_mounts: bool = True,
-    excitation_fn: ExcitationFn = excitation,
+    excitation_fn: ExcitationFn | None = None,
 ) -> np.ndarray:
-    """Channel amplitudes (n_orders, 9) of the body driven by :func:`excitation`."""
+    """Channel amplitudes (n_orders, 9) of the body driven by ``excitation_fn`` (default
+    :func:`excitation`, looked up when called: tests replace it)."""
     w = rpm * 2 * np.pi / 60
-    force, moment_r = excitation_fn(rpm, orders)
+    force, moment_r = (excitation_fn or excitation)(rpm, orders)
     g = body.cog
     pos, dirs, _ = channel_geometry()
     out = []
