@@ -20,9 +20,14 @@ Prints:
    gas,spin_inertia,masses,mounts``) plus the realistic sensor errors, over N seeds:
    error statistics and the coverage of the 95 % intervals per term, and the same
    runs with the model tolerances left out of the intervals.
+11. ``--only unbalance``: a residual unbalance off the reference point (1 g m at 120 deg,
+   80 mm along the crank), with ``[estimator] unbalance_location = true``: noise-free,
+   and with the realistic errors over N seeds (errors,
+   the unbalance's amplitude, phase and location, and how often each interval holds the
+   truth); the inline 4 with its realistic 0.5 g m over min(N, 10) seeds, located too.
 
 Usage: python benchmarks/bench_estimator.py [--seeds 20] [--jobs 2] [--quick]
-[--only noise|model]
+       [--only noise|model|unbalance]
 """
 
 from __future__ import annotations
@@ -156,7 +161,9 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--quick", action="store_true", help="20 s sweeps, 4 seeds")
-    ap.add_argument("--only", choices=("noise", "model"), help="only this part (see the docstring)")
+    ap.add_argument(
+        "--only", choices=("noise", "model", "unbalance"), help="only this part (see the docstring)"
+    )
     a = ap.parse_args()
     dur = {"duration_s": 20.0} if a.quick else {}
     seeds = 4 if a.quick else a.seeds
@@ -165,6 +172,9 @@ def main() -> None:
         return
     if a.only == "model":
         model_inputs_drawn(seeds, a.jobs, dur)
+        return
+    if a.only == "unbalance":
+        unbalance_located(seeds, a.jobs, dur)
         return
 
     cases: list[tuple[str, tuple[Path, dict[str, Any], tuple[str, ...], float | None]]] = [
@@ -440,6 +450,103 @@ def model_inputs_drawn(seeds: int, jobs: int, dur: dict[str, Any]) -> None:
             print(text)
         all_cov = sum(all(c.values()) for c in cov)
         print(f"  all nine intervals cover the truth in {all_cov}/{seeds} seeds")
+
+
+OFF_CENTRE = {
+    "residual_unbalance_kgm": 1e-3,
+    "residual_unbalance_deg": 120.0,
+    "residual_unbalance_axial_m": 0.08,
+}
+
+
+def unbalance_errors(doc: dict[str, Any]) -> dict[str, float]:
+    """Amplitude error %, phase error deg, location error mm of the estimated unbalance."""
+    t, u = doc["truth"]["unbalance"], doc["unbalance"]
+    phase = (u["angle_deg"]["value"] - t["angle_deg"] + 180.0) % 360.0 - 180.0
+    out = {"mr_%": 100 * (u["mr_kgm"]["value"] - t["mr_kgm"]) / t["mr_kgm"], "phase_deg": phase}
+    if u.get("axial_m"):
+        out["axial_mm"] = 1e3 * (u["axial_m"]["value"] - t["axial_m"])
+    return out
+
+
+def unbalance_covered(doc: dict[str, Any]) -> dict[str, bool]:
+    """Whether the 95 % intervals of the unbalance's amplitude, phase and location hold the truth."""
+    u, err = doc["unbalance"], unbalance_errors(doc)
+    t = doc["truth"]["unbalance"]
+    out = {
+        "mr": abs(err["mr_%"] * t["mr_kgm"] / 100) <= 1.96 * (u["mr_kgm"]["std"] or 0.0),
+        "phase": abs(err["phase_deg"]) <= 1.96 * (u["angle_deg"]["std"] or 0.0),
+    }
+    if "axial_mm" in err:
+        out["axial"] = abs(err["axial_mm"]) <= 1.96e3 * (u["axial_m"]["std"] or 0.0)
+    return out
+
+
+def unbalance_located(seeds: int, jobs: int, dur: dict[str, Any]) -> None:
+    """Part 10: an unbalance off the reference point, located; the inline 4's unbalance."""
+    located = {"unbalance_location": True}  # [estimator] unbalance_location = true
+    off = [(I3, {**dur, **OFF_CENTRE}, (), None, located)]
+    real = [
+        (I3, {**dur, **REALISTIC, **OFF_CENTRE, "seed": s}, (), None, located) for s in range(seeds)
+    ]
+    i4 = [(I4, {**dur, **REALISTIC, "seed": s}, (), None, located) for s in range(min(seeds, 10))]
+    docs = map_on_cluster(ClusterSpec(workers=jobs), run_case, off + real + i4)
+    clean, real_docs, i4_docs = docs[0], docs[1 : 1 + seeds], docs[1 + seeds :]
+    print("== i3, 1 g m unbalance at 120 deg 80 mm along the crank from the reference point")
+    ue = unbalance_errors(clean)
+    print(
+        line("noise-free", errors(clean)),
+        f" unbalance {ue['mr_%']:+.3f} %, {ue['phase_deg']:+.3f} deg, "
+        f"{ue.get('axial_mm', float('nan')):+.2f} mm; "
+        f"couple {1e3 * clean['unbalance']['couple_kgm2']['value']:.5f} g m^2",
+    )
+    errs = [errors(d) for d in real_docs]
+    cov = [covered(d) for d in real_docs]
+    smallest = [min(np.linalg.eigvalsh(_truth_tensor(d))) for d in real_docs]
+    print(f"== the same with the realistic errors, {seeds} seeds")
+    for k in TERMS:
+        v = np.array([e[k] for e in errs])
+        if k in ("Ixx", "Iyy", "Izz"):
+            a = np.abs(v)
+            what = f"mean |err| {np.mean(a):5.2f}, max {np.max(a):5.2f} % (of its value)"
+        else:  # products against the smallest principal moment
+            t = np.array([d["truth"]["inertia_kgm2"]["value"][k] for d in real_docs])
+            a = np.abs(v / 100 * t) / np.array(smallest) * 100
+            what = f"mean |err| {np.mean(a):5.2f}, max {np.max(a):5.2f} % of the smallest principal moment"
+        print(f"  {k:4} {what}; interval holds the truth in {sum(c[k] for c in cov)}/{seeds}")
+    cog = np.array([e["cog_mm"] for e in errs])
+    print(
+        f"  cog  mean error {np.mean(cog):.2f}, max {np.max(cog):.2f} mm; intervals hold Gx/Gy/Gz in "
+        + "/".join(str(sum(c[g] for c in cov)) for g in ("Gx", "Gy", "Gz"))
+        + f" of {seeds}"
+    )
+    ues = [unbalance_errors(d) for d in real_docs]
+    ucs = [unbalance_covered(d) for d in real_docs]
+    for key, unit, cover in (
+        ("mr_%", "%", "mr"),
+        ("phase_deg", "deg", "phase"),
+        ("axial_mm", "mm", "axial"),
+    ):
+        v = np.array([u.get(key, np.nan) for u in ues])
+        print(
+            f"  unbalance {key.split('_')[0]:6} mean |err| {np.nanmean(np.abs(v)):.2f}, "
+            f"max {np.nanmax(np.abs(v)):.2f} {unit}; "
+            f"interval holds the truth in {sum(c.get(cover, False) for c in ucs)}/{seeds}"
+        )
+    i4_err = [unbalance_errors(d)["mr_%"] for d in i4_docs if d.get("unbalance")]
+    i4_cov = [sum(covered(d).values()) for d in i4_docs]
+    print(
+        f"== inline 4, realistic (0.5 g m at 40 deg), {len(i4_docs)} seeds: unbalance estimated in "
+        f"{len(i4_err)}, amplitude error max {np.max(np.abs(i4_err)) if i4_err else float('nan'):.1f} %; "
+        f"seeds whose nine intervals all hold the truth {sum(c == 9 for c in i4_cov)}/{len(i4_docs)}"
+    )
+
+
+def _truth_tensor(doc: dict[str, Any]) -> np.ndarray:
+    from estimator.result import tensor_from_terms
+
+    t = doc["truth"]["inertia_kgm2"]["value"]
+    return tensor_from_terms(np.array([t[k] for k in TERMS]))
 
 
 if __name__ == "__main__":

@@ -11,10 +11,16 @@ with the known excitation ``F_exc``, ``M_R`` (moment about the fixed point R),
 mount reactions ``f_i = -K_i u_i = K_i gamma_i / W^2`` (complex stiffness,
 ``u_i = -gamma_i / W^2``), gyroscopic term ``Omega x H = (J / (i h)) Omega' x s``
 (``Omega = Omega' / (i W)``, ``H = J w s``) and, at h = 1 only, the residual
-static unbalance ``F_unb = w^2 z (c - i t)``, ``z = m r exp(-i beta)``.
+unbalance of the crank: the static part ``F_unb = w^2 z (c - i t)``,
+``z = m r exp(-i beta)``, acting at ``P_u`` (``setup.unbalance_point``, on the
+crank axis), and the couple part ``i w^2 q (c - i t)`` (kg m^2). A point
+unbalance z at ``a`` m along s from ``P_u`` is the static part z at ``P_u`` and
+the couple ``a s x F_unb = i w^2 (a z) (c - i t)`` (``s x (c - i t) = i (c - i
+t)``), so q = a z; a two-plane (dynamic) unbalance adds a q of any phase. Both
+are linear: the location is ``a = Re(q conj z) / |z|^2`` (:mod:`estimator.result`).
 
-Unknowns theta: the six inertia terms, G, [z as two reals], [1/m], [crank
-offset d]. Everything is linear in theta except ``G x F_unb`` and the offset;
+Unknowns theta: the six inertia terms, G, [z and q as two reals each], [1/m],
+[crank offset d]. Everything is linear in theta except ``G x F_unb`` and the offset;
 those two are linearised about the current estimate (both are small: a 1 mm
 cog error times a 50 N unbalance force is 5e-5 of a 1000 N m H1 moment).
 With an unknown mass the translation is divided by m and the unknowns become
@@ -51,6 +57,7 @@ class ParameterLayout:
     unbalance: bool
     mass: bool
     offset: bool
+    couple: bool = False  # the unbalance's couple q too (with ``unbalance``)
     mount_scales: tuple[str, ...] = ()  # mounts whose stiffness scale is estimated
     calibrate: tuple[str, ...] = ()  # systematic parameters estimated (sensor gains, alignment)
 
@@ -59,6 +66,8 @@ class ParameterLayout:
         names = [*INERTIA_TERMS, "Gx", "Gy", "Gz"]
         if self.unbalance:
             names += ["unb_re", "unb_im"]
+            if self.couple:
+                names += ["unb_couple_re", "unb_couple_im"]
         if self.mass:
             names += ["inv_mass"]
         if self.offset:
@@ -86,6 +95,8 @@ def parameter_scale(
             scale.append(inertia)
         elif name.startswith("G"):
             scale.append(0.1)
+        elif name.startswith("unb_couple"):
+            scale.append(1e-4)  # 1 g m 0.1 m off P_u, kg m^2 (not divided by m: no force)
         elif name.startswith("unb"):
             scale.append(1e-3 / (mass_nominal if layout.mass else 1.0))
         elif name == "inv_mass":
@@ -302,6 +313,9 @@ def frame_rows(
             ht[first, :, ia], ht[first, :, ib] = -col_a, -col_b
             hr[first, :, ia] = -unb_scale * cross(arm, col_a)
             hr[first, :, ib] = -unb_scale * cross(arm, col_b)
+            if layout.couple:  # i w^2 q (c - i t) = q_re col_b - q_im col_a, a moment only
+                qa, qb = layout.index("unb_couple_re"), layout.index("unb_couple_im")
+                hr[first, :, qa], hr[first, :, qb] = -col_b, col_a
 
     # d residual / d measurement, complex (n_o, 6, 6) on [gamma_O, Omega'].
     d_c = np.empty((n_o, 6, 6), complex)
@@ -340,17 +354,3 @@ def frame_rows(
     return FrameRows(
         H=whiten @ H, y=np.einsum("oij,oj->oi", whiten, y), whiten=whiten, d_meas=d_real
     )
-
-
-# The linearised terms (G x F_unb, row weighting) move slowly once a few frames are in:
-# refresh them every few used frames rather than solving after every frame, more
-# often while the estimate still moves (each refresh costs a solve and a row batch).
-RELINEARISE_EVERY = 8
-RELINEARISE_EVERY_LATER = 32
-RELINEARISE_LATER_AFTER = 64
-
-
-def relinearise_due(used: int) -> bool:
-    """True after the used frames at which the linearisation point is refreshed."""
-    every = RELINEARISE_EVERY if used <= RELINEARISE_LATER_AFTER else RELINEARISE_EVERY_LATER
-    return used % every == 1

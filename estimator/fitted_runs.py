@@ -116,7 +116,7 @@ def fit_run(
             if spectrum is not None and np.all(np.isfinite(spectrum)):
                 gas[j] = setup.gas_moment(orders, spectrum)
                 moment[j] = moment[j] + gas[j]
-    why, floor = gates.screen_orders(rpm, orders, force, moment, bends, power)
+    why, floor = gates.screen_orders(rpm, orders, force, moment, bends, power, relative, fit)
     mean, q = noise_levels_many(fit, [s.variance for s in run])
     share, beyond = excess_many(relative, noise_var, fit, mean, q)
     return FittedRun(

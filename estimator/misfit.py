@@ -72,6 +72,12 @@ class MisfitSample:
         kept = self._rows.setdefault(sign, ThinnedSample(CAPACITY))
         kept.add_made(lambda: (np.array(orders, float), H.copy(), y.copy()))
 
+    def copy(self) -> MisfitSample:
+        """An independent copy (the samples are copied, their rows shared: never changed)."""
+        out = MisfitSample()
+        out._rows = {sign: rows.copy() for sign, rows in self._rows.items()}
+        return out
+
     def copy_sign(self, src: int, dst: int) -> None:
         """Start hypothesis ``dst`` from ``src``'s sample (the hypotheses split)."""
         self._rows[dst] = self._rows[src].copy() if src in self._rows else ThinnedSample(CAPACITY)

@@ -24,6 +24,7 @@ from estimator.equations import INERTIA_TERMS
 from estimator.hypotheses import Accumulator
 from estimator.rls import RlsSolution
 from estimator.setup import EstimatorSetup
+from estimator.unbalance import unbalance_report
 
 Z95 = 1.959963984540054
 RATIO_CAP = 1e12  # what the result JSON writes for an infinite residual ratio
@@ -122,6 +123,9 @@ class Estimate:
     # the fit's chi-square per dof far above 1 (estimator.misfit): where, and the
     # likely inputs; None when the model fits
     misfit: dict[str, Any] | None = None
+    # (3,) the crank axis s, along which the unbalance is located (None: not known, as
+    # in recordings made before it was recorded: the location is then left out)
+    crank_axis: np.ndarray | None = None
 
     @property
     def consistent(self) -> bool:
@@ -161,28 +165,28 @@ class Estimate:
         return 1.0 / mu, math.sqrt(self.cov[i, i]) / mu**2
 
     def unbalance(self) -> dict[str, Any] | None:
+        """The residual unbalance (:func:`unbalance_report`), None when not estimated."""
         if "unb_re" not in self.names:
             return None
-        i, j = self.names.index("unb_re"), self.names.index("unb_im")
-        if not (self.observable[i] and self.observable[j]):
+        idx = [self.names.index(n) for n in ("unb_re", "unb_im")]
+        if not np.all(self.observable[idx]):
             return None
-        z = complex(self.theta[i], self.theta[j])
-        cov = self.cov[np.ix_([i, j], [i, j])]
-        mass = self.mass()
-        if mass is not None:  # parameters are z / m
-            z, cov = z * mass[0], cov * mass[0] ** 2
-        mr = abs(z)
-        # z = m r exp(-i beta): delta-method std of |z| and of its angle
-        grad_mr = np.array([z.real, z.imag]) / max(mr, 1e-300)
-        grad_angle = np.array([-z.imag, z.real]) / max(mr, 1e-300) ** 2
-        return {
-            "mr_kgm": _vs(mr, float(np.sqrt(grad_mr @ cov @ grad_mr))),
-            "angle_deg": _vs(
-                math.degrees(-math.atan2(z.imag, z.real)),
-                math.degrees(float(np.sqrt(grad_angle @ cov @ grad_angle))),
-            ),
-            "point_m": [float(v) for v in self.unbalance_point],
-        }
+        couple = "unb_couple_re" in self.names and all(
+            self.observable[self.names.index(n)] for n in ("unb_couple_re", "unb_couple_im")
+        )
+        if couple:
+            idx += [self.names.index("unb_couple_re"), self.names.index("unb_couple_im")]
+        mass = None if self.mass_known else self.mass()
+        if mass is not None:  # the static part is z / m: carry 1/m's uncertainty too
+            idx.append(self.names.index("inv_mass"))
+        return unbalance_report(
+            self.theta[idx],
+            self.cov[np.ix_(idx, idx)],
+            couple,
+            mass is not None,
+            self.unbalance_point,
+            self.crank_axis,
+        )
 
     def to_json(self, truth: dict[str, Any] | None = None) -> dict[str, Any]:
         """The result document of ``ptinertia run --json`` (see README)."""
@@ -332,6 +336,7 @@ def build_estimate(
         mass_known=setup.mass_known,
         mass_nominal=setup.mass_nominal,
         unbalance_point=np.asarray(setup.unbalance_point, float),
+        crank_axis=np.asarray(setup.crank_axis, float),
         frames_used=stats.used,
         frames_skipped=stats.skipped,
         frames_rejected=dict(stats.rejected),

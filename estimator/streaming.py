@@ -33,7 +33,6 @@ from estimator.equations import (
     ParameterLayout,
     linearisation_at,
     parameter_scale,
-    relinearise_due,
 )
 from estimator.fitted_runs import FittedRun, Screened, fit_run, run_end
 from estimator.gating import FrameLike, Judged, OrderGates, frame_gate, overlaps_previous
@@ -52,6 +51,7 @@ from estimator.outcome import FrameOutcome
 from estimator.partial_pairs import PartialPairs
 from estimator.pending_rows import FrameQueue, PendingFrame, RowAssembler
 from estimator.redundancy import calibrated_names
+from estimator.relinearise import relinearise, relinearise_due
 from estimator.result import Estimate, EstimatorStats, build_estimate
 from estimator.rls import RlsSolution, RlsState, rls_solve
 from estimator.setup import EstimatorSetup
@@ -73,6 +73,7 @@ class InertiaEstimator:
         corr = setup.corrections
         self.layout = ParameterLayout(
             unbalance=corr.unbalance,
+            couple=corr.unbalance and corr.unbalance_location,
             mass=not setup.mass_known,
             offset=corr.crank_offset,
             mount_scales=tuple(m.name for m in setup.mounts) if corr.mount_scale else (),
@@ -220,8 +221,7 @@ class InertiaEstimator:
         # (Counted in used frames, not queued ones: an early flush for a published
         # estimate must not move the relinearisation points.)
         if relinearise_due(self.stats.used):
-            self._flush()
-            self._relinearise()
+            relinearise(self)
         used_orders = tuple(float(orders[k]) for k in ks)
         return FrameOutcome(frame.time_s, frame.rpm, used_orders, rejected, None, residuals, motion)
 

@@ -165,6 +165,9 @@ class EstimatorSettings(Section):
     suspension: bool = True
     gyroscopic: bool = True
     unbalance: bool = True
+    # estimate the unbalance's location along the crank (and any couple unbalance) too:
+    # for a residual unbalance away from [engine] reference_point_m
+    unbalance_location: bool = False
     crank_offset: bool = True
     # estimate one stiffness scale per mount (uncertain mount data); needs mass_known
     mount_scale: bool = False

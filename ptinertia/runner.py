@@ -50,6 +50,7 @@ def make_estimator(
         suspension=s.suspension and "suspension" not in corrections_off,
         gyroscopic=s.gyroscopic and "gyroscopic" not in corrections_off,
         unbalance=s.unbalance and "unbalance" not in corrections_off,
+        unbalance_location=s.unbalance_location and "unbalance" not in corrections_off,
         crank_offset=s.crank_offset and "crank_offset" not in corrections_off,
         mount_scale=s.mount_scale and "mount_scale" not in corrections_off,
         self_calibration=self_calibration,
@@ -186,6 +187,37 @@ def misfit_line(doc: dict[str, Any]) -> str | None:
     )
 
 
+def unbalance_text(unb: dict[str, Any]) -> str:
+    """The run table's unbalance line (95 % intervals): an angle and a location only when
+    ``m r`` is detected (above twice its std: below, its angle means nothing), and the
+    couple no point unbalance explains (``estimator.unbalance``) by the same rule."""
+    mr, mr_std = unb["mr_kgm"]["value"], unb["mr_kgm"]["std"] or 0.0
+    if mr > 2 * mr_std:
+        text = (
+            f"residual unbalance {1e3 * mr:.3f} +- {1e3 * Z95 * mr_std:.3f} g m at "
+            f"{unb['angle_deg']['value']:.1f} deg"
+        )
+        axial = unb.get("axial_m")
+        if axial:
+            text += (
+                f", {1e3 * axial['value']:.1f} +- {1e3 * Z95 * (axial['std'] or math.nan):.1f} mm "
+                "along the crank axis from the reference point"
+            )
+    else:
+        text = f"residual unbalance not detected (below {1e3 * 2 * mr_std:.3f} g m)"
+    couple = unb.get("couple_kgm2")
+    if couple:
+        c, c_std = couple["value"], couple["std"] or 0.0
+        if c > 2 * c_std:
+            text += (
+                f"; couple {1e3 * c:.4f} +- {1e3 * Z95 * c_std:.4f} g m^2 at "
+                f"{unb['couple_angle_deg']['value']:.1f} deg"
+            )
+        else:
+            text += f"; no couple (below {1e3 * 2 * c_std:.4f} g m^2)"
+    return text
+
+
 def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO | None = None) -> bool:
     """Estimate, 95 % interval, truth and error, one line per term (to ``out``, default the
     standard output at call time, not the one at import); False, with the reason on stderr
@@ -246,15 +278,7 @@ def print_table(estimate: Estimate, doc: dict[str, Any], out: TextIO | None = No
         print(f"{name:6} {value:11.4f} {ci:9.4f} {t:11.4f} {rel:>9}  {unit}", file=out)
     unb = doc.get("unbalance")
     if unb:
-        mr, mr_std = unb["mr_kgm"]["value"], unb["mr_kgm"]["std"] or 0.0
-        if mr > 2 * mr_std:
-            print(
-                f"residual unbalance {1e3 * mr:.3f} +- {1e3 * Z95 * mr_std:.3f} g m at "
-                f"{unb['angle_deg']['value']:.1f} deg",
-                file=out,
-            )
-        else:  # its angle means nothing then
-            print(f"residual unbalance not detected (below {1e3 * 2 * mr_std:.3f} g m)", file=out)
+        print(unbalance_text(unb), file=out)
     frames = doc["frames"]
     rejected = ", ".join(f"{k} {v}" for k, v in frames["rejected"].items()) or "none"
     lo, hi = doc["rpm_range"] or (math.nan, math.nan)

@@ -137,6 +137,7 @@ def estimator_setup(
         suspension=corr.suspension and has_mounts,
         gyroscopic=corr.gyroscopic and engine.crank_spin_inertia > 0,
         unbalance=corr.unbalance,
+        unbalance_location=corr.unbalance and corr.unbalance_location,
         crank_offset=corr.crank_offset,
         mount_scale=corr.mount_scale and corr.suspension and has_mounts,
         self_calibration=corr.self_calibration,

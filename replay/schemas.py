@@ -174,6 +174,7 @@ MESSAGES: dict[str, list[tuple[str, int, str, bool, str]]] = {
         ("half_order_json", 62, "string", False, "half-order sign resolution, JSON"),
         ("final", 63, "bool", False, "the run's final estimate, written at the end (rpm is NaN)"),
         ("frames_skipped", 64, "uint32", False, "overlapping frames left out (not rejected)"),
+        ("crank_axis", 65, "double", True, "(3,) the crank axis the unbalance is located along"),
     ],
 }
 

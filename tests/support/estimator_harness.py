@@ -12,7 +12,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from estimator.setup import Corrections, EstimatorSetup, Gates, MountStiffness, Tolerances
+from estimator.setup import (
+    Corrections,
+    EstimatorSetup,
+    ExcitationFn,
+    Gates,
+    MountStiffness,
+    Tolerances,
+)
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -43,6 +50,8 @@ class Body:
     )
     spin: float = 0.13
     unbalance: complex = 0.0  # z = m r exp(-i beta), kg m
+    # more point unbalances on the crank: (z kg m, axial m along AXIS_S from UNB_POINT)
+    point_unbalances: tuple[tuple[complex, float], ...] = ()
 
 
 AXIS_S = np.array([0.0, 1.0, 0.0])
@@ -87,10 +96,17 @@ def channel_geometry() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return pos, dirs, np.repeat(np.arange(3), 3)
 
 
-def respond(body: Body, rpm: float, orders: np.ndarray, with_mounts: bool = True) -> np.ndarray:
-    """Channel amplitudes (n_orders, 9) of the body driven by :func:`excitation`."""
+def respond(
+    body: Body,
+    rpm: float,
+    orders: np.ndarray,
+    with_mounts: bool = True,
+    excitation_fn: ExcitationFn | None = None,
+) -> np.ndarray:
+    """Channel amplitudes (n_orders, 9) of the body driven by ``excitation_fn`` (default
+    :func:`excitation`, looked up when called: tests replace it)."""
     w = rpm * 2 * np.pi / 60
-    force, moment_r = excitation(rpm, orders)
+    force, moment_r = (excitation_fn or excitation)(rpm, orders)
     g = body.cog
     pos, dirs, _ = channel_geometry()
     out = []
@@ -106,6 +122,11 @@ def respond(body: Body, rpm: float, orders: np.ndarray, with_mounts: bool = True
         a[3:, 3:] = -(big_w**2) * body.inertia + 1j * big_w * (-_skew(body.spin * w * AXIS_S))
         b[:3] = force[k] + f_unb
         b[3:] = moment_r[k] + np.cross(REF - g, force[k]) + np.cross(UNB_POINT - g, f_unb)
+        for z, axial in body.point_unbalances if h == 1.0 else ():
+            # each a rotating force w^2 m r at its own point on the crank
+            f_p = w**2 * z * (AXIS_C - 1j * np.cross(AXIS_S, AXIS_C))
+            b[:3] += f_p
+            b[3:] += np.cross(UNB_POINT + axial * AXIS_S - g, f_p)
         if with_mounts:
             for p, kk in zip(MOUNT_POS, MOUNT_K, strict=True):
                 kc = np.diag(kk) * (1 + 1j * ETA)
@@ -130,7 +151,7 @@ def make_setup(body: Body, mass_known: bool = True, **kw: object) -> EstimatorSe
         crank_axis=AXIS_S,
         cylinder_axis=AXIS_C,
         spin_inertia=body.spin,
-        excitation=excitation,
+        excitation=kw.pop("excitation_fn", excitation),  # type: ignore[arg-type]
         mounts=mounts(),
         mass_nominal=body.mass if mass_known else body.mass * 1.1,
         mass_known=mass_known,

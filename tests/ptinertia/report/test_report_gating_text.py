@@ -19,6 +19,7 @@ from ptinertia.report.build import make_report
 from ptinertia.report.data import load
 from ptinertia.report.gating import SKIPPED
 from ptinertia.report.sections import unbalance_line
+from ptinertia.runner import unbalance_text
 
 
 def test_an_undetected_unbalance_has_no_angle() -> None:
@@ -36,6 +37,34 @@ def test_an_undetected_unbalance_has_no_angle() -> None:
         unbalance_line(unb)
         == "residual static unbalance 1.200 g m (std 0.100) at 40.0 deg (std 4.8)"
     )
+
+
+def test_the_unbalance_location_and_couple_follow_the_same_rule() -> None:
+    unb = {
+        "mr_kgm": {"value": 1.0e-3, "std": 1e-5},
+        "angle_deg": {"value": 120.0, "std": 0.6},
+        "axial_m": {"value": 0.0801, "std": 0.0012},
+        "couple_kgm2": {"value": 3e-6, "std": 2e-6},  # 1.5 std: not detected
+        "couple_angle_deg": {"value": 30.0, "std": 0.6},
+    }
+    assert unbalance_line(unb) == (
+        "residual static unbalance 1.000 g m (std 0.010) at 120.0 deg (std 0.6), 80.1 mm "
+        "(std 1.2) along the crank axis from the reference point; couple unbalance not "
+        "detected (below 0.0040 g m^2)"
+    )
+    assert unbalance_text(unb) == (
+        "residual unbalance 1.000 +- 0.020 g m at 120.0 deg, 80.1 +- 2.4 mm along the crank "
+        "axis from the reference point; no couple (below 0.0040 g m^2)"
+    )
+    # the static part lost in its noise: no angle, no location; a couple of 5 std is shown
+    unb.update(mr_kgm={"value": 1e-5, "std": 1e-5}, axial_m=None)
+    unb["couple_kgm2"] = {"value": 1e-4, "std": 2e-5}
+    line = unbalance_line(unb)
+    assert line == (
+        "residual static unbalance not detected (below 0.020 g m); couple unbalance 0.1000 "
+        "g m^2 (std 0.0200) at 30.0 deg (std 0.6)"
+    )
+    assert "mm" not in unbalance_text(unb) and "couple 0.1000 +- 0.0392" in unbalance_text(unb)
 
 
 def test_the_gating_chart_lists_what_the_table_lists(
