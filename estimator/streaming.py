@@ -373,6 +373,7 @@ class InertiaEstimator:
                 sol.theta[: self.layout.size],
                 sol.rss / sol.dof,
                 self.setup.crank_axis,
+                self.layout.unbalance and not self.setup.corrections.unbalance_location,
             )
         return build_estimate(
             acc,

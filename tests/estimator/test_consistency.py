@@ -46,6 +46,19 @@ def test_a_gross_misfit_is_named_and_marked_inconsistent(burn_pct: float) -> Non
         assert doc["misfit"] is None
 
 
+def test_an_unbalance_off_the_reference_point_points_to_its_location() -> None:
+    """Pinned at the reference point, a 1 g m unbalance 80 mm along the crank misfits
+    (issue 20's case: Izz +34 %): the line names the switch that estimates its location."""
+    off = {
+        "residual_unbalance_kgm": 1e-3,
+        "residual_unbalance_deg": 120.0,
+        "residual_unbalance_axial_m": 0.08,
+    }
+    _, doc = _run(**off)
+    assert doc["consistent"] is False
+    assert "unbalance_location = true" in doc["misfit"]["likely_inputs"]
+
+
 @pytest.mark.parametrize(
     "terms",
     [
