@@ -114,6 +114,11 @@ class OrderFrame:
         ``channel_ok``; no clip check): a NaN spectrum is the sign.
     spectrum_channel : str or None
         The channel of ``spectrum`` (None when there is none).
+    variance_factor : (n_channels,) float or None
+        How much larger than in a complete window the variance of each channel's
+        amplitudes is, where the window lost samples (a lost CAN frame): those
+        amplitudes are a least-squares fit over the samples present
+        (:mod:`dsp.gap_fit`). None when no channel lost a sample (all ones).
     """
 
     time_s: float
@@ -128,6 +133,7 @@ class OrderFrame:
     flags: frozenset[str]
     spectrum: np.ndarray | None = None
     spectrum_channel: str | None = None
+    variance_factor: np.ndarray | None = None
 
     def amplitude(self, order: float, channel: str) -> complex:
         """The complex amplitude of one order on one channel."""

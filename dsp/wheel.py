@@ -39,6 +39,13 @@ from dsp.tacho import TachoConfig
 
 # Revolutions across which a lost stretch is still bridged (speed assumed to vary linearly).
 MAX_BRIDGE_REVS = 20.0
+# Missing edges are filled (fill_missing_edges) across at most this many pitches when the
+# hole's length is within FILL_TOLERANCE pitches of a whole tooth count.
+MAX_FILL_PITCHES = 40
+# A single missed edge stays a loss of sync (a sensor glitch, flagged and re-synchronised
+# as before); a run of missing edges is what a lost CAN frame of edges leaves.
+MIN_FILL_EDGES = 2
+FILL_TOLERANCE = 0.3
 
 
 @dataclass(frozen=True)
@@ -175,6 +182,24 @@ def decode_edges(
         ratio = r / prev
         bad = np.flatnonzero((ratio < 1 - tol) | (ratio > 1 + tol))
         b = int(bad[0]) if bad.size else -1
+        if b >= 0 and st.confirmed and ratio[b] > 1 + tol:
+            # edges missing (a lost CAN frame of edges): fill them from the neighbouring teeth
+            if b + 1 >= d.size:
+                break  # the interval after the hole decides: wait for it
+            filled = fill_missing_edges(buf, c, b, float(prev[b]), cfg)
+            if filled is not None:
+                times, count = filled
+                events.append(
+                    SourceEvent(
+                        "tacho_filled",
+                        f"{count} tacho edge(s) missing after t = {buf[b]:.6f} s "
+                        f"({d[b] * 1e3:.2f} ms): filled from the neighbouring teeth",
+                        float(buf[b]),
+                        count,
+                    )
+                )
+                st = evolve(st, buf=np.concatenate((buf[: b + 1], times, buf[b + 1 :])))
+                continue
         if not st.confirmed:
             # a full revolution, up to the next gap's tooth 0, must pass before anything commits
             need = per_rev + 1 if gap else max(per_rev, 3) + 1
@@ -244,6 +269,53 @@ def decode_edges(
     return st, knots, events
 
 
+def fill_missing_edges(
+    buf: np.ndarray, c: np.ndarray, b: int, r_before: float, cfg: TachoConfig
+) -> tuple[np.ndarray, int] | None:
+    """The edge times missing in interval ``b`` of ``buf`` (tooth counts ``c``), or None.
+
+    The interval is taken to skip ``k - 1`` teeth when its length is within
+    ``FILL_TOLERANCE`` pitches of the ``P_k`` pitches those teeth span (the wheel's gap
+    counted), at the per-pitch interval of the neighbouring teeth (the mean of the one
+    before and the one after), no other count comes as close, and the interval after it
+    agrees with the one before within the decoder's tolerance, for ``k - 1 >=
+    MIN_FILL_EDGES``. The missing edges go on a
+    cubic in time over wheel position through the two edges around the hole, with the
+    neighbouring per-pitch intervals as its slopes: at constant angular acceleration the
+    true times to rounding.
+    """
+    teeth, gap = cfg.teeth_per_rev, cfg.gap_teeth
+    per_rev = teeth - gap
+    if c[b] < 0 or b + 2 >= buf.size:
+        return None
+    d = buf[b + 1] - buf[b]
+    d_after = buf[b + 2] - buf[b + 1]
+    ks = np.arange(MIN_FILL_EDGES + 1, min(MAX_FILL_PITCHES, per_rev) + 1)
+    if ks.size == 0:
+        return None
+    pos = _position(c[b] + np.arange(0, ks[-1] + 2), teeth, gap) - _position(
+        np.array([c[b]]), teeth, gap
+    )
+    span = pos[ks]  # pitches from edge b to the edge after the hole, per candidate
+    after = pos[ks + 1] - pos[ks]  # pitches of the interval after the hole
+    r_after = d_after / after
+    pitch = 0.5 * (r_before + r_after)
+    miss = np.abs(d / pitch - span)
+    best = int(np.argmin(miss))
+    ok_after = abs(r_after[best] / r_before - 1.0) <= cfg.tolerance
+    others = np.delete(miss, best)
+    if not (miss[best] <= FILL_TOLERANCE and ok_after and (others > 2 * FILL_TOLERANCE).all()):
+        return None
+    k = int(ks[best])
+    # cubic Hermite t(p) on p in [0, P] through (0, t_b) and (P, t_b + d), slopes r_before, r_after
+    big_p = float(span[best])
+    s = pos[1:k] / big_p
+    h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
+    h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
+    times = h00 * buf[b] + h10 * big_p * r_before + h01 * buf[b + 1] + h11 * big_p * r_after[best]
+    return times, k - 1
+
+
 def _start_run(
     st: DecoderState,
     buf: np.ndarray,
@@ -286,5 +358,17 @@ def _start_run(
             )
             message += f"; revolution count uncertain ({why}): angle rebased"
     events.append(SourceEvent("tacho_sync", message, t0))
+    if not bridged:
+        # an outage: the lost stretch itself, as a span (the result document lists these)
+        events.append(
+            SourceEvent(
+                "angle_gap",
+                f"no crank angle from t = {st.last_t:.3f} s to {t0:.3f} s ({revs:.1f} rev); "
+                + "angle re-acquired at the wheel gap",
+                st.last_t,
+                1,
+                t0,
+            )
+        )
     runs.append(RunStart(run, t0, base, reason, bridged))
     return evolve(st, run=run, run_base_n=base)

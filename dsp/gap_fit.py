@@ -1,0 +1,207 @@
+"""Order amplitudes of a window with missing samples: a least-squares fit over the samples present.
+
+A lost CAN frame leaves a few NaN samples on some channels. Without them the window sum
+``X_h = 2 / W sum w x exp(-i h phi) q`` is no longer the least-squares fit of the orders
+(the carriers are orthogonal only over the whole window), so a NaN used to take the
+channel out of the frame. Here the missing samples are summed as zeros and remembered
+(:func:`zero_holes`: their angle, ``q = omega dt`` and channel); a window holding some is
+solved afterwards (:func:`refit`).
+
+With the real parameters ``theta = (Re X_h, Im X_h)`` of the internally tracked orders
+and the basis ``b(phi) = (cos h phi, -sin h phi)``, the weighted normal equations over the
+samples present are
+
+    (W / 2 I - G_M) theta = sum_present w q x b = W / 2 theta_0,
+    G_M = sum_missing w q b b^T,
+
+where ``theta_0`` is the window sum with zeros in the holes and ``W / 2 I`` the Gram
+matrix of the whole window (the orthogonality the window sums already rely on; exact
+for a window without holes, so nothing changes there). Hence
+
+    theta = (I - 2 G_M / W)^-1 theta_0.
+
+For white noise of variance ``s^2`` the full window gives ``Var theta = 2 s^2 / W`` (with
+flat weights); over the samples present it is ``2 s^2 / W (I - 2 G_M / W)^-1``. The
+channel's *variance factor*, the largest diagonal entry of that inverse among the output
+orders, goes out with the frame so the estimator weighs the channel accordingly. A window
+that lost too much (factor above :data:`MAX_VARIANCE_FACTOR`) keeps its NaN amplitudes.
+
+What the fit cannot see: a component outside the basis (an order above the internal ones,
+a DC offset: accelerometers on the bench are AC-coupled) leaks into the fit through the
+holes as it would into any least-squares fit; the mean square behind the leakage figure
+counts the holes as zeros (a few per cent low in such a window).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from dsp.frames import rise_table
+
+# A channel whose window lost so much that an order's variance more than doubles is left
+# out of the frame (NaN), as before: its neighbours carry the same information.
+MAX_VARIANCE_FACTOR = 2.0
+
+#: missing samples of a group: angle (rad), q = omega dt (rad), tracked channel (row),
+#: summed as zero (True) or filled from the previous cycle (False)
+Holes = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+NO_HOLES: Holes = (np.empty(0), np.empty(0), np.empty(0, dtype=np.int64), np.empty(0, dtype=bool))
+#: the tracked samples of the last engine cycle: angle (rad) (k,), rows (n_track, k)
+Recent = tuple[np.ndarray, np.ndarray]
+NO_RECENT: Recent = (np.empty(0), np.empty((0, 0)))
+CYCLE = 4.0 * math.pi  # the engine cycle, rad
+HISTORY_MARGIN = 0.2  # rad kept beyond one cycle (the sample before phi - 4 pi)
+MAX_FILL_STEP = 0.2  # rad: two samples further apart than this hold a gap, not a value
+
+
+def fill_holes(
+    pieces: list[np.ndarray],
+    phi: np.ndarray,
+    q: np.ndarray,
+    holes: Holes,
+    recent: Recent,
+) -> tuple[list[np.ndarray], Holes, Recent]:
+    """The tracked rows with every non-finite sample filled, the holes extended, the history kept.
+
+    A missing sample takes the value of its channel one engine cycle (720 deg) earlier,
+    interpolated linearly in angle between the two samples around ``phi - 4 pi`` (when both
+    are present and close); where there is none it is summed as zero and solved for by
+    :func:`refit`. ``pieces`` (n_track, n_i) in the order of the samples ``phi``, ``q``
+    (n,); ``recent`` the samples of the last cycle before them (angle, rows), with their NaN.
+    Pieces without a hole are passed on as they are (no copy).
+    """
+    rows = np.concatenate(pieces, axis=1) if len(pieces) > 1 else pieces[0]
+    all_phi = np.concatenate((recent[0], phi))
+    all_x = np.concatenate((recent[1], rows), axis=1) if recent[1].size else rows
+    keep = all_phi >= all_phi[-1] - CYCLE - HISTORY_MARGIN
+    new_recent = (all_phi[keep], all_x[:, keep])
+    bad = ~np.isfinite(rows)
+    if not bad.any():
+        return pieces, holes, new_recent
+    ch, k = np.nonzero(bad)
+    where = phi[k] - CYCLE
+    j = np.searchsorted(all_phi, where)
+    inside = (j > 0) & (j < all_phi.size)
+    j = np.clip(j, 1, all_phi.size - 1)
+    a, b = all_phi[j - 1], all_phi[j]
+    close = inside & (b - a < MAX_FILL_STEP) & (b > a)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = (where - a) / (b - a)
+        value = (1.0 - frac) * all_x[ch, j - 1] + frac * all_x[ch, j]
+    filled = close & np.isfinite(value)
+    value = np.where(filled, value, 0.0)
+    rows = rows.copy()
+    rows[ch, k] = value
+    out: list[np.ndarray] = []
+    p0 = 0
+    for p in pieces:
+        out.append(rows[:, p0 : p0 + p.shape[1]])
+        p0 += p.shape[1]
+    holes = (
+        np.concatenate((holes[0], phi[k])),
+        np.concatenate((holes[1], q[k])),
+        np.concatenate((holes[2], ch.astype(np.int64))),
+        np.concatenate((holes[3], ~filled)),
+    )
+    return out, holes, new_recent
+
+
+def forget_holes(holes: Holes, phi_lo: float) -> Holes:
+    """The holes from angle ``phi_lo`` on (no window needs the earlier ones)."""
+    if holes[0].size == 0 or holes[0].min() >= phi_lo:
+        return holes
+    keep = holes[0] >= phi_lo
+    return (holes[0][keep], holes[1][keep], holes[2][keep], holes[3][keep])
+
+
+def window_weight(phi: np.ndarray, lo: float, hi: float, taper_rad: float) -> np.ndarray:
+    """The window's weight ``w`` at ``phi`` for the window ``[lo, hi]`` (taper zones included):
+    ``rise`` over the first ``taper_rad``, 1 in between, ``1 - rise`` over the last."""
+    w = np.ones(phi.size)
+    up = phi < lo + taper_rad
+    w[up] = rise_table((phi[up] - lo) / taper_rad)
+    down = phi > hi - taper_rad
+    w[down] = 1.0 - rise_table((phi[down] - (hi - taper_rad)) / taper_rad)
+    w[(phi < lo) | (phi >= hi)] = 0.0
+    return w
+
+
+def refit(
+    x: np.ndarray,
+    w_total: np.ndarray,
+    holes: Holes,
+    lo_phi: np.ndarray,
+    hi_phi: np.ndarray,
+    k2: np.ndarray,
+    out: np.ndarray,
+    taper_rad: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares amplitudes of the windows that hold holes.
+
+    Parameters
+    ----------
+    x : (f, n_ch, n_int) complex
+        Window sums ``2 s / W`` with zeros in the holes (modified copy returned).
+    w_total : (f,) float
+        ``W = sum w q`` of each window (every sample, present or not), rad.
+    holes : the group's missing samples.
+    lo_phi, hi_phi : (f,) float
+        Each window's angle span (rad).
+    k2 : (n_int,) int64
+        Twice the internally tracked orders (the basis).
+    out : (n_orders,) int
+        Index of each output order in ``k2`` (the variance factor looks at those).
+    taper_rad : float
+
+    Returns
+    -------
+    x : (f, n_ch, n_int) complex
+        The fit; NaN for a channel whose variance factor exceeds :data:`MAX_VARIANCE_FACTOR`.
+    factor : (f, n_ch) float
+        Each channel's variance factor (1 where the window has no hole).
+    """
+    f, n_ch, n_int = x.shape
+    factor = np.ones((f, n_ch))
+    if holes[0].size == 0:
+        return x, factor
+    hphi, hq, hch, hzero = holes
+    x = x.copy()
+    h = 0.5 * k2.astype(float)
+    for i in range(f):
+        inside = (hphi >= lo_phi[i]) & (hphi < hi_phi[i])
+        if not inside.any() or not math.isfinite(w_total[i]) or w_total[i] <= 0.0:
+            continue
+        for c in np.unique(hch[inside]):
+            sel = inside & (hch == c)
+            phi = hphi[sel]
+            wq = window_weight(phi, lo_phi[i], hi_phi[i], taper_rad) * hq[sel]
+            arg = np.outer(phi, h)
+            basis = np.concatenate((np.cos(arg), -np.sin(arg)), axis=1)  # (m, 2 n_int)
+            # The holes summed as zeros are solved for: I - 2 G_M / W, G_M = sum over them of
+            # w q b b^T, whose inverse is also their variance factor. A filled hole counts as
+            # present; its value (one cycle earlier) adds that sample's variance once more.
+            zero = hzero[sel]
+            filled_share = 2.0 * float(wq[~zero].sum()) / w_total[i]
+            if not zero.any():
+                factor[i, c] = 1.0 + filled_share
+                continue
+            gram = (2.0 / w_total[i]) * (basis[zero].T * wq[zero]) @ basis[zero]
+            a = np.eye(2 * n_int) - gram
+            try:
+                inv = np.linalg.inv(a)
+            except np.linalg.LinAlgError:
+                x[i, c] = np.nan
+                factor[i, c] = math.inf
+                continue
+            diag = np.diag(inv)
+            worst = float(max(diag[out].max(), diag[n_int + out].max()))
+            factor[i, c] = worst + filled_share
+            if not worst <= MAX_VARIANCE_FACTOR or np.any(diag <= 0.0):
+                x[i, c] = np.nan
+                continue
+            theta0 = np.concatenate((x[i, c].real, x[i, c].imag))
+            theta = inv @ theta0
+            x[i, c] = theta[:n_int] + 1j * theta[n_int:]
+    return x, factor

@@ -1,0 +1,84 @@
+"""Lost samples and lost tacho edges cost samples, not frames (dsp.gap_fit, dsp.wheel).
+
+Each check has an independent reference: a least-squares fit by ``numpy.linalg.lstsq``
+over the samples present, the signal one cycle earlier.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from dsp.gap_fit import NO_HOLES, NO_RECENT, fill_holes, refit, window_weight
+
+
+def _signal(phi: np.ndarray, k2: np.ndarray, amps: np.ndarray) -> np.ndarray:
+    return np.real(np.exp(1j * np.outer(phi, 0.5 * k2)) @ amps)
+
+
+def test_refit_is_the_least_squares_fit_over_the_samples_present():
+    rng = np.random.default_rng(4)
+    k2 = np.arange(1, 9)
+    amps = rng.normal(size=k2.size) + 1j * rng.normal(size=k2.size)
+    taper = math.radians(45.0)
+    lo, hi = 0.0, 4 * math.pi + taper
+    phi = np.linspace(lo, hi, 700, endpoint=False)
+    q = np.full(phi.size, phi[1] - phi[0])
+    x = _signal(phi, k2, amps) + 0.01 * rng.normal(size=phi.size)
+    holes = np.zeros(phi.size, bool)
+    holes[200:215] = True
+    holes[480:490] = True
+    w = window_weight(phi, lo, hi, taper)
+    big_w = float(np.sum(w * q))
+    basis = np.exp(-1j * np.outer(phi, 0.5 * k2))
+    sums = 2.0 / big_w * ((w * q * np.where(holes, 0.0, x)) @ basis)
+    hole_set = (phi[holes], q[holes], np.zeros(holes.sum(), np.int64), np.ones(holes.sum(), bool))
+    got, factor = refit(
+        sums[None, None, :], np.array([big_w]), hole_set, np.array([lo]), np.array([hi]),
+        k2, np.arange(k2.size), taper,
+    )  # fmt: skip
+    # the reference: weighted least squares over the samples present, same basis
+    keep = ~holes
+    design = np.concatenate(
+        (np.cos(np.outer(phi, 0.5 * k2)), -np.sin(np.outer(phi, 0.5 * k2))), axis=1
+    )[keep]
+    sw = np.sqrt((w * q)[keep])
+    theta = np.linalg.lstsq(design * sw[:, None], x[keep] * sw, rcond=None)[0]
+    ref = theta[: k2.size] + 1j * theta[k2.size :]
+    # the window's own orthogonality error is the only difference (as without holes)
+    full = 2.0 / big_w * ((w * q * x) @ basis)
+    full_ls = np.linalg.lstsq(
+        np.concatenate((np.cos(np.outer(phi, 0.5 * k2)), -np.sin(np.outer(phi, 0.5 * k2))), 1)
+        * np.sqrt(w * q)[:, None],
+        x * np.sqrt(w * q),
+        rcond=None,
+    )[0]
+    ortho = np.abs(full - (full_ls[: k2.size] + 1j * full_ls[k2.size :])).max()
+    assert np.abs(got[0, 0] - ref).max() <= 3 * ortho + 1e-12
+    assert np.abs(got[0, 0] - amps).max() < 0.01  # and close to the truth
+    assert np.abs(sums - amps).max() > 0.05  # the zero-filled sums alone are not
+    assert 1.0 < factor[0, 0] < 2.0
+
+
+def test_missing_samples_are_filled_from_one_cycle_earlier():
+    phi = np.arange(3000) * 0.013
+    k2 = np.array([1, 3, 6, 9, 13])  # orders beyond any fit's basis too: the cycle repeats
+    amps = np.array([1.0, 0.5j, 0.3, -0.2, 0.1 + 0.1j])
+    x = _signal(phi, k2, amps)[None, :].repeat(2, axis=0)
+    x[1, 2500:2509] = np.nan
+    pieces, holes, recent = fill_holes(
+        [x[:, :1200], x[:, 1200:]], phi, np.full(phi.size, 0.013), NO_HOLES, NO_RECENT
+    )
+    filled = np.concatenate(pieces, axis=1)
+    truth = _signal(phi, k2, amps)
+    assert np.abs(filled[1, 2500:2509] - truth[2500:2509]).max() < 2e-3  # linear in angle
+    assert holes[2].tolist() == [1] * 9 and not holes[3].any()
+    assert recent[0][0] >= phi[-1] - 4 * math.pi - 0.2
+    # split into blocks anywhere: the same values
+    q = np.full(phi.size, 0.013)
+    again, first_holes, kept = fill_holes([x[:, :2400]], phi[:2400], q[:2400], NO_HOLES, NO_RECENT)
+    more, _, _ = fill_holes([x[:, 2400:]], phi[2400:], q[2400:], first_holes, kept)
+    assert np.array_equal(
+        np.concatenate((again[0], more[0]), axis=1)[1, 2500:2509], filled[1, 2500:2509]
+    )
