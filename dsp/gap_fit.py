@@ -1,35 +1,44 @@
-"""Order amplitudes of a window with missing samples: a least-squares fit over the samples present.
+"""Order amplitudes of a window with missing samples: filled from the previous cycle, or a
+least-squares fit over the samples present.
 
-A lost CAN frame leaves a few NaN samples on some channels. Without them the window sum
-``X_h = 2 / W sum w x exp(-i h phi) q`` is no longer the least-squares fit of the orders
-(the carriers are orthogonal only over the whole window), so a NaN used to take the
-channel out of the frame. Here the missing samples are summed as zeros and remembered
-(:func:`zero_holes`: their angle, ``q = omega dt`` and channel); a window holding some is
-solved afterwards (:func:`refit`).
+A lost CAN frame leaves a few NaN samples on some channels (9 per frame on the example
+DBC: up to 7 % of a cycle at 4500 rpm). Summed as they are, a NaN used to take the channel
+out of the frame; summed as zeros, the window sum ``X_h = 2 / W sum w x exp(-i h phi) q``
+is no longer the fit of the orders (the carriers are orthogonal only over the whole
+window). Two remedies, in this order (:func:`fill_holes`, then :func:`refit`):
 
-With the real parameters ``theta = (Re X_h, Im X_h)`` of the internally tracked orders
-and the basis ``b(phi) = (cos h phi, -sin h phi)``, the weighted normal equations over the
-samples present are
+1. **The previous engine cycle.** The signal repeats every 720 deg up to the slow change
+   along the sweep: a missing sample takes its channel's value at ``phi - 4 pi``
+   (linear in angle between the two samples around it). That carries every order,
+   also those above the internally tracked ones. Measured on the simulated i3 with 5 %
+   of the CAN frames lost (8 s sweep, realistic sensor errors), against the lossless run:
+   the windows with holes err by 0.12 / 0.55 / 0.31 % (orders 1 / 1.5 / 2, median,
+   relative to the order's largest channel; the windows without a hole of the same run
+   0.05 / 0.38 / 0.18 %: filled tacho edges, the leakage correction's neighbours). The
+   least-squares fit alone gave 0.81 / 4.2 / 2.2 %: the i3's strong orders 4.5 and 6 lie
+   outside the fitted orders and leak through the holes.
+2. **Least squares over the samples present**, where there is no previous cycle (a stream's
+   first cycle, a hole one cycle after another). With ``theta = (Re X_h, Im X_h)`` of the
+   internally tracked orders and the basis ``b(phi) = (cos h phi, -sin h phi)`` the
+   weighted normal equations over the samples present are
 
-    (W / 2 I - G_M) theta = sum_present w q x b = W / 2 theta_0,
-    G_M = sum_missing w q b b^T,
+       (W / 2 I - G_M) theta = sum_present w q x b = W / 2 theta_0,
+       G_M = sum_missing w q b b^T,
 
-where ``theta_0`` is the window sum with zeros in the holes and ``W / 2 I`` the Gram
-matrix of the whole window (the orthogonality the window sums already rely on; exact
-for a window without holes, so nothing changes there). Hence
+   where ``theta_0`` is the window sum with zeros in the holes and ``W / 2 I`` the Gram
+   matrix of the whole window (the orthogonality the window sums already rely on; exact
+   for a window without holes, so nothing changes there). Hence
+   ``theta = (I - 2 G_M / W)^-1 theta_0``; a component outside the basis (orders above
+   the internal ones, a DC offset: bench accelerometers are AC-coupled) leaks into it.
 
-    theta = (I - 2 G_M / W)^-1 theta_0.
-
-For white noise of variance ``s^2`` the full window gives ``Var theta = 2 s^2 / W`` (with
-flat weights); over the samples present it is ``2 s^2 / W (I - 2 G_M / W)^-1``. The
-channel's *variance factor*, the largest diagonal entry of that inverse among the output
-orders, goes out with the frame so the estimator weighs the channel accordingly. A window
-that lost too much (factor above :data:`MAX_VARIANCE_FACTOR`) keeps its NaN amplitudes.
-
-What the fit cannot see: a component outside the basis (an order above the internal ones,
-a DC offset: accelerometers on the bench are AC-coupled) leaks into the fit through the
-holes as it would into any least-squares fit; the mean square behind the leakage figure
-counts the holes as zeros (a few per cent low in such a window).
+Variance. For white noise of variance ``s^2`` the full window gives ``Var theta = 2 s^2 /
+W`` (flat weights); over the samples present, ``2 s^2 / W (I - 2 G_M / W)^-1``. A channel's
+*variance factor* is the largest diagonal entry of that inverse among the output orders,
+plus ``FILLED_WEIGHT`` times the filled samples' share of the window (their values repeat
+the frame 720 deg earlier); it goes out with the frame and the estimator weighs the channel
+by it. A window that lost too much (factor above :data:`MAX_VARIANCE_FACTOR`) keeps NaN
+amplitudes, as before. The mean square behind the leakage figure counts filled values
+(and zeros) as samples.
 """
 
 from __future__ import annotations
@@ -43,6 +52,9 @@ from dsp.frames import rise_table
 # A channel whose window lost so much that an order's variance more than doubles is left
 # out of the frame (NaN), as before: its neighbours carry the same information.
 MAX_VARIANCE_FACTOR = 2.0
+# A filled sample's share of the window counts this many times in the variance factor: a
+# window may hold at most a quarter of the previous cycle's samples.
+FILLED_WEIGHT = 4.0
 
 #: missing samples of a group: angle (rad), q = omega dt (rad), tracked channel (row),
 #: summed as zero (True) or filled from the previous cycle (False)
@@ -181,11 +193,14 @@ def refit(
             basis = np.concatenate((np.cos(arg), -np.sin(arg)), axis=1)  # (m, 2 n_int)
             # The holes summed as zeros are solved for: I - 2 G_M / W, G_M = sum over them of
             # w q b b^T, whose inverse is also their variance factor. A filled hole counts as
-            # present; its value (one cycle earlier) adds that sample's variance once more.
+            # present, but its value repeats the previous cycle (its noise and the frame
+            # 720 deg earlier): its share of the window counts FILLED_WEIGHT times.
             zero = hzero[sel]
-            filled_share = 2.0 * float(wq[~zero].sum()) / w_total[i]
+            filled_share = FILLED_WEIGHT * float(wq[~zero].sum()) / w_total[i]
             if not zero.any():
                 factor[i, c] = 1.0 + filled_share
+                if not factor[i, c] <= MAX_VARIANCE_FACTOR:
+                    x[i, c] = np.nan
                 continue
             gram = (2.0 / w_total[i]) * (basis[zero].T * wq[zero]) @ basis[zero]
             a = np.eye(2 * n_int) - gram
@@ -198,7 +213,7 @@ def refit(
             diag = np.diag(inv)
             worst = float(max(diag[out].max(), diag[n_int + out].max()))
             factor[i, c] = worst + filled_share
-            if not worst <= MAX_VARIANCE_FACTOR or np.any(diag <= 0.0):
+            if not factor[i, c] <= MAX_VARIANCE_FACTOR or np.any(diag <= 0.0):
                 x[i, c] = np.nan
                 continue
             theta0 = np.concatenate((x[i, c].real, x[i, c].imag))

@@ -152,6 +152,7 @@ def decode_edges(
     out_r: list[np.ndarray] = []
     runs: list[RunStart] = []
     events: list[SourceEvent] = []
+    deferred: list[SourceEvent] = []
     st = evolve(state, buf=buf)
     while True:
         buf = st.buf
@@ -182,14 +183,18 @@ def decode_edges(
         ratio = r / prev
         bad = np.flatnonzero((ratio < 1 - tol) | (ratio > 1 + tol))
         b = int(bad[0]) if bad.size else -1
-        if b >= 0 and st.confirmed and ratio[b] > 1 + tol:
+        # a full revolution, up to the next gap's tooth 0, must pass before anything commits
+        need = per_rev + 1 if gap else max(per_rev, 3) + 1
+        if b >= 0 and (st.confirmed or b >= need) and ratio[b] > 1 + tol:
             # edges missing (a lost CAN frame of edges): fill them from the neighbouring teeth
             if b + 1 >= d.size:
                 break  # the interval after the hole decides: wait for it
             filled = fill_missing_edges(buf, c, b, float(prev[b]), cfg)
             if filled is not None:
                 times, count = filled
-                events.append(
+                # (before the run is confirmed the fill is reported after its sync event, as
+                # when the two come in different blocks)
+                (events if st.confirmed else deferred).append(
                     SourceEvent(
                         "tacho_filled",
                         f"{count} tacho edge(s) missing after t = {buf[b]:.6f} s "
@@ -201,14 +206,14 @@ def decode_edges(
                 st = evolve(st, buf=np.concatenate((buf[: b + 1], times, buf[b + 1 :])))
                 continue
         if not st.confirmed:
-            # a full revolution, up to the next gap's tooth 0, must pass before anything commits
-            need = per_rev + 1 if gap else max(per_rev, 3) + 1
             if b >= 0 and b < need:
                 st = evolve(st, buf=buf[b + 1 :], synced=False)
                 continue
             if d.size < need:
                 break
             st = _start_run(st, buf, r, cfg, events, runs)
+            events += deferred
+            deferred.clear()
         # commit every edge whose following interval passed (not buf[0]: already committed)
         end = b if b >= 0 else d.size  # intervals 0 .. end-1 passed, edges 1 .. end-1 commit
         if end >= 2 or (end >= 1 and not st.confirmed):
@@ -300,11 +305,14 @@ def fill_missing_edges(
     after = pos[ks + 1] - pos[ks]  # pitches of the interval after the hole
     r_after = d_after / after
     pitch = 0.5 * (r_before + r_after)
-    miss = np.abs(d / pitch - span)
+    # only counts under which the interval after the hole is a plausible pitch count
+    # (else a count that puts the wheel's gap right after the hole fits any hole)
+    miss = np.where(
+        np.abs(r_after / r_before - 1.0) <= cfg.tolerance, np.abs(d / pitch - span), np.inf
+    )
     best = int(np.argmin(miss))
-    ok_after = abs(r_after[best] / r_before - 1.0) <= cfg.tolerance
     others = np.delete(miss, best)
-    if not (miss[best] <= FILL_TOLERANCE and ok_after and (others > 2 * FILL_TOLERANCE).all()):
+    if not (miss[best] <= FILL_TOLERANCE and (others > 2 * FILL_TOLERANCE).all()):
         return None
     k = int(ks[best])
     # cubic Hermite t(p) on p in [0, P] through (0, t_b) and (P, t_b + d), slopes r_before, r_after

@@ -1,7 +1,7 @@
 """Lost samples and lost tacho edges cost samples, not frames (dsp.gap_fit, dsp.wheel).
 
 Each check has an independent reference: a least-squares fit by ``numpy.linalg.lstsq``
-over the samples present, the signal one cycle earlier.
+over the samples present, the signal one cycle earlier, the complete edge list.
 """
 
 from __future__ import annotations
@@ -9,8 +9,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from dsp.gap_fit import NO_HOLES, NO_RECENT, fill_holes, refit, window_weight
+from dsp.tacho import TachoConfig
+from dsp.wheel import DecoderState, decode_edges
 
 
 def _signal(phi: np.ndarray, k2: np.ndarray, amps: np.ndarray) -> np.ndarray:
@@ -82,3 +85,47 @@ def test_missing_samples_are_filled_from_one_cycle_earlier():
     assert np.array_equal(
         np.concatenate((again[0], more[0]), axis=1)[1, 2500:2509], filled[1, 2500:2509]
     )
+
+
+def _wheel_times(revs: int) -> np.ndarray:
+    """Edge times (s) of a 60-2 wheel speeding up steadily from 1000 rpm."""
+    pos = np.array([n for n in range(60 * revs) if n % 60 < 58], dtype=float)
+    return pos * 1e-3 - 1e-8 * pos**2
+
+
+@pytest.mark.parametrize("split", [None, 805])
+def test_a_run_of_missing_tacho_edges_is_filled_from_the_neighbouring_teeth(split):
+    cfg = TachoConfig(kind="wheel", teeth=60, missing=2)
+    t = _wheel_times(30)
+    _, ref, _ = decode_edges(DecoderState(), t, cfg)
+    kept = np.ones(t.size, bool)
+    kept[800:807] = False  # a lost CAN frame of seven edges
+    blocks = [t[kept]] if split is None else [t[kept][:split], t[kept][split:]]
+    st, knots, events = DecoderState(), [], []
+    for block in blocks:
+        st, k, ev = decode_edges(st, block, cfg)
+        knots.append(k)
+        events += ev
+    assert [e.kind for e in events] == ["tacho_sync", "tacho_filled"]
+    assert events[1].count == 7
+    n = np.concatenate([k.n for k in knots])
+    t_s = np.concatenate([k.t_s for k in knots])
+    assert np.array_equal(n, ref.n)
+    # the cubic's slopes are the neighbouring per-pitch intervals, half a pitch off its
+    # ends: with t'' = -2e-8 s per pitch^2 each is 1e-8 s/pitch off, which moves the cubic
+    # by at most 4/27 of that times the 8 pitches of the hole at each end (2.4e-8 s, a
+    # 4e-5 of a pitch); the gap's own edges are exact
+    assert np.abs(t_s - ref.t_s).max() <= 2 * 4 / 27 * 8 * 1e-8
+    assert np.count_nonzero(t_s != ref.t_s) == 7
+
+
+def test_a_hole_that_is_no_whole_tooth_count_is_not_filled():
+    cfg = TachoConfig(kind="wheel", teeth=60, missing=2)
+    t = _wheel_times(30)
+    kept = np.ones(t.size, bool)
+    kept[800:807] = False
+    t = t[kept]
+    t[800:] += 0.45e-3  # the hole now spans 8.45 pitches: not a count of teeth
+    _, _, events = decode_edges(DecoderState(), t, cfg)
+    assert "tacho_filled" not in [e.kind for e in events]
+    assert "no_tacho" in [e.kind for e in events]
