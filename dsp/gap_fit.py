@@ -84,14 +84,16 @@ def fill_holes(
     (n,); ``recent`` the samples of the last cycle before them (angle, rows), with their NaN.
     Pieces without a hole are passed on as they are (no copy).
     """
+    new_recent = _last_cycle(pieces, phi, recent)
+    # a sum is non-finite where a sample is (an overflow only costs the exact check)
+    if all(math.isfinite(float(p.sum())) for p in pieces):
+        return pieces, holes, new_recent
     rows = np.concatenate(pieces, axis=1) if len(pieces) > 1 else pieces[0]
-    all_phi = np.concatenate((recent[0], phi))
-    all_x = np.concatenate((recent[1], rows), axis=1) if recent[1].size else rows
-    keep = all_phi >= all_phi[-1] - CYCLE - HISTORY_MARGIN
-    new_recent = (all_phi[keep], all_x[:, keep])
     bad = ~np.isfinite(rows)
     if not bad.any():
         return pieces, holes, new_recent
+    all_phi = np.concatenate((recent[0], phi))
+    all_x = np.concatenate((recent[1], rows), axis=1) if recent[1].size else rows
     ch, k = np.nonzero(bad)
     where = phi[k] - CYCLE
     j = np.searchsorted(all_phi, where)
@@ -118,6 +120,28 @@ def fill_holes(
         np.concatenate((holes[3], ~filled)),
     )
     return out, holes, new_recent
+
+
+def _last_cycle(pieces: list[np.ndarray], phi: np.ndarray, recent: Recent) -> Recent:
+    """The samples of the last engine cycle (and ``HISTORY_MARGIN``) up to the end of ``phi``:
+    copied from the block's tail alone when the block covers a cycle."""
+    lo = phi[-1] - CYCLE - HISTORY_MARGIN
+    i0 = int(np.searchsorted(phi, lo))
+    if i0 > 0:
+        parts, p0 = [], 0
+        for p in pieces:
+            p1 = p0 + p.shape[1]
+            if p1 > i0:
+                parts.append(p[:, max(i0 - p0, 0) :])
+            p0 = p1
+        return phi[i0:].copy(), np.concatenate(parts, axis=1)
+    keep = recent[0] >= lo
+    rows = np.concatenate(pieces, axis=1) if len(pieces) > 1 else pieces[0]
+    if not recent[1].size:
+        return phi.copy(), rows.copy()
+    return np.concatenate((recent[0][keep], phi)), np.concatenate(
+        (recent[1][:, keep], rows), axis=1
+    )
 
 
 def forget_holes(holes: Holes, phi_lo: float) -> Holes:

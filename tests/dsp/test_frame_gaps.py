@@ -7,11 +7,17 @@ over the samples present, the signal one cycle earlier, the complete edge list.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from acquisition.stream import EdgeBlock
+from dsp.config import OrderTrackerConfig
 from dsp.gap_fit import NO_HOLES, NO_RECENT, fill_holes, refit, window_weight
+from dsp.orders import OrderTracker
+from dsp.rejoin import rejoin
+from dsp.synthetic import Ramp, SyntheticBench, random_content
 from dsp.tacho import TachoConfig
 from dsp.wheel import DecoderState, decode_edges
 
@@ -129,3 +135,99 @@ def test_a_hole_that_is_no_whole_tooth_count_is_not_filled():
     _, _, events = decode_edges(DecoderState(), t, cfg)
     assert "tacho_filled" not in [e.kind for e in events]
     assert "no_tacho" in [e.kind for e in events]
+
+
+# -- an outage: the angle re-acquired (dsp.rejoin) -------------------------------------------
+
+TDC = 84.0
+
+
+def _outage_bench() -> SyntheticBench:
+    rng = np.random.default_rng(5)
+    return SyntheticBench(
+        Ramp(3000.0, 3000.0, 4.0), [random_content(rng) for _ in range(3)], tdc_after_gap_deg=TDC
+    )
+
+
+def _track_all(bench: SyntheticBench, items) -> tuple[list, list]:
+    tracker = OrderTracker.from_layout(bench.layout, _config())
+    frames, events = [], []
+    for item in items:
+        f, e = tracker.process(item)
+        frames += f
+        events += e
+    return frames, events
+
+
+def _config() -> OrderTrackerConfig:
+    return OrderTrackerConfig(tacho=TachoConfig(tdc_after_gap_deg=TDC), orders=(0.5, 1.0, 1.5, 2.0))
+
+
+def test_after_a_long_tacho_outage_the_angle_is_reacquired_and_the_gap_reported():
+    bench = _outage_bench()
+    items = list(bench.items(4.0, block_s=0.1))
+    reference, _ = _track_all(bench, items)
+    # 0.8 s without edges at 3000 rpm: 40 revolutions, too many to count across
+    cut = [
+        EdgeBlock(i.channel, i.times_s[(i.times_s < 1.0) | (i.times_s >= 1.8)])
+        if isinstance(i, EdgeBlock)
+        else i
+        for i in items
+    ]
+    frames, events = _track_all(bench, cut)
+    (gap,) = [e for e in events if e.kind == "angle_gap"]
+    assert 0.99 < gap.time_s < 1.0 and 1.8 <= gap.end_s < 1.85
+    assert "re-acquired" in gap.message
+    by_time = {round(f.time_s, 9): f for f in reference}
+    after = [f for f in frames if f.time_s > 1.9]
+    # (only the frame that overlaps the outage keeps the flag: it has no amplitudes at all)
+    assert after and not any("angle_rebased" in f.flags for f in after)
+    assert all("no_tacho" in f.flags for f in frames if "angle_rebased" in f.flags)
+    settled = [f for f in after if "leakage_uncorrected" not in f.flags]
+    assert len(settled) >= len(after) - 4
+    for f in settled:
+        ref = by_time[round(f.time_s, 9)]
+        assert f.crank_angle_rad == ref.crank_angle_rad
+        # the same samples, the same angle: the same amplitudes, half orders included
+        np.testing.assert_allclose(
+            f.amplitudes, ref.amplitudes, rtol=0, atol=1e-9 * np.abs(ref.amplitudes).max()
+        )
+
+
+def test_a_cycle_slipped_across_an_outage_is_turned_back_by_the_half_orders():
+    bench = _outage_bench()
+    frames, _ = _track_all(bench, bench.items(2.0, block_s=0.1))
+    frames = [f for f in frames if not f.flags - {"cycle_ambiguous"}]
+    st = OrderTracker.from_layout(bench.layout, _config()).state
+    before, later = frames[:20], frames[20:]
+    st, out = rejoin(st, before, np.zeros(len(before), np.int64))
+    assert out == before  # nothing to re-acquire
+    half = np.array([0, 2])  # orders 0.5 and 1.5
+    # the same frames as after a re-sync one revolution off: half orders turned by 180 deg
+    slipped = []
+    for f in later:
+        amp = f.amplitudes.copy()
+        amp[half] *= -1
+        slipped.append(replace(f, amplitudes=amp, crank_angle_rad=f.crank_angle_rad - 2 * np.pi,
+                               flags=f.flags | {"angle_rebased"}))  # fmt: skip
+    st2, back = rejoin(st, slipped, np.ones(len(slipped), np.int64))
+    assert st2.chain_sign == {1: -1}
+    for f, ref in zip(back, later, strict=True):
+        assert f.flags == ref.flags
+        assert f.crank_angle_rad == ref.crank_angle_rad
+        assert np.array_equal(f.amplitudes, ref.amplitudes)
+    # a cam decided the new chain's cycle: nothing to turn, the angle is good as it is
+    decided = [replace(f, flags=frozenset({"angle_rebased"})) for f in later[:3]]
+    _, kept = rejoin(st, decided, np.full(3, 2, np.int64))
+    assert all(
+        not f.flags and f.amplitudes is g.amplitudes for f, g in zip(kept, decided, strict=True)
+    )
+    # half orders that match neither sign (noise): the frames stay out
+    rng = np.random.default_rng(1)
+    noise = [
+        replace(f, amplitudes=f.amplitudes * np.exp(1j * rng.uniform(0, 6.3, f.amplitudes.shape)),
+                flags=f.flags | {"angle_rebased"})
+        for f in later[:1]
+    ]  # fmt: skip
+    st3, unsure = rejoin(st, noise, np.full(1, 3, np.int64))
+    assert st3.chain_sign == st.chain_sign and "angle_rebased" in unsure[0].flags

@@ -101,6 +101,53 @@ def test_random_block_splits_give_the_same_frames(tacho):
     _assert_same_frames(reference, frames)
 
 
+def test_lost_samples_and_edges_give_the_same_frames_in_any_blocks():
+    # what a lossy CAN bus leaves: runs of 9 NaN samples on one channel, runs of 5 edges
+    # missing; the fills (dsp.gap_fit, dsp.wheel) must not depend on the block cut
+    bench = _bench(ramp=Ramp(1500.0, 3000.0, 2.0))
+    duration = 2.0
+    rng = np.random.default_rng(11)
+    holes = {
+        (int(c), int(i))
+        for c, i in zip(rng.integers(0, 3, 30), rng.integers(3000, 9500, 30), strict=True)
+    }
+    lost_edges = [0.8, 1.6]
+
+    def spoiled(items):
+        for item in items:
+            if isinstance(item, SampleBlock):
+                data = item.data.copy()
+                for c, i in holes:
+                    a = max(i - item.first_index, 0)
+                    b = min(i + 9 - item.first_index, data.shape[1])
+                    if a < b:
+                        data[c, a:b] = np.nan
+                item = SampleBlock(item.group, item.first_index, data)
+            elif isinstance(item, EdgeBlock):
+                t = item.times_s
+                keep = np.ones(t.size, bool)
+                for t0 in lost_edges:
+                    keep &= ~((t >= t0) & (t < t0 + 4.5 / (3000 / 60 * 60)))
+                item = EdgeBlock(item.channel, t[keep])
+            yield item
+
+    reference, events = _run(bench, spoiled(_one_block(bench, duration)))
+    assert [e.kind for e in events].count("tacho_filled") == len(lost_edges)
+    assert sum(f.variance_factor is not None for f in reference) > 20
+    assert all(
+        f.channel_ok.all()
+        for f in reference
+        if not f.flags - {"cycle_ambiguous", "leakage_uncorrected"}
+    )
+    split = _split_edges(bench.items(duration, block_s=0.03, rng_blocks=rng), rng)
+    frames, _ = _run(bench, spoiled(split))
+    _assert_same_frames(reference, frames)
+    for fa, fb in zip(reference, frames, strict=True):
+        assert (fa.variance_factor is None) == (fb.variance_factor is None)
+        if fa.variance_factor is not None:
+            np.testing.assert_allclose(fa.variance_factor, fb.variance_factor, rtol=1e-9)
+
+
 def test_single_sample_blocks_give_the_same_frames():
     bench = _bench()
     duration = 0.6
