@@ -45,6 +45,7 @@ MAX_FILL_PITCHES = 40
 # A single missed edge stays a loss of sync (a sensor glitch, flagged and re-synchronised
 # as before); a run of missing edges is what a lost CAN frame of edges leaves.
 MIN_FILL_EDGES = 2
+FILL_REPORT_S = 1.0  # fills are reported at most once per this much edge time
 FILL_TOLERANCE = 0.3
 
 
@@ -98,6 +99,10 @@ class DecoderState:
     last_n: int = 0
     last_r: float = math.nan
     lost_reason: str = ""
+    # filled holes and edges not reported yet, and when the last report was (s)
+    fill_holes: int = 0
+    fill_edges: int = 0
+    fill_reported_s: float = -math.inf
 
 
 def _position(c: np.ndarray, teeth: int, gap: int) -> np.ndarray:
@@ -192,17 +197,25 @@ def decode_edges(
             filled = fill_missing_edges(buf, c, b, float(prev[b]), cfg)
             if filled is not None:
                 times, count = filled
-                # (before the run is confirmed the fill is reported after its sync event, as
-                # when the two come in different blocks)
-                (events if st.confirmed else deferred).append(
-                    SourceEvent(
-                        "tacho_filled",
-                        f"{count} tacho edge(s) missing after t = {buf[b]:.6f} s "
-                        f"({d[b] * 1e3:.2f} ms): filled from the neighbouring teeth",
-                        float(buf[b]),
-                        count,
+                holes, edges = st.fill_holes + 1, st.fill_edges + count
+                st = evolve(st, fill_holes=holes, fill_edges=edges)
+                if buf[b] - st.fill_reported_s >= FILL_REPORT_S:
+                    # one line per FILL_REPORT_S of edges at most (a lossy bus fills often),
+                    # counting the holes since the last one
+                    since = "" if holes == 1 else f" in {holes} holes since the last report"
+                    # (before the run is confirmed the fill is reported after its sync event,
+                    # as when the two come in different blocks)
+                    (events if st.confirmed else deferred).append(
+                        SourceEvent(
+                            "tacho_filled",
+                            f"{edges} tacho edge(s) missing{since}, the last after t = "
+                            f"{buf[b]:.6f} s ({d[b] * 1e3:.2f} ms): filled from the "
+                            "neighbouring teeth",
+                            float(buf[b]),
+                            edges,
+                        )
                     )
-                )
+                    st = evolve(st, fill_holes=0, fill_edges=0, fill_reported_s=float(buf[b]))
                 st = evolve(st, buf=np.concatenate((buf[: b + 1], times, buf[b + 1 :])))
                 continue
         if not st.confirmed:

@@ -111,7 +111,7 @@ def test_lost_samples_and_edges_give_the_same_frames_in_any_blocks():
         (int(c), int(i))
         for c, i in zip(rng.integers(0, 3, 30), rng.integers(3000, 9500, 30), strict=True)
     }
-    lost_edges = [0.8, 1.6]
+    lost_edges = [0.4, 1.6]  # more than FILL_REPORT_S apart: one report each
 
     def spoiled(items):
         for item in items:
