@@ -17,6 +17,10 @@ would cost more than the whole order tracking):
   the wheel has re-synchronised at a later gap.
 * An edge becomes a knot only once the interval *after* it has passed too, so
   a spurious edge never becomes a knot.
+* A run of missing edges (a lost CAN frame of edges) whose length is a whole tooth
+  count at the neighbouring teeth's rate is filled from them
+  (:func:`fill_missing_edges`) instead of breaking the pattern; a single missed edge
+  still breaks it (a sensor glitch may as well be a spurious extra interval).
 * After a re-sync the revolution count across the lost stretch is bridged from
   the tooth rate on both sides; if the estimate is not clearly within a
   quarter revolution of a whole number, the run is marked ``bridged=False``
@@ -292,15 +296,14 @@ def fill_missing_edges(
 ) -> tuple[np.ndarray, int] | None:
     """The edge times missing in interval ``b`` of ``buf`` (tooth counts ``c``), or None.
 
-    The interval is taken to skip ``k - 1`` teeth when its length is within
-    ``FILL_TOLERANCE`` pitches of the ``P_k`` pitches those teeth span (the wheel's gap
-    counted), at the per-pitch interval of the neighbouring teeth (the mean of the one
+    The interval is taken to skip ``k - 1 >= MIN_FILL_EDGES`` teeth when its length is
+    within ``FILL_TOLERANCE`` pitches of the ``P_k`` pitches those teeth span (the wheel's
+    gap counted), at the per-pitch interval of the neighbouring teeth (the mean of the one
     before and the one after), no other count comes as close, and the interval after it
-    agrees with the one before within the decoder's tolerance, for ``k - 1 >=
-    MIN_FILL_EDGES``. The missing edges go on a
+    agrees with the one before within the decoder's tolerance. The missing edges go on a
     cubic in time over wheel position through the two edges around the hole, with the
-    neighbouring per-pitch intervals as its slopes: at constant angular acceleration the
-    true times to rounding.
+    neighbouring per-pitch intervals as its slopes (each half a pitch off its end: at
+    constant angular acceleration ``t''`` the times err by at most ``4/27 P t''``).
     """
     teeth, gap = cfg.teeth_per_rev, cfg.gap_teeth
     per_rev = teeth - gap

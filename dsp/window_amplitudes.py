@@ -64,7 +64,8 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
             xg = 2.0 * s / w[:, None, None]  # (f, n_ch_g, n_int)
         holes = st.groups[gi].holes
         if holes[0].size:
-            # windows with missing samples: the least-squares fit over the samples present
+            # windows with missing samples: filled from the cycle before or fitted over the
+            # samples present (dsp.gap_fit)
             xg, factor = refit(xg, w, holes, lo_w, hi_w, plan.k2, plan.out, tw)
             variance[:, cols] = factor
         usable = ~(tacho_bad | bad_group[:, gi])
