@@ -23,9 +23,10 @@ WEIGHT_CHANGE = 0.1
 
 # Frames that see only two sensors are used once that has lasted this many gated frames
 # in a row (a sensor dead or unplugged: see estimator/partial.py). Sporadic losses (a
-# lost CAN frame takes a sensor out of one window) are rejected as "sensor_geometry":
-# their neighbours carry the same information, and on the simulated CAN bus with 1 %
-# lost frames and the realistic sensor errors, using them biased Izz by 6 %.
+# window that lost more of a sensor than dsp.gap_fit fills or fits) are rejected as
+# "sensor_geometry": their neighbours carry the same information, and on the simulated
+# CAN bus with 1 % lost frames and the realistic sensor errors, using them (when every
+# lost frame took its sensor out of the window) biased Izz by 6 %.
 UNSEEN_AFTER_FRAMES = 8
 
 # A frame's channels that lost samples (dsp.gap_fit) are weighed by their variance factor,
