@@ -267,10 +267,13 @@ def _finish(
         ambiguous.tolist(), (chains > 0).tolist(), in_range.tolist(), uncorrected.tolist(),
         strict=True,
     )  # fmt: skip
+    # a variance factor only where a window lost samples (most frames have none)
+    holed = (raw["variance"] != 1.0).any(axis=1).tolist()
+    variances = [v if h else None for v, h in zip(raw["variance"], holed, strict=True)]
     columns = zip(
         js.tolist(), parity.tolist(), times[:, 1].tolist(), rpm.tolist(), rpm_change.tolist(),
-        list(out), list(raw["ok"]), list(leak), raw["flags"].tolist(), keys, spectra,
-        list(raw["variance"]), strict=True,
+        list(out), list(raw["ok"]), list(leak), raw["flags"].tolist(), keys, spectra, variances,
+        strict=True,
     )  # fmt: skip
     for j, p, t, r, dr, amp, ok, lk, raw_flags, key, sp, var in columns:
         # most frames share one set of flags: build each distinct set once
@@ -307,8 +310,7 @@ def _finish(
                 flags=flags,
                 spectrum=sp,
                 spectrum_channel=cfg.spectrum_channel,
-                # only where a window lost samples (most frames have none)
-                variance_factor=var if (var != 1.0).any() else None,
+                variance_factor=var,
             )
         )
     return frames

@@ -36,9 +36,17 @@ def rejoin(
     st: TrackerState, frames: list[OrderFrame], chains: np.ndarray
 ) -> tuple[TrackerState, list[OrderFrame]]:
     """Frames of re-synchronised chains with their angle re-acquired where it can be."""
-    tc = st.plan.config.tacho
     k2 = st.plan.config.k2
     half = np.flatnonzero(k2 % 2 == 1)
+    if not any("angle_rebased" in f.flags for f in frames):
+        # the rule: nothing to re-acquire; only the reference moves on to the last frame
+        # whose half orders were measured (found from the end: usually the last one)
+        if half.size:
+            for f in reversed(frames):
+                if _measured(f.amplitudes[half]):
+                    return evolve(st, half_ref=f.amplitudes[half]), frames
+        return st, frames
+    tc = st.plan.config.tacho
     once_per_rev = tc.kind in ("wheel", "pulses") and (tc.gap_teeth > 0 or tc.teeth_per_rev == 1)
     signs = st.chain_sign
     ref = st.half_ref
@@ -54,14 +62,17 @@ def rejoin(
                         signs = {**signs, chain: sign}
                 if chain in signs:
                     frame = _turned(frame, half, signs[chain])
-        if half.size and "angle_rebased" not in frame.flags:
-            x = frame.amplitudes[half]
-            if np.isfinite(x).sum() >= x.size // 2:
-                ref = x
+        if half.size and "angle_rebased" not in frame.flags and _measured(frame.amplitudes[half]):
+            ref = frame.amplitudes[half]
         out.append(frame)
     if signs is not st.chain_sign or ref is not st.half_ref:
         st = evolve(st, chain_sign=signs, half_ref=ref)
     return st, out
+
+
+def _measured(x: np.ndarray) -> bool:
+    """Half-order amplitudes with at least half of them finite (a frame to continue from)."""
+    return int(np.isfinite(x).sum()) >= x.size // 2
 
 
 def _continue(ref: np.ndarray, x: np.ndarray) -> int:
