@@ -122,12 +122,16 @@ class EdgeBlock:
 
 @dataclass(frozen=True)
 class SourceEvent:
-    """A reportable event: ``kind`` is a short tag (``"gap"``, ``"bus_off"``), ``message`` one line."""
+    """A reportable event: ``kind`` is a short tag (``"gap"``, ``"bus_off"``), ``message`` one line.
+
+    ``end_s``: where the event spans time (an outage), its end (``time_s`` its start).
+    """
 
     kind: str
     message: str
     time_s: float | None = None
     count: int = 1
+    end_s: float | None = None
 
 
 StreamItem = SampleBlock | EdgeBlock | SourceEvent

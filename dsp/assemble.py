@@ -24,8 +24,10 @@ import numpy as np
 from dsp import angle as ang
 from dsp import cycle
 from dsp.frames import OrderFrame
+from dsp.gap_fit import forget_holes
 from dsp.immutable import evolve
 from dsp.leakage import ramp_correction
+from dsp.rejoin import rejoin
 from dsp.segments import decide_pressure
 from dsp.state import TWO_PI, TrackerState
 from dsp.sum_rows import drop_before, window_sums
@@ -155,6 +157,7 @@ def _batch(
     st, x, corrected = _correct(st, js, chains, raw["x"], raw["tacho_bad"])
     st, spectrum = _spectrum(st, js, chains, raw)
     frames = _finish(st, js, raw, x, corrected, parity, ~decided, chains, spectrum)
+    st, frames = rejoin(st, frames, chains)
     return _forget(st, int(js[-1]) + 1), frames, done
 
 
@@ -264,12 +267,15 @@ def _finish(
         ambiguous.tolist(), (chains > 0).tolist(), in_range.tolist(), uncorrected.tolist(),
         strict=True,
     )  # fmt: skip
+    # a variance factor only where a window lost samples (most frames have none)
+    holed = (raw["variance"] != 1.0).any(axis=1).tolist()
+    variances = [v if h else None for v, h in zip(raw["variance"], holed, strict=True)]
     columns = zip(
         js.tolist(), parity.tolist(), times[:, 1].tolist(), rpm.tolist(), rpm_change.tolist(),
-        list(out), list(raw["ok"]), list(leak), raw["flags"].tolist(), keys, spectra,
+        list(out), list(raw["ok"]), list(leak), raw["flags"].tolist(), keys, spectra, variances,
         strict=True,
     )  # fmt: skip
-    for j, p, t, r, dr, amp, ok, lk, raw_flags, key, sp in columns:
+    for j, p, t, r, dr, amp, ok, lk, raw_flags, key, sp, var in columns:
         # most frames share one set of flags: build each distinct set once
         flags = None if raw_flags else cache.get(key)
         if flags is None:
@@ -304,6 +310,7 @@ def _finish(
                 flags=flags,
                 spectrum=sp,
                 spectrum_channel=cfg.spectrum_channel,
+                variance_factor=var,
             )
         )
     return frames
@@ -314,11 +321,16 @@ def _forget(st: TrackerState, j_next: int) -> TrackerState:
     n = st.plan.config.frames_per_rev
     spacing = TWO_PI / n
     tw = math.radians(st.plan.config.taper_deg)
+    lo_phi = (j_next - n) * spacing - 0.5 * tw
     groups = tuple(
-        evolve(gs, acc=drop_before(gs.acc, j_next - n), spec=drop_before(gs.spec, j_next - n))
+        evolve(
+            gs,
+            acc=drop_before(gs.acc, j_next - n),
+            spec=drop_before(gs.spec, j_next - n),
+            holes=forget_holes(gs.holes, lo_phi),
+        )
         for gs in st.groups
     )
-    lo_phi = (j_next - n) * spacing - 0.5 * tw
     invalid = tuple(inv for inv in st.invalid if inv.phi_b >= lo_phi)
     t_keep = ang.time_at_one(st.table, lo_phi - spacing)
     table = ang.trim(st.table, t_keep) if math.isfinite(t_keep) else st.table

@@ -41,9 +41,11 @@ import numpy as np
 #: off by 360 deg, half orders then flip sign. ``angle_ambiguous``: N pulses
 #: per revolution without a gap: phi is known modulo 360/N deg. ``angle_rebased``:
 #: after a tacho dropout too long to count the revolutions across, phi may
-#: differ from the stream start's reference. ``nan`` / ``clipped`` /
-#: ``missing_channel``: a channel had NaN, clipped or missing samples in the
-#: window (its ``channel_ok`` is False; NaN and missing give NaN amplitudes).
+#: differ from the stream start's reference (cleared where :mod:`dsp.rejoin`
+#: re-acquires it). ``nan``: a channel lost more of the window than could be filled or
+#: fitted (:mod:`dsp.gap_fit`; fewer missing samples only raise its ``variance_factor``).
+#: ``clipped`` / ``missing_channel``: a channel had clipped samples, or the whole group
+#: missed samples, in the window (``channel_ok`` False; missing give NaN amplitudes).
 #: ``no_tacho`` / ``tacho_resync``: the window overlaps a stretch without crank
 #: angle (a dropout; a missed or extra edge until the next gap): every
 #: amplitude NaN. ``rpm_out_of_range``: mean rpm outside the configured range.
@@ -84,7 +86,8 @@ class OrderFrame:
         ``x(t) = Re{X exp(i h phi(t))}``, channel units (m/s^2). NaN where the
         window holds NaN samples, a sample gap, or no valid angle.
     channel_ok : (n_channels,) bool
-        False when the channel had NaN, clipped or missing samples in the window.
+        False when the channel had clipped or missing samples in the window (missing
+        ones only when more than :mod:`dsp.gap_fit` fills or fits).
     rpm_change : float
         ``(rpm_last - rpm_first) / rpm`` across the window.
     leakage : (n_channels,) float
@@ -114,6 +117,11 @@ class OrderFrame:
         ``channel_ok``; no clip check): a NaN spectrum is the sign.
     spectrum_channel : str or None
         The channel of ``spectrum`` (None when there is none).
+    variance_factor : (n_channels,) float or None
+        How much larger than in a complete window the variance of each channel's
+        amplitudes is, where the window lost samples (a lost CAN frame): those
+        amplitudes are a least-squares fit over the samples present
+        (:mod:`dsp.gap_fit`). None when no channel lost a sample (all ones).
     """
 
     time_s: float
@@ -128,6 +136,7 @@ class OrderFrame:
     flags: frozenset[str]
     spectrum: np.ndarray | None = None
     spectrum_channel: str | None = None
+    variance_factor: np.ndarray | None = None
 
     def amplitude(self, order: float, channel: str) -> complex:
         """The complex amplitude of one order on one channel."""

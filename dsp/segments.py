@@ -18,6 +18,7 @@ from acquisition.stream import SourceEvent
 from dsp import angle as ang
 from dsp import cycle
 from dsp.config import GroupPlan
+from dsp.gap_fit import fill_holes
 from dsp.immutable import evolve
 from dsp.state import (
     TACHO_REASONS,
@@ -245,7 +246,14 @@ def accumulate(
             ]
             sets = []
             if n_track:
-                sets.append(SumSet(acc, [p[:n_track] for p in x], st.plan.k2, cfg.clip_level))
+                # missing samples (a lost CAN frame) are filled from the previous engine
+                # cycle, or summed as zeros and solved for (dsp.gap_fit), and remembered
+                tracked, holes, recent = fill_holes(
+                    [p[:n_track] for p in x], phi[c0:c1], omega[c0:c1] / g.rate_hz, gs.holes,
+                    gs.recent,
+                )  # fmt: skip
+                gs = evolve(gs, holes=holes, recent=recent)
+                sets.append(SumSet(acc, tracked, st.plan.k2, cfg.clip_level))
             if at is not None:
                 # no clip check (clip_level is in the tracked channels' unit), no mean square
                 sk2 = st.plan.spectrum_k2

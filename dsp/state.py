@@ -15,6 +15,7 @@ import numpy as np
 from acquisition.stream import SourceEvent
 from dsp import angle as ang
 from dsp.config import Plan
+from dsp.gap_fit import NO_HOLES, NO_RECENT, Holes, Recent
 from dsp.immutable import evolve
 from dsp.rpmangle import RpmAngleState
 from dsp.sum_rows import Row
@@ -49,7 +50,9 @@ class GroupState:
     rows (n_keep, n)) pieces of consecutive samples; ``last_*`` describe the last sample that got one; ``acc`` maps a
     segment ``m`` to its sums (:mod:`dsp.sums`); ``spec`` the same for the spectrum
     channel's orders (the group holding it only); ``pressure`` candidate TDC ``k`` to
-    (sum, count) of the pressure near ``phi_w = 2 pi k``.
+    (sum, count) of the pressure near ``phi_w = 2 pi k``; ``holes`` the tracked
+    channels' missing samples and ``recent`` their last engine cycle, which fills them
+    (:mod:`dsp.gap_fit`).
     """
 
     pend: tuple[tuple[int, np.ndarray], ...] = ()
@@ -62,6 +65,8 @@ class GroupState:
     acc: dict[int, Row] = field(default_factory=dict)
     spec: dict[int, Row] = field(default_factory=dict)
     pressure: dict[int, tuple[float, int]] = field(default_factory=dict)
+    holes: Holes = NO_HOLES
+    recent: Recent = NO_RECENT
 
 
 @dataclass(frozen=True)
@@ -86,6 +91,10 @@ class TrackerState:
     # the same for the spectrum channel: (j (h,), chain (h,), spectrum (h, n_spec, 1))
     spec_history: tuple[np.ndarray, ...] = ()
     events: tuple[SourceEvent, ...] = ()
+    # the half-order sign of each chain re-acquired after an outage, and the last frame's
+    # half-order amplitudes (n_half, n_ch) that a new chain is continued from (dsp.rejoin)
+    chain_sign: dict[int, int] = field(default_factory=dict)
+    half_ref: np.ndarray | None = None
 
 
 def initial_state(plan: Plan) -> TrackerState:

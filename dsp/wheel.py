@@ -17,6 +17,10 @@ would cost more than the whole order tracking):
   the wheel has re-synchronised at a later gap.
 * An edge becomes a knot only once the interval *after* it has passed too, so
   a spurious edge never becomes a knot.
+* A run of missing edges (a lost CAN frame of edges) whose length is a whole tooth
+  count at the neighbouring teeth's rate is filled from them
+  (:func:`fill_missing_edges`) instead of breaking the pattern; a single missed edge
+  still breaks it (a sensor glitch may as well be a spurious extra interval).
 * After a re-sync the revolution count across the lost stretch is bridged from
   the tooth rate on both sides; if the estimate is not clearly within a
   quarter revolution of a whole number, the run is marked ``bridged=False``
@@ -39,6 +43,14 @@ from dsp.tacho import TachoConfig
 
 # Revolutions across which a lost stretch is still bridged (speed assumed to vary linearly).
 MAX_BRIDGE_REVS = 20.0
+# Missing edges are filled (fill_missing_edges) across at most this many pitches when the
+# hole's length is within FILL_TOLERANCE pitches of a whole tooth count.
+MAX_FILL_PITCHES = 40
+# A single missed edge stays a loss of sync (a sensor glitch, flagged and re-synchronised
+# as before); a run of missing edges is what a lost CAN frame of edges leaves.
+MIN_FILL_EDGES = 2
+FILL_REPORT_S = 1.0  # fills are reported at most once per this much edge time
+FILL_TOLERANCE = 0.3
 
 
 @dataclass(frozen=True)
@@ -91,6 +103,10 @@ class DecoderState:
     last_n: int = 0
     last_r: float = math.nan
     lost_reason: str = ""
+    # filled holes and edges not reported yet, and when the last report was (s)
+    fill_holes: int = 0
+    fill_edges: int = 0
+    fill_reported_s: float = -math.inf
 
 
 def _position(c: np.ndarray, teeth: int, gap: int) -> np.ndarray:
@@ -145,6 +161,7 @@ def decode_edges(
     out_r: list[np.ndarray] = []
     runs: list[RunStart] = []
     events: list[SourceEvent] = []
+    deferred: list[SourceEvent] = []
     st = evolve(state, buf=buf)
     while True:
         buf = st.buf
@@ -175,15 +192,45 @@ def decode_edges(
         ratio = r / prev
         bad = np.flatnonzero((ratio < 1 - tol) | (ratio > 1 + tol))
         b = int(bad[0]) if bad.size else -1
+        # a full revolution, up to the next gap's tooth 0, must pass before anything commits
+        need = per_rev + 1 if gap else max(per_rev, 3) + 1
+        if b >= 0 and (st.confirmed or b >= need) and ratio[b] > 1 + tol:
+            # edges missing (a lost CAN frame of edges): fill them from the neighbouring teeth
+            if b + 1 >= d.size:
+                break  # the interval after the hole decides: wait for it
+            filled = fill_missing_edges(buf, c, b, float(prev[b]), cfg)
+            if filled is not None:
+                times, count = filled
+                holes, edges = st.fill_holes + 1, st.fill_edges + count
+                st = evolve(st, fill_holes=holes, fill_edges=edges)
+                if buf[b] - st.fill_reported_s >= FILL_REPORT_S:
+                    # one line per FILL_REPORT_S of edges at most (a lossy bus fills often),
+                    # counting the holes since the last one
+                    since = "" if holes == 1 else f" in {holes} holes since the last report"
+                    # (before the run is confirmed the fill is reported after its sync event,
+                    # as when the two come in different blocks)
+                    (events if st.confirmed else deferred).append(
+                        SourceEvent(
+                            "tacho_filled",
+                            f"{edges} tacho edge(s) missing{since}, the last after t = "
+                            f"{buf[b]:.6f} s ({d[b] * 1e3:.2f} ms): filled from the "
+                            "neighbouring teeth",
+                            float(buf[b]),
+                            edges,
+                        )
+                    )
+                    st = evolve(st, fill_holes=0, fill_edges=0, fill_reported_s=float(buf[b]))
+                st = evolve(st, buf=np.concatenate((buf[: b + 1], times, buf[b + 1 :])))
+                continue
         if not st.confirmed:
-            # a full revolution, up to the next gap's tooth 0, must pass before anything commits
-            need = per_rev + 1 if gap else max(per_rev, 3) + 1
             if b >= 0 and b < need:
                 st = evolve(st, buf=buf[b + 1 :], synced=False)
                 continue
             if d.size < need:
                 break
             st = _start_run(st, buf, r, cfg, events, runs)
+            events += deferred
+            deferred.clear()
         # commit every edge whose following interval passed (not buf[0]: already committed)
         end = b if b >= 0 else d.size  # intervals 0 .. end-1 passed, edges 1 .. end-1 commit
         if end >= 2 or (end >= 1 and not st.confirmed):
@@ -244,6 +291,55 @@ def decode_edges(
     return st, knots, events
 
 
+def fill_missing_edges(
+    buf: np.ndarray, c: np.ndarray, b: int, r_before: float, cfg: TachoConfig
+) -> tuple[np.ndarray, int] | None:
+    """The edge times missing in interval ``b`` of ``buf`` (tooth counts ``c``), or None.
+
+    The interval is taken to skip ``k - 1 >= MIN_FILL_EDGES`` teeth when its length is
+    within ``FILL_TOLERANCE`` pitches of the ``P_k`` pitches those teeth span (the wheel's
+    gap counted), at the per-pitch interval of the neighbouring teeth (the mean of the one
+    before and the one after), no other count comes as close, and the interval after it
+    agrees with the one before within the decoder's tolerance. The missing edges go on a
+    cubic in time over wheel position through the two edges around the hole, with the
+    neighbouring per-pitch intervals as its slopes (each half a pitch off its end: at
+    constant angular acceleration ``t''`` the times err by at most ``4/27 P t''``).
+    """
+    teeth, gap = cfg.teeth_per_rev, cfg.gap_teeth
+    per_rev = teeth - gap
+    if c[b] < 0 or b + 2 >= buf.size:
+        return None
+    d = buf[b + 1] - buf[b]
+    d_after = buf[b + 2] - buf[b + 1]
+    ks = np.arange(MIN_FILL_EDGES + 1, min(MAX_FILL_PITCHES, per_rev) + 1)
+    if ks.size == 0:
+        return None
+    pos = _position(c[b] + np.arange(0, ks[-1] + 2), teeth, gap) - _position(
+        np.array([c[b]]), teeth, gap
+    )
+    span = pos[ks]  # pitches from edge b to the edge after the hole, per candidate
+    after = pos[ks + 1] - pos[ks]  # pitches of the interval after the hole
+    r_after = d_after / after
+    pitch = 0.5 * (r_before + r_after)
+    # only counts under which the interval after the hole is a plausible pitch count
+    # (else a count that puts the wheel's gap right after the hole fits any hole)
+    miss = np.where(
+        np.abs(r_after / r_before - 1.0) <= cfg.tolerance, np.abs(d / pitch - span), np.inf
+    )
+    best = int(np.argmin(miss))
+    others = np.delete(miss, best)
+    if not (miss[best] <= FILL_TOLERANCE and (others > 2 * FILL_TOLERANCE).all()):
+        return None
+    k = int(ks[best])
+    # cubic Hermite t(p) on p in [0, P] through (0, t_b) and (P, t_b + d), slopes r_before, r_after
+    big_p = float(span[best])
+    s = pos[1:k] / big_p
+    h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
+    h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
+    times = h00 * buf[b] + h10 * big_p * r_before + h01 * buf[b + 1] + h11 * big_p * r_after[best]
+    return times, k - 1
+
+
 def _start_run(
     st: DecoderState,
     buf: np.ndarray,
@@ -286,5 +382,17 @@ def _start_run(
             )
             message += f"; revolution count uncertain ({why}): angle rebased"
     events.append(SourceEvent("tacho_sync", message, t0))
+    if not bridged:
+        # an outage: the lost stretch itself, as a span (the result document lists these)
+        events.append(
+            SourceEvent(
+                "angle_gap",
+                f"no crank angle from t = {st.last_t:.3f} s to {t0:.3f} s ({revs:.1f} rev); "
+                + "angle re-acquired at the wheel gap",
+                st.last_t,
+                1,
+                t0,
+            )
+        )
     runs.append(RunStart(run, t0, base, reason, bridged))
     return evolve(st, run=run, run_base_n=base)

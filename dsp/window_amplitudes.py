@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from dsp import angle as ang
+from dsp.gap_fit import refit
 from dsp.state import TWO_PI, TrackerState
 from dsp.sum_rows import window_sums
 
@@ -50,6 +51,8 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
     x = np.full((f, n_int, n_ch), np.nan + 0j)
     ms = np.full((f, n_ch), np.nan)
     ok = np.zeros((f, n_ch), bool)
+    variance = np.ones((f, n_ch))
+    lo_w, hi_w = (js - n) * spacing - 0.5 * tw, (js + n) * spacing + 0.5 * tw
     for gi, g in enumerate(plan.groups):
         if not g.track_rows:
             continue
@@ -59,6 +62,12 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
         )
         with np.errstate(invalid="ignore", divide="ignore"):
             xg = 2.0 * s / w[:, None, None]  # (f, n_ch_g, n_int)
+        holes = st.groups[gi].holes
+        if holes[0].size:
+            # windows with missing samples: filled from the cycle before or fitted over the
+            # samples present (dsp.gap_fit)
+            xg, factor = refit(xg, w, holes, lo_w, hi_w, plan.k2, plan.out, tw)
+            variance[:, cols] = factor
         usable = ~(tacho_bad | bad_group[:, gi])
         if not usable.all():
             xg[~usable] = np.nan
@@ -78,6 +87,7 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
         "x": x,
         "ms": ms,
         "ok": ok,
+        "variance": variance,
         "flags": np.array(flags, dtype=object),
         "times": times.reshape(f, 3),
         "omegas": omegas.reshape(f, 3),

@@ -25,10 +25,17 @@ WEIGHT_CHANGE = 0.1
 
 # Frames that see only two sensors are used once that has lasted this many gated frames
 # in a row (a sensor dead or unplugged: see estimator/partial.py). Sporadic losses (a
-# lost CAN frame takes a sensor out of one window) are rejected as "sensor_geometry":
-# their neighbours carry the same information, and on the simulated CAN bus with 1 %
-# lost frames and the realistic sensor errors, using them biased Izz by 6 %.
+# window that lost more of a sensor than dsp.gap_fit fills or fits) are rejected as
+# "sensor_geometry": their neighbours carry the same information, and on the simulated
+# CAN bus with 1 % lost frames and the realistic sensor errors, using them (when every
+# lost frame took its sensor out of the window) biased Izz by 6 %.
 UNSEEN_AFTER_FRAMES = 8
+
+# A frame's channels that lost samples (dsp.gap_fit) are weighed by their variance factor,
+# rounded to steps of this (log) so that their fit geometries can be cached; at most
+# MAX_FITTERS geometries are kept.
+VARIANCE_STEP = 0.05
+MAX_FITTERS = 512
 
 
 class ChannelFits:
@@ -84,7 +91,7 @@ class ChannelFits:
         how long a sensor has been missing, and the geometry follows the weights)."""
         if used.tobytes() not in self._fitters and used.sum() < 6:  # (cached: six or more)
             return "too_few_channels", None
-        if (fitter := self.fitter(used)) is None:
+        if (fitter := self.fitter(used, self.variance_steps(frame, used, cols))) is None:
             return "sensor_geometry", None
         if fitter.null is None:
             self._unseen_run = 0
@@ -105,12 +112,33 @@ class ChannelFits:
         ok = np.array([np.asarray(f.channel_ok, bool) for f in frames])[:, at]
         return [(row, cols) for row in present & ok & finite]
 
-    def fitter(self, used: np.ndarray) -> RigidFit | None:
-        """The geometry decomposition of these channels (None: degenerate), cached per mask."""
-        key = used.tobytes()
+    def variance_steps(
+        self, frame: FrameLike, used: np.ndarray, cols: np.ndarray
+    ) -> np.ndarray | None:
+        """The used channels' variance factors (a window that lost samples, see
+        ``dsp.gap_fit``) in steps of ``VARIANCE_STEP`` (log), None when all round to one."""
+        factor = getattr(frame, "variance_factor", None)
+        if factor is None:
+            return None
+        steps = np.zeros(len(used), dtype=np.int64)
+        at = cols[used]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            steps[used] = np.round(np.log(np.asarray(factor, float)[at]) / VARIANCE_STEP)
+        return steps if steps.any() else None
+
+    def fitter(self, used: np.ndarray, steps: np.ndarray | None = None) -> RigidFit | None:
+        """The geometry decomposition of these channels (None: degenerate), cached per mask
+        (and per variance steps: a channel whose window lost samples weighs less)."""
+        key = used.tobytes() if steps is None else used.tobytes() + steps.tobytes()
         if key not in self._fitters:
+            if steps is not None and len(self._fitters) >= MAX_FITTERS:
+                # a long lossy run meets many combinations: keep the plain ones
+                self._fitters = {k: v for k, v in self._fitters.items() if len(k) == used.size}
             setup = self.setup
             weights = None if self.weights is None else self.weights[used]
+            if steps is not None:
+                base = np.ones(int(used.sum())) if weights is None else weights
+                weights = base * np.exp(-VARIANCE_STEP * steps[used])
             try:
                 self._fitters[key] = RigidFit.of(
                     setup.positions[used], setup.directions[used], weights, allow_null=True

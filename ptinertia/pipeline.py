@@ -61,6 +61,8 @@ class RunSummary:
     max_estimate_latency_s: float = 0.0
     rejected: dict[str, int] = field(default_factory=dict)  # frames rejected, per reason
     orders_rejected: dict[str, int] = field(default_factory=dict)  # (frame, order)s, per reason
+    # stretches without crank angle (a tacho or CAN outage): start_s, end_s, message
+    gaps: list[dict[str, Any]] = field(default_factory=list)
 
 
 class _Reader(threading.Thread):
@@ -143,9 +145,14 @@ class Pipeline:
         self._published = False
         # wall time from an item's arrival to the estimate it produced being in every sink, s
         self.estimate_latency_max = 0.0
+        self.gaps: list[dict[str, Any]] = []
 
     def _frames(self, frames: list[Any], events: list[SourceEvent]) -> None:
         for event in events:
+            if event.kind == "angle_gap":
+                self.gaps.append(
+                    {"start_s": event.time_s, "end_s": event.end_s, "message": event.message}
+                )
             for sink in self.sinks:
                 sink.on_event(event)
         if not frames:
@@ -238,4 +245,5 @@ class Pipeline:
             self.estimate_latency_max,
             dict(self.estimator.stats.rejected),
             dict(self.estimator.stats.orders_rejected),
+            list(self.gaps),
         )

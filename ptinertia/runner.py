@@ -145,6 +145,8 @@ def run_source(
     if summary.estimate is not None:
         doc = summary.estimate.to_json(result_truth(truth))
         doc["source"] = source_spec
+        if summary.gaps:  # stretches without crank angle the run went on across
+            doc["gaps"] = summary.gaps
         if summary.interrupted:
             doc["interrupted"] = True
     return summary, doc

@@ -101,6 +101,53 @@ def test_random_block_splits_give_the_same_frames(tacho):
     _assert_same_frames(reference, frames)
 
 
+def test_lost_samples_and_edges_give_the_same_frames_in_any_blocks():
+    # what a lossy CAN bus leaves: runs of 9 NaN samples on one channel, runs of 5 edges
+    # missing; the fills (dsp.gap_fit, dsp.wheel) must not depend on the block cut
+    bench = _bench(ramp=Ramp(1500.0, 3000.0, 2.0))
+    duration = 2.0
+    rng = np.random.default_rng(11)
+    holes = {
+        (int(c), int(i))
+        for c, i in zip(rng.integers(0, 3, 30), rng.integers(3000, 9500, 30), strict=True)
+    }
+    lost_edges = [0.4, 1.6]  # more than FILL_REPORT_S apart: one report each
+
+    def spoiled(items):
+        for item in items:
+            if isinstance(item, SampleBlock):
+                data = item.data.copy()
+                for c, i in holes:
+                    a = max(i - item.first_index, 0)
+                    b = min(i + 9 - item.first_index, data.shape[1])
+                    if a < b:
+                        data[c, a:b] = np.nan
+                item = SampleBlock(item.group, item.first_index, data)
+            elif isinstance(item, EdgeBlock):
+                t = item.times_s
+                keep = np.ones(t.size, bool)
+                for t0 in lost_edges:
+                    keep &= ~((t >= t0) & (t < t0 + 4.5 / (3000 / 60 * 60)))
+                item = EdgeBlock(item.channel, t[keep])
+            yield item
+
+    reference, events = _run(bench, spoiled(_one_block(bench, duration)))
+    assert [e.kind for e in events].count("tacho_filled") == len(lost_edges)
+    assert sum(f.variance_factor is not None for f in reference) > 20
+    assert all(
+        f.channel_ok.all()
+        for f in reference
+        if not f.flags - {"cycle_ambiguous", "leakage_uncorrected"}
+    )
+    split = _split_edges(bench.items(duration, block_s=0.03, rng_blocks=rng), rng)
+    frames, _ = _run(bench, spoiled(split))
+    _assert_same_frames(reference, frames)
+    for fa, fb in zip(reference, frames, strict=True):
+        assert (fa.variance_factor is None) == (fb.variance_factor is None)
+        if fa.variance_factor is not None:
+            np.testing.assert_allclose(fa.variance_factor, fb.variance_factor, rtol=1e-9)
+
+
 def test_single_sample_blocks_give_the_same_frames():
     bench = _bench()
     duration = 0.6
@@ -187,37 +234,84 @@ def test_latency_is_two_revolutions_plus_taper_plus_lookahead():
 def test_nan_clipped_and_gap_flag_only_the_frames_they_touch():
     bench = _bench(ramp=Ramp(3000.0, 3000.0, 2.0))
     items = list(bench.items(2.0, block_s=0.1))
-    out = []
-    for item in items:
-        if isinstance(item, SampleBlock) and item.first_index == 512 * 5:  # t = 0.5 s
-            data = item.data.copy()
-            data[1, 10] = np.nan
-            data[2, 200] = 1e3
-            item = SampleBlock(item.group, item.first_index, data)
-        if (
-            isinstance(item, SampleBlock) and item.first_index == 512 * 12
-        ):  # t = 1.2 s: dropped block
-            continue
-        out.append(item)
-    frames, _ = _run(bench, out, _config(clip_level=100.0))
+
+    def spoiled(nan: bool):
+        for item in items:
+            if isinstance(item, SampleBlock) and item.first_index == 512 * 5:  # t = 0.5 s
+                data = item.data.copy()
+                if nan:
+                    data[1, 10] = np.nan
+                data[2, 200] = 1e3
+                item = SampleBlock(item.group, item.first_index, data)
+            if (
+                isinstance(item, SampleBlock) and item.first_index == 512 * 12
+            ):  # t = 1.2 s: dropped block
+                continue
+            yield item
+
+    frames, _ = _run(bench, spoiled(nan=True), _config(clip_level=100.0))
+    whole, _ = _run(bench, spoiled(nan=False), _config(clip_level=100.0))
+    assert [f.time_s for f in frames] == [f.time_s for f in whole]
     t_nan = 0.5 + 10 / 5120
     t_clip = 0.5 + 200 / 5120
     taper = _config().taper_deg
     half = (360 + taper / 2) / (3000 * 6)  # the window reaches 360 deg + taper/2 each side (s)
-    for f in frames:
+    for f, ref in zip(frames, whole, strict=True):
         near = lambda t, f=f: abs(f.time_s - t) < half  # noqa: E731
-        assert ("nan" in f.flags) == near(t_nan)
+        # a missing sample costs that sample, not the channel (dsp.gap_fit): filled from
+        # the cycle before, the channel's amplitudes stay within the noise of the whole
+        # window's, and only its variance factor says so
+        assert "nan" not in f.flags
+        if near(t_nan):
+            assert f.channel_ok[1] and np.isfinite(f.amplitudes[:, 1]).all()
+            assert f.variance_factor is not None and f.variance_factor[1] > 1.0
+            assert np.all(np.delete(f.variance_factor, 1) == 1.0)
+            err = np.abs(f.amplitudes[:, 1] - ref.amplitudes[:, 1])
+            assert err.max() <= 0.01 * np.abs(ref.amplitudes[:, 1]).max()
+        else:
+            assert f.variance_factor is None
+        # the other channels are untouched; the channel's later frames see the filled window
+        # through the sweep-leakage correction (it takes the frames a cycle away in)
+        others = [0, 2]
+        assert np.array_equal(f.amplitudes[:, others], ref.amplitudes[:, others], equal_nan=True)
+        if f.time_s < t_nan - half:
+            assert np.array_equal(f.amplitudes, ref.amplitudes, equal_nan=True)
+        elif np.isfinite(ref.amplitudes[:, 1]).all():
+            err = np.abs(f.amplitudes[:, 1] - ref.amplitudes[:, 1])
+            assert err.max() <= 0.01 * np.abs(ref.amplitudes[:, 1]).max()
         assert ("clipped" in f.flags) == near(t_clip)
         gap = abs(f.time_s - 1.25) < 0.05 + half
         assert ("missing_channel" in f.flags) == gap
-        if near(t_nan):
-            assert not f.channel_ok[1] and np.isnan(f.amplitudes[:, 1]).all()
-            assert f.channel_ok[0] and np.isfinite(f.amplitudes[:, 0]).all()
         if gap:
             assert not f.channel_ok.any()
         if not f.flags - {"cycle_ambiguous", "leakage_uncorrected"}:
             assert f.channel_ok.all()
     assert frames[-1].time_s > 1.8  # the stream went on
+
+
+def test_a_channel_that_lost_most_of_its_window_is_left_out_and_flagged():
+    bench = _bench(ramp=Ramp(3000.0, 3000.0, 1.0))
+
+    def spoiled():
+        for item in bench.items(1.0, block_s=0.1):
+            if isinstance(item, SampleBlock) and item.first_index in (512 * 5, 512 * 6):
+                data = item.data.copy()
+                data[1] = np.nan  # 0.5 - 0.7 s: five engine cycles of one channel
+                item = SampleBlock(item.group, item.first_index, data)
+            yield item
+
+    frames, _ = _run(bench, spoiled(), _config())
+    taper = _config().taper_deg
+    half = (360 + taper / 2) / (3000 * 6)
+    # the first cycle of the stretch is filled from the cycle before; past it nothing is
+    # left to fill from, and a window that lost most of its samples is not fitted
+    inside = [f for f in frames if 0.5 + 0.04 + half <= f.time_s <= 0.7 - half]
+    assert inside
+    for f in inside:
+        assert "nan" in f.flags and not f.channel_ok[1] and np.isnan(f.amplitudes[:, 1]).all()
+        assert np.delete(f.channel_ok, 1).all() and np.isfinite(np.delete(f.amplitudes, 1, 1)).all()
+    far = [f for f in frames if abs(f.time_s - 0.6) > 0.1 + half]
+    assert far and all("nan" not in f.flags and f.channel_ok.all() for f in far)
 
 
 def test_rpm_out_of_range_is_flagged():
