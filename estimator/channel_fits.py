@@ -53,12 +53,15 @@ class ChannelFits:
         self._unseen_run = 0  # consecutive gated frames fitted with a rotation unseen
         self.generation = 0  # counts the weight changes (each makes new fit geometries)
 
-    def screen(self, frames: list[FrameLike]) -> list[tuple[np.ndarray, np.ndarray, Any, int]]:
+    def screen(
+        self, frames: list[FrameLike]
+    ) -> list[tuple[np.ndarray, np.ndarray, Any, int, np.ndarray | None]]:
         """The usable channels of gated frames, their noise tracked: per frame the
-        usable setup channels (bool), their columns in the frame, and the channel
-        noise variance and estimate count as they stand after the frame
+        usable setup channels (bool), their columns in the frame, the channel noise
+        variance and estimate count as they stand after the frame
         (:meth:`ChannelNoise.add_many`; release that count before the channel
-        weights may be refreshed, and everything at the end of the block).
+        weights may be refreshed, and everything at the end of the block), and the
+        used channels' variance steps (:meth:`variance_steps`).
 
         Frames sharing their channels and orders are masked with one array call."""
         masks: list[tuple[np.ndarray, np.ndarray]] = []
@@ -83,15 +86,22 @@ class ChannelFits:
             if t is not None:
                 now = next(variances)
             after.append(now)
-        return [(u, c, v, n) for (u, c), (v, n) in zip(masks, after, strict=True)]
+        # channels that lost samples (dsp.gap_fit) weigh less: their variance steps
+        return [
+            (u, c, v, n, self.variance_steps(f, u, c))
+            for f, (u, c), (v, n) in zip(frames, masks, after, strict=True)
+        ]
 
-    def choose(self, used: np.ndarray) -> tuple[str | None, RigidFit | None]:
+    def choose(
+        self, used: np.ndarray, steps: np.ndarray | None = None
+    ) -> tuple[str | None, RigidFit | None]:
         """Why a screened frame's channels cannot be fitted (None when they can) and,
-        when they can, the geometry of its used channels (frame by frame: it counts
-        how long a sensor has been missing, and the geometry follows the weights)."""
+        when they can, the geometry of its used channels weighed with their variance
+        ``steps`` (:meth:`variance_steps`; frame by frame: it counts how long a sensor
+        has been missing, and the geometry follows the weights)."""
         if used.tobytes() not in self._fitters and used.sum() < 6:  # (cached: six or more)
             return "too_few_channels", None
-        if (fitter := self.fitter(used, self.variance_steps(frame, used, cols))) is None:
+        if (fitter := self.fitter(used, steps)) is None:
             return "sensor_geometry", None
         if fitter.null is None:
             self._unseen_run = 0

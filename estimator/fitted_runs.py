@@ -36,17 +36,22 @@ class Screened(NamedTuple):
     cols: np.ndarray  # (n_setup,) their columns in the frame
     variance: Any  # the channel noise variance after the frame (n_setup,), or None
     estimates: int  # the channel noise's estimate count after the frame
+    steps: np.ndarray | None = (
+        None  # the used channels' variance steps (ChannelFits.variance_steps)
+    )
 
 
 def run_end(frames: Sequence[FrameLike], todo: list[Screened], at: int) -> int:
     """The end of the run starting at ``todo[at]``: the frames after it with the same
-    usable channels and the same orders."""
-    key = (todo[at].used.tobytes(), tuple(frames[todo[at].position].orders))
+    usable channels, variance steps (the same fit geometry) and orders."""
+
+    def key(s: Screened) -> tuple[bytes, bytes, tuple[float, ...]]:
+        steps = b"" if s.steps is None else s.steps.tobytes()
+        return s.used.tobytes(), steps, tuple(frames[s.position].orders)
+
+    first = key(todo[at])
     end = at + 1
-    while end < len(todo) and key == (
-        todo[end].used.tobytes(),
-        tuple(frames[todo[end].position].orders),
-    ):
+    while end < len(todo) and key(todo[end]) == first:
         end += 1
     return end
 

@@ -147,7 +147,7 @@ class InertiaEstimator:
         todo = [Screened(i, *s) for i, s in zip(gated, screened, strict=True)]
         at = 0
         while at < len(todo):
-            reason, fit = self.channels.choose(todo[at].used)
+            reason, fit = self.channels.choose(todo[at].used, todo[at].steps)
             if reason is not None:
                 outcomes[todo[at].position] = self._reject(frames[todo[at].position], reason)
                 at += 1
@@ -175,7 +175,7 @@ class InertiaEstimator:
         generation = self.channels.generation
         for j, i in enumerate(r.index):
             if j:
-                _, again = self.channels.choose(run[j].used)  # counts a missing sensor's frames
+                _, again = self.channels.choose(run[j].used, run[j].steps)  # counts missing sensors
                 assert again is fit, "a run's geometry changed without a relinearisation"
             self.channels.channel_noise.release(run[j].estimates)  # weights: frames so far
             if self.setup.gas_moment is not None and r.gas[j] is None:
