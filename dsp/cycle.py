@@ -70,21 +70,33 @@ def offset_rotation(s: np.ndarray, k2: np.ndarray, steps: int) -> np.ndarray:
     return np.exp(-1j * math.pi * m / steps)
 
 
+def pressure_half_width(steps: int = 1) -> float:
+    """Half-width (rad) of the window summed around each candidate TDC: 60 deg, at most
+    half the spacing of N pulses' candidates (4 pulses: 45 deg) so that no sample
+    counts for two candidates."""
+    return min(PRESSURE_HALF_WIDTH_RAD, 0.5 * 2.0 * math.pi / steps)
+
+
 def pressure_sums(
-    phi_w: np.ndarray, pressure: np.ndarray
+    phi_w: np.ndarray, pressure: np.ndarray, steps: int = 1
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Pressure sums near the candidate TDCs ``2 pi k`` crossed by these samples.
+    """Pressure sums near the candidate TDCs ``k 2 pi / steps`` crossed by these samples.
+
+    A wheel's candidates are one revolution apart; N pulses per revolution leave one
+    at each pulse (``steps`` = N, :func:`offset_steps`).
 
     Returns
     -------
     k : (c,) int64
         Candidate indices.
     total : (c,) float
-        Sum of the pressure samples within +-60 deg of ``2 pi k`` (NaN samples skipped).
+        Sum of the pressure samples within :func:`pressure_half_width` of the candidate
+        (NaN samples skipped).
     count : (c,) int64
     """
-    k = np.rint(phi_w / (2.0 * math.pi))  # whole numbers, as float: exactly 2 pi k below
-    near = np.abs(phi_w - 2.0 * math.pi * k) < PRESSURE_HALF_WIDTH_RAD
+    step = 2.0 * math.pi / steps
+    k = np.rint(phi_w / step)  # whole numbers, as float
+    near = np.abs(phi_w - step * k) < pressure_half_width(steps)
     near &= np.isfinite(pressure)
     if not near.any():
         e = np.empty(0, dtype=np.int64)
@@ -100,10 +112,22 @@ def pressure_sums(
 
 def pressure_parity(mean_k: float, mean_k1: float, k: int) -> int | None:
     """Parity from the mean pressures at candidates ``k`` and ``k + 1``; None if undecided."""
-    if not (math.isfinite(mean_k) and math.isfinite(mean_k1)):
+    return pressure_offset(np.array([mean_k, mean_k1]), k, 1)
+
+
+def pressure_offset(means: np.ndarray, k0: int, steps: int) -> int | None:
+    """Chain offset ``s`` (in steps of ``2 pi / steps``, :func:`offset_steps`) from the
+    mean pressures at the ``2 steps`` consecutive candidates ``k0, k0 + 1, ...`` of one
+    720 deg cycle; None if undecided.
+
+    Firing TDC is the candidate whose mean exceeds every other's by ``PRESSURE_RATIO``;
+    there ``phi = phi_w + s 2 pi / steps`` is a multiple of 4 pi, so ``s = -k mod 2 steps``
+    (a wheel: the parity ``k mod 2``).
+    """
+    if means.size != 2 * steps or not np.all(np.isfinite(means)):
         return None
-    if mean_k > PRESSURE_RATIO * mean_k1:
-        return k % 2
-    if mean_k1 > PRESSURE_RATIO * mean_k:
-        return (k + 1) % 2
-    return None
+    order = np.argsort(means)
+    top, second = means[order[-1]], means[order[-2]]
+    if not top > PRESSURE_RATIO * second:
+        return None
+    return int(-(k0 + int(order[-1])) % (2 * steps))

@@ -225,11 +225,12 @@ def accumulate(
         st = evolve(st, invalid=tuple(inv))
     bounds = np.cumsum([0] + [p.shape[1] for p in pieces]).tolist()  # where each piece begins
     if g.pressure_at is not None:
-        skip_a, skip_b = _silent_pressure(st, phi)
+        steps = _steps(st)
+        skip_a, skip_b = _silent_pressure(st, phi) if steps == 1 else (0, 0)
         for p, p0, p1 in zip(pieces, bounds[:-1], bounds[1:], strict=True):
             for a, b in ((p0, min(p1, skip_a)), (max(p0, skip_b), p1)):
                 if b > a:
-                    gs = add_pressure(gs, phi[a:b], p[g.pressure_at, a - p0 : b - p0])
+                    gs = add_pressure(gs, phi[a:b], p[g.pressure_at, a - p0 : b - p0], steps)
     acc, spec = gs.acc, gs.spec
     n_track = len(g.track_rows)
     at = g.spectrum_at
@@ -305,8 +306,8 @@ def _silent_pressure(st: TrackerState, phi: np.ndarray) -> tuple[int, int]:
     return int(a), int(b)
 
 
-def add_pressure(gs: GroupState, phi: np.ndarray, p: np.ndarray) -> GroupState:
-    k, total, count = cycle.pressure_sums(phi, p)
+def add_pressure(gs: GroupState, phi: np.ndarray, p: np.ndarray, steps: int = 1) -> GroupState:
+    k, total, count = cycle.pressure_sums(phi, p, steps)
     if k.size == 0:
         return gs
     cands = dict(gs.pressure)
@@ -316,41 +317,54 @@ def add_pressure(gs: GroupState, phi: np.ndarray, p: np.ndarray) -> GroupState:
     return evolve(gs, pressure=cands)
 
 
+def _steps(st: TrackerState) -> int:
+    """How many candidate TDCs per revolution the tacho leaves (cycle.offset_steps)."""
+    tc = st.plan.config.tacho
+    return cycle.offset_steps(tc.kind, tc.teeth)
+
+
 def decide_pressure(st: TrackerState) -> TrackerState:
-    """Decide the parity from complete pressure candidates (in crank-angle order)."""
+    """Decide the chains' offsets from complete pressure candidates (in crank-angle order).
+
+    A vote takes the ``2 N`` consecutive candidates of one 720 deg cycle (N = 1 for a
+    wheel: two TDCs a revolution apart; N pulses: one at each pulse) and names the
+    firing TDC among them (:func:`dsp.cycle.pressure_offset`) for the chain of the run
+    at the cycle's last candidate.
+    """
     parity = None
     groups = list(st.groups)
     changed = False
+    steps = _steps(st)
+    step = TWO_PI / steps
+    half = cycle.pressure_half_width(steps)
+    span = 2 * steps  # candidates per 720 deg cycle
     for gi, g in enumerate(st.plan.groups):
         if g.pressure_row is None:
             continue
         gs = groups[gi]
         if not gs.pressure:
             continue
-        done = sorted(
-            k for k in gs.pressure if TWO_PI * k + cycle.PRESSURE_HALF_WIDTH_RAD < gs.last_phi
-        )
+        done = sorted(k for k in gs.pressure if step * k + half < gs.last_phi)
         cands = gs.pressure
         complete = set(done)
-        votes = []  # (k, parity) of the pairs that decide
+        votes = []  # (last candidate of the cycle, offset) of the cycles that decide
         for k in done:
-            if k + 1 not in complete:
+            if any(k + i not in complete for i in range(span)):
                 continue
-            s0, c0 = cands[k]
-            s1, c1 = cands[k + 1]
-            p = cycle.pressure_parity(s0 / max(c0, 1), s1 / max(c1, 1), k)
-            if p is not None:
-                votes.append((k, p))
+            means = np.array([cands[k + i][0] / max(cands[k + i][1], 1) for i in range(span)])
+            s = cycle.pressure_offset(means, k, steps)
+            if s is not None:
+                votes.append((k + span - 1, s))
         if votes:
-            # every vote's chain in one call: a block holds one candidate per revolution
-            chains = chains_at(st, TWO_PI * (np.array([k for k, _ in votes]) + 1))
+            # every vote's chain in one call: a block holds one cycle per two revolutions
+            chains = chains_at(st, step * np.array([k for k, _ in votes]))
             parity = dict(st.parity) if parity is None else parity
-            for (k, p), chain in zip(votes, chains.tolist(), strict=True):
+            for (k, s), chain in zip(votes, chains.tolist(), strict=True):
                 if chain >= 0 and chain not in parity:
-                    parity[chain] = (p, TWO_PI * (k + 1) + cycle.PRESSURE_HALF_WIDTH_RAD)
-        if len(done) > 1:
-            # the newest complete candidate pairs with the next one: keep it
-            drop = set(done[:-1])
+                    parity[chain] = (s, step * k + half)
+        if len(done) >= span:
+            # the newest complete candidates still begin cycles with the next ones: keep them
+            drop = set(done[: len(done) - (span - 1)])
             kept = {k: v for k, v in cands.items() if k not in drop}
             groups[gi] = evolve(gs, pressure=kept)
             changed = True

@@ -111,14 +111,6 @@ class TachoConfig:
             )
         if self.teeth < 1:
             raise DspConfigError(f"tacho teeth: expected >= 1, got {self.teeth}")
-        if self.kind == "pulses" and self.teeth > 1 and self.phase_reference == "pressure":
-            # the pressure reference tells apart two candidate TDCs 360 deg apart; N pulses
-            # leave 2N candidates 360/N deg apart, which only the cam resolves (dsp.cycle)
-            raise DspConfigError(
-                f"tacho pulses: {self.teeth} pulses per revolution need phase_reference = "
-                "'cam' (the pressure reference fixes only the 720 deg cycle, not which pulse "
-                "is TDC); or use a wheel with a gap"
-            )
         if self.kind == "wheel":
             if self.missing >= self.teeth:
                 raise DspConfigError(

@@ -1,9 +1,11 @@
-"""N pulses per revolution and a cam: the cam fixes the angle the pulses leave open.
+"""N pulses per revolution and a cam or a cylinder-pressure channel: the reference fixes
+the angle the pulses leave open.
 
 N equal pulses give the crank angle only modulo 360/N deg (the first pulse seen is any of
-the N); one cam edge per 720 deg cycle picks the right one of the 2N candidates. Checked
-against the simulator's exact order amplitudes (phases included), and through the whole
-chain: the estimate of a pulses + cam bench is the wheel bench's.
+the N); one cam edge per 720 deg cycle, or the cylinder-1 pressure peaking at firing TDC,
+picks the right one of the 2N candidates. Checked against the simulator's exact order
+amplitudes (phases included), and through the whole chain: the estimate of a pulses + cam
+or pulses + pressure bench is the wheel bench's.
 """
 
 from __future__ import annotations
@@ -85,25 +87,67 @@ def test_the_chain_estimates_from_pulses_and_a_cam(i3):
     for name, bench in (
         ("wheel", i3),
         ("pulses", _with_tacho(i3, kind="pulses", teeth=4, missing=0, phase_reference="cam")),
+        (
+            "pressure",
+            _with_tacho(i3, kind="pulses", teeth=4, missing=0, phase_reference="pressure"),
+        ),
     ):
         summary, doc = run_source(
             bench, "", open_source("sim", bench, **run), "sim", RunOptions(quiet=True)
         )
         assert doc is not None and summary.estimate is not None, (name, summary.rejected)
         docs[name] = doc
-    wheel, pulses = docs["wheel"], docs["pulses"]
-    assert pulses["frames"]["used"] >= 0.95 * wheel["frames"]["used"]
-    for k, truth in wheel["truth"]["inertia_kgm2"]["value"].items():
-        assert abs(pulses["inertia_kgm2"]["value"][k] - truth) <= 1e-3 * abs(truth), k
-    assert np.allclose(pulses["cog_m"]["value"], wheel["truth"]["cog_m"]["value"], atol=1e-5)
+    wheel = docs["wheel"]
+    for pulses in (docs["pulses"], docs["pressure"]):
+        assert pulses["frames"]["used"] >= 0.95 * wheel["frames"]["used"]
+        for k, truth in wheel["truth"]["inertia_kgm2"]["value"].items():
+            assert abs(pulses["inertia_kgm2"]["value"][k] - truth) <= 1e-3 * abs(truth), k
+        assert np.allclose(pulses["cog_m"]["value"], wheel["truth"]["cog_m"]["value"], atol=1e-5)
 
 
-def test_pulses_with_a_pressure_reference_are_refused_not_misread():
-    from dsp.errors import DspConfigError
-    from dsp.tacho import TachoConfig
+def test_pressure_picks_the_firing_pulse_among_the_cycle():
+    """The mean cylinder pressure within +-45 deg of each of the 8 candidates of 4 pulses
+    (from the i3's own gas model): the firing TDC stands out, whichever pulse it is."""
+    from ptinertia.config import load_bench
+    from ptinertia.paths import EXAMPLES_DIR
+    from ptinertia.to_physics import build_model
 
-    with pytest.raises(
-        DspConfigError, match="4 pulses per revolution need phase_reference = 'cam'"
-    ):
-        TachoConfig(kind="pulses", teeth=4, phase_reference="pressure")
-    TachoConfig(kind="pulses", teeth=1, phase_reference="pressure")  # a TDC pulse: fine
+    model = build_model(load_bench(EXAMPLES_DIR / "i3-bench.toml"))
+    steps = 4
+    step = 2 * math.pi / steps
+    for s_true in range(2 * steps):
+        # wheel angle phi_w = phi - s 2 pi / steps: firing TDC (phi = 0) sits at candidate -s
+        phi_w = np.linspace(-2 * math.pi, 6 * math.pi, 20001)
+        pressure = model.pressure(phi_w + s_true * step)
+        k, total, count = cycle.pressure_sums(phi_w, pressure, steps)
+        means = dict(zip(k.tolist(), (total / count).tolist(), strict=True))
+        for k0 in range(-steps + 1, steps + 1):  # every cycle of whole candidate windows
+            got = cycle.pressure_offset(np.array([means[k0 + i] for i in range(8)]), k0, steps)
+            assert got == s_true, (s_true, k0)
+    # equal peaks (a motored engine without compression difference): undecided, never wrong
+    assert cycle.pressure_offset(np.ones(8), 0, steps) is None
+    # the wheel's pair rule is the case of one step
+    assert cycle.pressure_parity(40.0, 2.0, 3) == 1 and cycle.pressure_parity(2.0, 40.0, 3) == 0
+    assert cycle.pressure_parity(3.0, 2.5, 3) is None
+
+
+@pytest.mark.parametrize("teeth", [2, 6])
+def test_pulses_with_a_pressure_reference_give_the_orders_with_their_phases(i3, teeth):
+    bench = _with_tacho(i3, kind="pulses", teeth=teeth, missing=0, phase_reference="pressure")
+    orders = (0.5, 1.0, 1.5, 2.0)
+    src, frames = _frames(bench, orders)
+    clean = [f for f in frames if not f.flags]
+    assert len(clean) > 100 and len(clean) >= 0.9 * len(frames)
+    exact = src.exact_amplitudes([f.rpm for f in clean], orders)
+    x = np.array([f.amplitudes for f in clean])
+    big = np.abs(exact) >= 1e-3 * np.abs(exact).max(axis=1, keepdims=True)
+    phase = np.degrees(np.abs(np.angle(x / exact)))[big]
+    assert phase.max() <= 0.2, phase.max()
+
+
+def test_too_many_pulses_for_the_pressure_to_tell_stay_flagged(i3):
+    """8 pulses: candidates 45 deg apart, windows +-22.5 deg; the firing TDC's mean does
+    not exceed its neighbours' by half (the peak spreads over them): never decided."""
+    bench = _with_tacho(i3, kind="pulses", teeth=8, missing=0, phase_reference="pressure")
+    _, frames = _frames(bench, (1.0, 2.0), seconds=2.0)
+    assert frames and all("angle_ambiguous" in f.flags for f in frames)
