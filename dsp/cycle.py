@@ -111,8 +111,17 @@ def pressure_sums(
 
 
 def pressure_parity(mean_k: float, mean_k1: float, k: int) -> int | None:
-    """Parity from the mean pressures at candidates ``k`` and ``k + 1``; None if undecided."""
-    return pressure_offset(np.array([mean_k, mean_k1]), k, 1)
+    """Parity from the mean pressures at candidates ``k`` and ``k + 1``; None if undecided.
+
+    Either mean may be negative (a relative pressure sensor with an offset): each is
+    compared with the other as it is, in this order."""
+    if not (math.isfinite(mean_k) and math.isfinite(mean_k1)):
+        return None
+    if mean_k > PRESSURE_RATIO * mean_k1:
+        return k % 2
+    if mean_k1 > PRESSURE_RATIO * mean_k:
+        return (k + 1) % 2
+    return None
 
 
 def pressure_offset(means: np.ndarray, k0: int, steps: int) -> int | None:
@@ -124,6 +133,8 @@ def pressure_offset(means: np.ndarray, k0: int, steps: int) -> int | None:
     there ``phi = phi_w + s 2 pi / steps`` is a multiple of 4 pi, so ``s = -k mod 2 steps``
     (a wheel: the parity ``k mod 2``).
     """
+    if steps == 1 and means.size == 2:  # a wheel: the pair rule, exactly as it always was
+        return pressure_parity(float(means[0]), float(means[1]), k0)
     if means.size != 2 * steps or not np.all(np.isfinite(means)):
         return None
     order = np.argsort(means)

@@ -80,3 +80,16 @@ def with_mount_scale(bench: Bench, on: bool) -> Bench:
     return bench.model_copy(
         update={"estimator": bench.estimator.model_copy(update={"mount_scale": True})}
     )
+
+
+def file_attachments(paths: list[str]) -> dict[str, bytes]:
+    """The files a run reads besides its data (the DBC it decodes with, the bench's
+    pressure trace), as recording attachments (name -> bytes): a replay reads them from
+    the log, never from the user's disk (ptinertia.recorded_bench)."""
+    out = {}
+    for name in paths:
+        try:
+            out[Path(name).name] = Path(name).read_bytes()
+        except OSError:
+            pass  # the source or the gas model names an unreadable file in its own error
+    return out

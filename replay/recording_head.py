@@ -93,6 +93,8 @@ def write_head(writer: ThreadedWriter, context: Any, origin_ns: int) -> dict[str
     if bench_text:
         writer.add_attachment(now, now, BENCH_ATTACHMENT, "application/toml", bench_text.encode())
     for name, data in (getattr(context, "attachments", None) or {}).items():
+        if name == BENCH_ATTACHMENT and bench_text:
+            continue  # a replayed log's own bench file: this run's bench text replaces it
         media_type = MEDIA_TYPES.get(Path(name).suffix.lower(), "application/octet-stream")
         writer.add_attachment(now, now, name, media_type, bytes(data))
     schema_ids: dict[str, int] = {}

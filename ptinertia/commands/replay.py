@@ -100,7 +100,7 @@ def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None)
         live=getattr(source, "speed", None) is not None,
         sinks=tuple(sinks),
     )
-    summary, doc = run_recording(log, str(log_path), bench, bench_text, options, source)
+    summary, doc = run_recording(log, str(log_path), bench, bench_text, options, source, args.dbc)
     for line in log.report.lines():
         print(f"{log_path}: {line}", file=sys.stderr)
     if doc is None or summary.estimate is None:

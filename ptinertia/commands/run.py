@@ -19,7 +19,7 @@ from ptinertia.errors import UsageError
 from ptinertia.no_estimate import no_estimate_reason
 from ptinertia.outputs import REFUSE, WARN, check_output, input_files
 from ptinertia.paths import DEFAULT_BENCH
-from ptinertia.recorded_bench import with_mount_scale
+from ptinertia.recorded_bench import file_attachments, with_mount_scale
 from ptinertia.runner import RunOptions, print_table, run_source, write_json
 from ptinertia.sinks import Sink
 from ptinertia.sources import REALISTIC_SIMULATION, open_source
@@ -168,19 +168,6 @@ def can_overrides(args: argparse.Namespace) -> dict[str, Any]:
         if not args.start_timeout > 0:
             raise UsageError(f"--start-timeout: expected seconds > 0, got {args.start_timeout:g}")
         out["start_timeout_s"] = args.start_timeout
-    return out
-
-
-def file_attachments(paths: list[str]) -> dict[str, bytes]:
-    """The files a run reads besides its data (the DBC it decodes with, the bench's
-    pressure trace), as recording attachments (name -> bytes): a replay reads them from
-    the log, never from the user's disk (ptinertia.recorded_bench)."""
-    out = {}
-    for name in paths:
-        try:
-            out[Path(name).name] = Path(name).read_bytes()
-        except OSError:
-            pass  # the source or the gas model names an unreadable file in its own error
     return out
 
 

@@ -63,3 +63,29 @@ def test_a_recording_carries_the_trace_and_replays_without_the_bench(
         traced_bench.parent.joinpath("moved.csv").rename(traced_bench.parent / "cyl1.csv")
     a, b = json.loads(live.read_text()), json.loads(replayed.read_text())
     assert a["inertia_kgm2"] == b["inertia_kgm2"] and a["cog_m"] == b["cog_m"]
+
+
+def test_a_replay_with_another_bench_records_the_files_it_read(
+    traced_bench: Path, tmp_path: Path
+) -> None:
+    """``replay --bench B --record`` carries B's pressure trace, not the first log's: the new
+    recording replays alone to the result of the replay that wrote it."""
+    first, second = tmp_path / "first.mcap", tmp_path / "second.mcap"
+    argv = ["run", "--bench", str(traced_bench), "--duration", "4", "--rerun", "off", "--quiet"]
+    assert main([*argv, "--record", str(first)]) == 0
+    folder = traced_bench.parent
+    rows = (folder / "cyl1.csv").read_text().splitlines()
+    scaled = [rows[0]] + [f"{a},{1.1 * float(p):.9f}" for a, p in (r.split(",") for r in rows[1:])]
+    (tmp_path / "cyl1-hot.csv").write_text("\n".join(scaled) + "\n")
+    hot = tmp_path / "hot.toml"
+    hot.write_text(
+        traced_bench.read_text()
+        .replace('file = "cyl1.csv"', f'file = "{tmp_path / "cyl1-hot.csv"}"')
+        .replace('dbc = "../bench.dbc"', f'dbc = "{EXAMPLES_DIR / "bench.dbc"}"')
+    )
+    with_hot, again = tmp_path / "hot.json", tmp_path / "again.json"
+    replay = ["replay", str(first), "--bench", str(hot), "--quiet", "--rerun", "off"]
+    assert main([*replay, "--record", str(second), "--json", str(with_hot)]) == 0
+    assert main(["replay", str(second), "--quiet", "--json", str(again)]) == 0
+    a, b = json.loads(with_hot.read_text()), json.loads(again.read_text())
+    assert a["inertia_kgm2"] == b["inertia_kgm2"] and a["cog_m"] == b["cog_m"]
