@@ -215,7 +215,7 @@ class PartialPairs:
         # (sensor C dead, 6 realistic seeds: Iyz -25 %, cog 8 mm, outside the intervals).
         # Here the sensor errors stay type-B errors.
         rows = functools.partial(self.assembler.rows, batch, sign, every, dm, lin, calibrate=False)
-        h0, y0, dr = rows(motion=(g0, o0))
+        h0, y0, dr = rows(motion=(g0, o0), model_motion=done)  # dr: sensor and model terms
         h1, y1, _ = rows(motion=(g0 + e[:, :3], o0 + e[:, 3:]))
         h2, y2, _ = rows(motion=(g0 + 1j * e[:, :3], o0 + 1j * e[:, 3:]))
         return PartialRows(h0, y0, h1 - h0, y1 - y0, h2 - h0, y2 - y0, dr)

@@ -224,12 +224,14 @@ class RowAssembler:
         lin: Linearisation,
         motion: tuple[np.ndarray, np.ndarray] | None = None,
         calibrate: bool = True,
+        model_motion: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, ...]:
         """Whitened rows (k, 12, n), (k, 12) and sensitivities (k, 12, n_sys) of the
         selected (frame, order) pairs of ``batch``, motions multiplied by ``sign``
         (the pairs' own motions, or ``motion``: (P, 3) gamma_O and Omega' in pair
         order), linearised at ``lin``. ``calibrate=False``: the self-calibrated
-        sensor errors stay systematic errors in these rows."""
+        sensor errors stay systematic errors in these rows. ``model_motion``: the
+        motion the model inputs' sensitivities are taken at (default: the rows')."""
         cat = lambda name: np.concatenate([getattr(p, name) for p in batch])[sel]  # noqa: E731
         gamma_o, omega_dot = (cat("gamma_o"), cat("omega_dot")) if motion is None else motion
         counts = [len(p.orders) for p in batch]
@@ -257,6 +259,8 @@ class RowAssembler:
         if self.setup.model_inputs:
             # the model inputs' columns (zero in dm_real: they do not touch the readings)
             n_model = len(self.setup.model_inputs)
+            if model_motion is not None:
+                gamma_o, omega_dot = model_motion
             dr[:, :, -n_model:] += r.whiten @ model_input_rows(
                 self.setup,
                 lin,
