@@ -11,27 +11,13 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from support.estimator_harness import Body, frames, make_setup
+from support.estimator_harness import Body, Frame, frames, make_setup
 
 from estimator.channel_fits import VARIANCE_STEP, ChannelFits
 from estimator.kinematics import design_matrix
 
 
-@dataclasses.dataclass(frozen=True)
-class LossyFrame:
-    time_s: float
-    rpm: float
-    orders: tuple[float, ...]
-    channels: tuple[str, ...]
-    amplitudes: np.ndarray
-    channel_ok: np.ndarray
-    rpm_change: float = 0.0
-    flags: frozenset[str] = frozenset()
-    spectrum: np.ndarray | None = None
-    variance_factor: np.ndarray | None = None
-
-
-def _select(fits: ChannelFits, frame: LossyFrame) -> tuple[str | None, tuple | None]:
+def _select(fits: ChannelFits, frame: Frame) -> tuple[str | None, tuple | None]:
     """The estimator's channel choice for one frame: its fit geometry and fitted readings."""
     (used, cols, _, _, steps), *_ = fits.screen([frame])
     reason, fitter = fits.choose(used, steps)
@@ -46,7 +32,7 @@ def test_the_fit_weighs_a_channel_by_its_variance_factor():
     amps = frame.amplitudes + 0.05 * (rng.normal(size=frame.amplitudes.shape) + 0j)
     factor = np.ones(9)
     factor[[1, 5]] = [1.3, 1.8]
-    lossy = LossyFrame(**{**dataclasses.asdict(frame), "amplitudes": amps}, variance_factor=factor)
+    lossy = dataclasses.replace(frame, amplitudes=amps, variance_factor=factor)
     fits = ChannelFits(setup)
     reason, fitted = _select(fits, lossy)
     assert reason is None and fitted is not None

@@ -37,6 +37,7 @@ class Frame:
     rpm_change: float = 0.0
     flags: frozenset[str] = field(default_factory=frozenset)
     spectrum: np.ndarray | None = None  # a pressure channel's half orders 0, 0.5, ...
+    variance_factor: np.ndarray | None = None  # per channel: a window that lost samples
 
 
 @dataclass
