@@ -28,6 +28,18 @@ from typing import Any
 
 import numpy as np
 
+# An amplitude is told from zero above this many of its standard deviations: below, it is
+# noise around zero and its angle (and the location) mean nothing (the angle's std runs
+# to 1e7 deg). The run's table and the report print by the same rule.
+DETECTED_STDS = 2.0
+
+
+def detected(entry: dict[str, Any] | None) -> bool:
+    """Whether an amplitude entry (``{"value", "std"}``) is told from zero."""
+    if not entry or entry.get("std") is None:
+        return False
+    return bool(entry["value"] > DETECTED_STDS * entry["std"])
+
 
 def _vs(value: float, var: float) -> dict[str, Any]:
     std = math.sqrt(var) if math.isfinite(var) and var >= 0 else None
@@ -100,8 +112,7 @@ def unbalance_report(
     q = complex(values[2], values[3])
     jq = np.zeros((2, n))
     jq[:, 2:4] = np.eye(2)
-    detected = mr["std"] is not None and mr["value"] > 2 * mr["std"]
-    if not detected:  # the couple about P_u; no location
+    if not detected(mr):  # the couple about P_u; no location
         amp, ang = _polar(q, jq @ cov @ jq.T)
         out.update(axial_m=None, couple_kgm2=amp, couple_angle_deg=ang)
         return out

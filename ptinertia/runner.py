@@ -18,6 +18,7 @@ from acquisition.stream import Source, SourceError, StreamLayout
 from estimator.result import Z95, Estimate
 from estimator.setup import Corrections, Gates, Tolerances
 from estimator.streaming import InertiaEstimator
+from estimator.unbalance import DETECTED_STDS, detected
 from ptinertia.config import Bench
 from ptinertia.outputs import atomic_write
 from ptinertia.pipeline import Pipeline, RunSummary
@@ -191,10 +192,10 @@ def misfit_line(doc: dict[str, Any]) -> str | None:
 
 def unbalance_text(unb: dict[str, Any]) -> str:
     """The run table's unbalance line (95 % intervals): an angle and a location only when
-    ``m r`` is detected (above twice its std: below, its angle means nothing), and the
+    ``m r`` is detected (``estimator.unbalance.detected``: below, its angle means nothing), and the
     couple no point unbalance explains (``estimator.unbalance``) by the same rule."""
     mr, mr_std = unb["mr_kgm"]["value"], unb["mr_kgm"]["std"] or 0.0
-    if mr > 2 * mr_std:
+    if detected(unb["mr_kgm"]):
         text = (
             f"residual unbalance {1e3 * mr:.3f} +- {1e3 * Z95 * mr_std:.3f} g m at "
             f"{unb['angle_deg']['value']:.1f} deg"
@@ -206,17 +207,17 @@ def unbalance_text(unb: dict[str, Any]) -> str:
                 "along the crank axis from the reference point"
             )
     else:
-        text = f"residual unbalance not detected (below {1e3 * 2 * mr_std:.3f} g m)"
+        text = f"residual unbalance not detected (below {1e3 * DETECTED_STDS * mr_std:.3f} g m)"
     couple = unb.get("couple_kgm2")
     if couple:
         c, c_std = couple["value"], couple["std"] or 0.0
-        if c > 2 * c_std:
+        if detected(couple):
             text += (
                 f"; couple {1e3 * c:.4f} +- {1e3 * Z95 * c_std:.4f} g m^2 at "
                 f"{unb['couple_angle_deg']['value']:.1f} deg"
             )
         else:
-            text += f"; no couple (below {1e3 * 2 * c_std:.4f} g m^2)"
+            text += f"; no couple (below {1e3 * DETECTED_STDS * c_std:.4f} g m^2)"
     return text
 
 

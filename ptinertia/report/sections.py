@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from estimator.result import Z95
+from estimator.unbalance import DETECTED_STDS, detected
 from ptinertia.report import plots
 from ptinertia.report.data import ConvergenceSeries, ReportData
 from ptinertia.report.html import esc, fixed, flatten, image, table
@@ -183,13 +184,13 @@ def estimate_section(data: ReportData, pc: ParameterCovariance) -> str:
 def unbalance_line(unb: dict[str, Any]) -> str:
     """The residual unbalance as the run's table prints it: an angle only when it is detected.
 
-    Detected means ``m r > 2 std(m r)`` (``ptinertia.runner.print_table``'s rule); below
+    Detected: ``estimator.unbalance.detected`` (``m r > 2 std(m r)``, the run table's rule); below
     that, ``m r`` is noise around zero and its angle is undefined (its std runs to 1e7 deg),
     and so is its location along the crank. The couple (``couple_kgm2``, what no point
     unbalance explains: ``estimator.unbalance``) follows the same rule.
     """
     mr, mr_std = unb["mr_kgm"]["value"], unb["mr_kgm"]["std"] or 0.0
-    if mr > 2 * mr_std:
+    if detected(unb["mr_kgm"]):
         angle = unb["angle_deg"]
         line = (
             f"residual static unbalance {1e3 * mr:.3f} g m (std {1e3 * mr_std:.3f}) at "
@@ -202,18 +203,22 @@ def unbalance_line(unb: dict[str, Any]) -> str:
                 "along the crank axis from the reference point"
             )
     else:
-        line = f"residual static unbalance not detected (below {1e3 * 2 * mr_std:.3f} g m)"
+        line = (
+            f"residual static unbalance not detected (below {1e3 * DETECTED_STDS * mr_std:.3f} g m)"
+        )
     couple = unb.get("couple_kgm2")
     if couple:
         c, c_std = couple["value"], couple["std"] or 0.0
-        if c > 2 * c_std:
+        if detected(couple):
             angle = unb["couple_angle_deg"]
             line += (
                 f"; couple unbalance {1e3 * c:.4f} g m^2 (std {1e3 * c_std:.4f}) at "
                 f"{angle['value']:.1f} deg (std {angle['std'] or math.nan:.1f})"
             )
         else:
-            line += f"; couple unbalance not detected (below {1e3 * 2 * c_std:.4f} g m^2)"
+            line += (
+                f"; couple unbalance not detected (below {1e3 * DETECTED_STDS * c_std:.4f} g m^2)"
+            )
     return line
 
 
