@@ -53,14 +53,12 @@ through the same recorder by :mod:`replay.raw_writer`.
 
 from __future__ import annotations
 
-import json
 import math
 import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import IO, Any
 
@@ -73,7 +71,7 @@ from replay import foxglove, results_codec, stream_codec
 from replay.errors import LogError
 from replay.mcap_output import check_level
 from replay.mcapwriter import ThreadedWriter
-from replay.recording_head import check_topics, ptinertia_version, write_head
+from replay.recording_head import check_topics, end_metadata, ptinertia_version, write_head
 from replay.schemas import (
     META_END,
     TOPIC_CAN,
@@ -197,7 +195,7 @@ class McapRecorder:
             # to its last complete chunk, which a buffer holding the failed bytes would undo
             self._file = open(self.path, "wb", buffering=0)  # closed in close()
         except OSError as err:
-            raise LogError(f"cannot write the recording {self.path}: {err.strerror}") from None
+            raise self._write_error(err) from None
         self._origin_ns = (
             time.time_ns() if self.time_origin_ns is None else int(self.time_origin_ns)
         )
@@ -210,9 +208,7 @@ class McapRecorder:
             self._channels = write_head(writer, context, self._origin_ns)
             writer.sync()  # header, metadata and attachments are in the file
         except BaseException as err:
-            writer.stop()
-            _discard(self._file)
-            self._closed = True
+            self._abandon()
             if isinstance(err, OSError):
                 raise self._write_error(err) from err
             raise
@@ -227,9 +223,7 @@ class McapRecorder:
             self._closed = True
             return
         if self._failed:  # the file was cut and closed by the writer; nothing more to add
-            self._closed = True
-            self._writer.stop()
-            _discard(self._file)
+            self._abandon()
             return
         try:
             try:
@@ -238,13 +232,7 @@ class McapRecorder:
                     data = results_codec.encode_estimate(self._t_last, math.nan, final, final=True)
                     self._add_locked(TOPIC_ESTIMATE, self._t_last, data, "result")
                 self._write_chunks(self._chunker.drain())
-                end = {
-                    "status": "finished",
-                    "closed_utc": datetime.now(UTC).isoformat(timespec="seconds"),
-                    "messages": json.dumps(dict(self.stats.messages)),
-                    "result": json.dumps(final.to_json() if final is not None else None),
-                }
-                self._writer.add_metadata(META_END, end)
+                self._writer.add_metadata(META_END, end_metadata(self.stats.messages, final))
                 self._writer.finish()
                 self.stats.chunks = self._writer.chunks
             finally:
@@ -387,6 +375,13 @@ class McapRecorder:
                     self._writer.sync()
                 except OSError as err:
                     raise self._write_error(err) from err
+
+    def _abandon(self) -> None:
+        """Stop the writer and close the file as it stands (after a failure)."""
+        assert self._writer is not None and self._file is not None
+        self._closed = True
+        self._writer.stop()
+        _discard(self._file)
 
     def _write_error(self, err: OSError) -> LogError:
         self._failed = True

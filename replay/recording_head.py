@@ -129,3 +129,14 @@ def run_metadata(context: Any, layout: StreamLayout, origin_ns: int) -> dict[str
         "time_origin_ns": str(origin_ns),
         "started_utc": datetime.now(UTC).isoformat(timespec="seconds"),
     }
+
+
+def end_metadata(messages: dict[str, int], final: Any) -> dict[str, str]:
+    """The end-of-run metadata record: finished, when, messages per topic, and the final
+    estimate's result document (``final``: an ``Estimate`` or None)."""
+    return {
+        "status": "finished",
+        "closed_utc": datetime.now(UTC).isoformat(timespec="seconds"),
+        "messages": json.dumps(dict(messages)),
+        "result": json.dumps(final.to_json() if final is not None else None),
+    }
