@@ -97,14 +97,16 @@ def run_campaign(
     out_dir: Path,
     spec: ClusterSpec,
     progress: bool = True,
-    err: TextIO = sys.stderr,
+    err: TextIO | None = None,
     on_result: Callable[[int, Any], None] | None = None,
 ) -> list[LogResult]:
     """Replay ``logs`` on the cluster ``spec``; write each result, the table and the plot.
 
     Returns one :class:`LogResult` per log, in the order of ``logs``. ``on_result(i, r)``
     hears of each log as it completes (``r`` a :class:`LogResult` or the task's exception).
+    The progress bar goes to ``err`` (default: the standard error at call time).
     """
+    err = sys.stderr if err is None else err
     # imported here: tqdm's bar only for campaigns
     from tqdm import tqdm
 
@@ -195,8 +197,11 @@ def write_table(results: Sequence[LogResult], path: Path) -> None:
         writer.writerows(rows)
 
 
-def print_summary(results: Sequence[LogResult], out: TextIO = sys.stdout) -> None:
-    """One line per log: its status, and the largest inertia term or the error."""
+def print_summary(results: Sequence[LogResult], out: TextIO | None = None) -> None:
+    """One line per log: its status, and the largest inertia term or the error (to ``out``,
+    default the standard output at call time: a default bound at import keeps a stream
+    that may be closed by then, as pytest's captured ones are)."""
+    out = sys.stdout if out is None else out
     width = max((len(Path(r.log).name) for r in results), default=3)
     for r in results:
         name = Path(r.log).name

@@ -93,8 +93,10 @@ def run(args: argparse.Namespace) -> int:
     return 0 if all(n for *_, n in outcome.ranking) else 1
 
 
-def print_stats(stats: dict[str, TermStats], out: TextIO = sys.stdout) -> None:
-    """One line per term: truth, bias, spread, worst error, coverage, claimed interval."""
+def print_stats(stats: dict[str, TermStats], out: TextIO | None = None) -> None:
+    """One line per term: truth, bias, spread, worst error, coverage, claimed interval (to
+    ``out``, default the standard output at call time)."""
+    out = sys.stdout if out is None else out
     print(
         f"{'term':5} {'truth':>9} {'bias':>9} {'spread':>9} {'worst':>9} {'95%+-':>9} "
         f"{'covered':>8}  unit",
