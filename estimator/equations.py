@@ -222,32 +222,36 @@ def frame_rows(
     corr = setup.corrections
     eye = np.broadcast_to(np.eye(3), (n_o, 3, 3))
 
-    # Mount reactions f_i = K_i gamma_i / W^2 and their derivatives w.r.t. [gamma_O, Omega'].
+    # Mount reactions f_i = K_i gamma_i / W^2 and their derivatives w.r.t. [gamma_O, Omega'],
+    # every mount at once (axis 0); sums over the mounts in mount order (np.add.reduce
+    # along the first axis adds them one after the other).
     f_mounts = np.zeros((n_o, 3), complex)
     m_mounts_origin = np.zeros((n_o, 3), complex)  # sum p_i x f_i
-    df_dgo = np.zeros((n_o, 3, 3), complex)
-    df_dw = np.zeros((n_o, 3, 3), complex)
-    dmp_dgo = np.zeros((n_o, 3, 3), complex)  # d(sum p_i x f_i)/d gamma_O
-    dmp_dw = np.zeros((n_o, 3, 3), complex)
+    zeros = np.zeros((n_o, 3, 3), complex)
+    df_dgo, df_dw, dmp_dgo, dmp_dw = zeros, zeros, zeros, zeros
     scale_cols = []  # per estimated mount scale: its reaction f_i at nominal stiffness
-    if corr.suspension:
-        for i_m, mount in enumerate(setup.mounts):
-            sk_r, sk_p = skew_batch(mount.position - o), skew(mount.position)
-            s_i = 1.0 if lin.mount_scale is None else float(lin.mount_scale[i_m])
-            kw = s_i * mount.stiffness[None, :, :] / big_w2[:, None, None]  # (n_o, 3, 3)
-            # row-vector forms: a x v = a @ skew(v), v x a = a @ skew(v).T
-            gamma_i = gamma_o + np.einsum("oi,oij->oj", omega_dot, sk_r)
-            f_i = np.einsum("oij,oj->oi", kw, gamma_i)
-            if layout.mount_scales:
-                scale_cols.append((f_i / s_i, mount.position))
-            else:
-                f_mounts += f_i
-                m_mounts_origin += f_i @ sk_p.T
-            dfi_dw = -kw @ sk_r
-            df_dgo += kw
-            df_dw += dfi_dw
-            dmp_dgo += sk_p @ kw
-            dmp_dw += sk_p @ dfi_dw
+    if corr.suspension and setup.mounts:
+        p = np.array([mount.position for mount in setup.mounts])  # (M, 3)
+        s_m = np.ones(len(p)) if lin.mount_scale is None else np.asarray(lin.mount_scale, float)
+        stiff = np.array([mount.stiffness for mount in setup.mounts])  # (M, 3, 3)
+        sk_r = skew_batch(p[:, None, :] - o[None])  # (M, n_o, 3, 3)
+        sk_p = skew_batch(p)[:, None]  # (M, 1, 3, 3)
+        kw = s_m[:, None, None, None] * stiff[:, None] / big_w2[None, :, None, None]
+        # row-vector forms: a x v = a @ skew(v), v x a = a @ skew(v).T
+        gamma_i = gamma_o[None] + np.einsum("oi,moij->moj", omega_dot, sk_r)
+        f_i = np.einsum("moij,moj->moi", kw, gamma_i)  # (M, n_o, 3)
+        if layout.mount_scales:
+            scale_cols = [(f_i[m] / s_m[m], p[m]) for m in range(len(p))]
+        else:
+            f_mounts = f_mounts + np.add.reduce(f_i, axis=0)
+            m_mounts_origin = m_mounts_origin + np.add.reduce(
+                f_i @ sk_p[:, 0].transpose(0, 2, 1), axis=0
+            )
+        dfi_dw = -kw @ sk_r
+        df_dgo = zeros + np.add.reduce(kw, axis=0)
+        df_dw = zeros + np.add.reduce(dfi_dw, axis=0)
+        dmp_dgo = zeros + np.add.reduce(sk_p @ kw, axis=0)
+        dmp_dw = zeros + np.add.reduce(sk_p @ dfi_dw, axis=0)
 
     s = setup.crank_axis
     c = setup.cylinder_axis

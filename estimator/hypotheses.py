@@ -95,12 +95,23 @@ def add_frame(
     n = H.shape[-1]
     # Lambda <- lam Lambda + H^T H ;  S <- lam S + H^T dr  (rows already whitened)
     state = rls_update(acc.state, H.reshape(-1, n), y.reshape(-1), None, forgetting)
-    sens = forgetting * acc.sens + np.einsum("kip,kis->ps", H, dr)
+    sens = forgetting * acc.sens + _rows_t(H, n) @ dr.reshape(-1, dr.shape[-1])
     if redundancy is not None:
         Hk, yk, drk = redundancy
         state = rls_update(state, Hk.reshape(-1, n), yk.reshape(-1))
-        sens = sens + np.einsum("kip,kis->ps", Hk, drk)
+        sens = sens + _rows_t(Hk, n) @ drk.reshape(-1, drk.shape[-1])
     return Accumulator(state, sens)
+
+
+def _rows_t(H: np.ndarray, n: int) -> np.ndarray:
+    """``H^T`` of (k, 12, n) rows as rls_update forms it (``H.T * w``, w = 1: a copy),
+    so that :func:`add_frames`' stacked products are the same BLAS calls.
+
+    ``H^T dr`` is a matrix product (BLAS), not an einsum: 40 us instead of 720 us for
+    a 12-frame block (n = 15, 33 systematic errors); the sums round differently from
+    the einsum's by ~1e-16 relative."""
+    h2 = H.reshape(-1, n)
+    return h2.T * np.ones(len(h2))
 
 
 def add_frames(
@@ -134,9 +145,7 @@ def add_frames(
         info[fs] = np.matmul(Ht, Hk)
         vec[fs] = np.matmul(Ht, yk[:, :, None])[:, :, 0]
         yty[fs] = np.sum(yk * yk, axis=1)
-        sens[fs] = np.einsum(
-            "fkip,fkis->fps", Hk.reshape(len(fs), k, 12, n), dr[pick].reshape(len(fs), k, 12, -1)
-        )
+        sens[fs] = np.matmul(Ht, dr[pick].reshape(len(fs), 12 * k, -1))
     state, total = acc.state, acc.sens
     lam = forgetting
     if lam == 1.0:

@@ -54,18 +54,20 @@ def reading_sensitivity(
     """
     n_ch = len(setup.channels)
     assert fit.channels is not None
-    used = fit.channels
+    used = np.asarray(fit.channels)
     # (the model inputs' columns stay zero: they do not touch the readings)
     n_sys = n_ch + 6 * setup.n_sensors + len(setup.model_inputs)
     out = np.zeros((len(gamma_o), len(used), n_sys), complex)
     n = setup.directions[used]  # (u, 3)
     r = setup.positions[used] - fit.origin  # (u, 3)
     gamma_p = gamma_o[:, None, :] + cross(omega_dot[:, None, :], r[None])  # (P, u, 3)
-    for j, c in enumerate(used):
-        base = n_ch + 6 * int(setup.sensor_of_channel[c])
-        out[:, j, c] = amplitudes[:, j]
-        out[:, j, base : base + 3] = cross(n[j][None], gamma_p[:, j])
-        out[:, j, base + 3 : base + 6] = cross(n[j][None], omega_dot)
+    # every channel at once (the same elementwise products as one channel at a time);
+    # row j's alignment columns start at its sensor's block, its position ones 3 later
+    rows = np.arange(len(used))[:, None]
+    align = (n_ch + 6 * setup.sensor_of_channel[used])[:, None] + np.arange(3)
+    out[:, rows[:, 0], used] = amplitudes
+    out[:, rows, align] = cross(n[None], gamma_p)
+    out[:, rows, align + 3] = cross(n[None], omega_dot[:, None, :])
     return out
 
 
@@ -80,12 +82,26 @@ def motion_sensitivity(
 
     The arguments are those of :func:`reading_sensitivity`. The fit is linear
     (``motion = gain @ readings``), so each reading's change reaches the motion
-    through its column of the gain.
+    through its column of the gain: ``gain @ reading_sensitivity(...)``, formed
+    without the zeros of that product (a channel's gain error moves its own reading
+    only, a sensor's alignment and position the readings of its channels).
     """
-    dy = reading_sensitivity(setup, fit, amplitudes, gamma_o, omega_dot)
-    # One channel at a time (elementwise products, a fixed summation order): the
-    # result of a pair does not depend on how many pairs are assembled together.
-    out = np.zeros((len(gamma_o), 6, dy.shape[2]), complex)
-    for j in range(dy.shape[1]):
-        out += fit.gain[None, :, j, None] * dy[:, j, None, :]
+    n_ch = len(setup.channels)
+    assert fit.channels is not None
+    used = np.asarray(fit.channels)
+    n_sys = n_ch + 6 * setup.n_sensors + len(setup.model_inputs)
+    out = np.zeros((len(gamma_o), 6, n_sys), complex)
+    n = setup.directions[used]  # (u, 3)
+    r = setup.positions[used] - fit.origin  # (u, 3)
+    gamma_p = gamma_o[:, None, :] + cross(omega_dot[:, None, :], r[None])  # (P, u, 3)
+    # d reading j / d(alignment, position) of its sensor, (P, u, 6)
+    d_sensor = np.concatenate(
+        [cross(n[None], gamma_p), cross(n[None], omega_dot[:, None, :])], axis=2
+    )
+    out[:, :, used] = fit.gain[None] * amplitudes[:, None, :]
+    # The channels of a sensor summed in channel order (elementwise products, a fixed
+    # order): the result of a pair does not depend on how many pairs are assembled
+    # together, and it is the dense product's sum without its zero terms.
+    for j, base in enumerate((n_ch + 6 * setup.sensor_of_channel[used]).tolist()):
+        out[:, :, base : base + 6] += fit.gain[None, :, j, None] * d_sensor[:, j, None, :]
     return np.concatenate([out.real, out.imag], axis=1)
