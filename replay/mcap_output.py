@@ -14,7 +14,9 @@ keeps the indexes and statistics the summary needs.
 
 from __future__ import annotations
 
+import os
 import struct
+import tempfile
 import zlib
 from collections.abc import Callable
 from itertools import chain
@@ -79,9 +81,10 @@ class McapOutput:
         self.compression = compression
         self.level = check_level(level)
         self.pos = 0
-        # the chunk index records, serialised as they come: kept as objects they held 1.4 KB
-        # a chunk (a dict per record), 10 MB per hour of 0.5 s chunks; as bytes about 0.2 KB
-        self.chunk_index_records = bytearray()
+        # the chunk index records, serialised as they come and kept on disk until the
+        # summary: as objects they held 1.4 KB a chunk (10 MB per hour of 0.5 s chunks), as
+        # bytes in memory 0.2 KB (1.4 MB an hour, grown by reallocation)
+        self.chunk_index_records = SpilledBytes()
         self.chunk_count = 0
         self.attachment_indexes: list[AttachmentIndex] = []
         self.metadata_indexes: list[MetadataIndex] = []
@@ -191,7 +194,7 @@ class McapOutput:
             compressed_size=len(data),
             uncompressed_size=len(payload),
         ).write(record)
-        self.chunk_index_records += record.end()
+        self.chunk_index_records.append(record.end())
         self.chunk_count += 1
 
     def summary(self, schemas: list[Schema], channels: list[Channel]) -> None:
@@ -223,7 +226,8 @@ class McapOutput:
         group(Opcode.CHANNEL, channels)
         group(Opcode.STATISTICS, [statistics])
         begin = builder.count
-        builder.write(self.chunk_index_records)
+        builder.write(self.chunk_index_records.getvalue())
+        self.chunk_index_records.close()
         offsets.append(
             SummaryOffset(Opcode.CHUNK_INDEX, summary_start + begin, builder.count - begin)
         )
@@ -280,3 +284,62 @@ class McapOutput:
             else:
                 self._compress = bytes
         return self._compress(payload)
+
+
+class SpilledBytes:
+    """Bytes appended during a recording and read once at its end, held in an unnamed
+    temporary file (``tempfile.TemporaryFile``: not linked, gone when closed), so that a
+    recording's memory does not grow with its length. If the temporary directory
+    cannot take them (full, read-only) they move to memory instead: nothing is lost."""
+
+    def __init__(self) -> None:
+        self._memory: bytearray | None = None
+        self._file: IO[bytes] | None = None
+        self._size = 0  # bytes appended to the file in full
+        try:
+            # unbuffered: an append that fails leaves nothing pending in a buffer
+            self._file = tempfile.TemporaryFile(prefix="ptinertia-index-", buffering=0)
+        except OSError:
+            self._memory = bytearray()
+
+    def append(self, data: bytes) -> None:
+        if self._file is not None:
+            try:
+                view = memoryview(data)
+                while view:
+                    view = view[self._file.write(view) or 0 :]
+                self._size += len(data)
+                return
+            except OSError:
+                self._to_memory()  # what was written in full; this append follows
+        assert self._memory is not None
+        self._memory += data
+
+    def getvalue(self) -> bytes:
+        """Everything appended so far."""
+        self._to_memory()
+        assert self._memory is not None
+        return bytes(self._memory)
+
+    def _to_memory(self) -> None:
+        if self._file is None:
+            return
+        f, self._file = self._file, None
+        try:
+            # the appends made in full (a failed one may have left part of itself after them)
+            self._memory = bytearray()
+            while len(self._memory) < self._size:
+                got = os.pread(f.fileno(), self._size - len(self._memory), len(self._memory))
+                if not got:
+                    raise OSError(
+                        f"temporary index file: {len(self._memory)} of {self._size} bytes read back"
+                    )
+                self._memory += got
+        finally:
+            f.close()
+
+    def close(self) -> None:
+        """Let go of the bytes (the temporary file, or the memory)."""
+        if self._file is not None:
+            self._file.close()
+        self._file, self._memory, self._size = None, bytearray(), 0
