@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dsp import kernels
 from dsp.immutable import evolve
 
 
@@ -187,20 +188,28 @@ def lookup(
     head = int(pos[0])  # samples before the first piece
     counts = np.diff(np.append(pos, n))
     tt = t[head:]
-    tau = tt - np.repeat(table.t_lo[sl], counts)
-    c1 = np.repeat(table.c1[sl], counts)
-    c2 = np.repeat(table.c2[sl], counts)
-    c3 = np.repeat(table.c3[sl], counts)
-    phi = tau * c3
-    phi += c2
-    phi *= tau
-    phi += c1
-    phi *= tau
-    phi += np.repeat(table.phi_lo[sl], counts)
-    omega = tau * (3.0 * c3)
-    omega += 2.0 * c2
-    omega *= tau
-    omega += c1
+    if kernels.USE:
+        # one pass, no repeated coefficients: the same bits (dsp.kernels.cubic_values)
+        phi, omega = np.empty(tt.size), np.empty(tt.size)
+        kernels.cubic_values(
+            tt, counts, table.t_lo[sl], table.phi_lo[sl], table.c1[sl], table.c2[sl],
+            table.c3[sl], phi, omega,
+        )  # fmt: skip
+    else:
+        tau = tt - np.repeat(table.t_lo[sl], counts)
+        c1 = np.repeat(table.c1[sl], counts)
+        c2 = np.repeat(table.c2[sl], counts)
+        c3 = np.repeat(table.c3[sl], counts)
+        phi = tau * c3
+        phi += c2
+        phi *= tau
+        phi += c1
+        phi *= tau
+        phi += np.repeat(table.phi_lo[sl], counts)
+        omega = tau * (3.0 * c3)
+        omega += 2.0 * c2
+        omega *= tau
+        omega += c1
     if table.run[i0] == table.run[i1 - 1] and tt[-1] < table.t_hi[i1 - 1]:
         # the pieces of one run follow each other: every sample lies inside one
         ok = np.ones(tt.size, bool)

@@ -34,6 +34,7 @@ from dsp.sum_rows import drop_before, window_sums
 from dsp.window_amplitudes import window_amplitudes
 
 CHUNK = 512  # frames computed together at most (bounds memory after a long dropout)
+_new_frame = object.__new__
 
 
 def emit(st: TrackerState) -> tuple[TrackerState, list[OrderFrame]]:
@@ -296,23 +297,25 @@ def _finish(
             flags = frozenset(new)
             if not raw_flags:
                 cache[key] = flags
-        frames.append(
-            OrderFrame(
-                time_s=t,
-                rpm=r,
-                crank_angle_rad=j * spacing + TWO_PI * p / steps,
-                orders=orders,
-                channels=plan.channels,
-                amplitudes=amp,
-                channel_ok=ok,
-                rpm_change=dr,
-                leakage=lk,
-                flags=flags,
-                spectrum=sp,
-                spectrum_channel=cfg.spectrum_channel,
-                variance_factor=var,
-            )
+        # the dataclass's fields set directly: its generated __init__ of a frozen class
+        # sets them one object.__setattr__ at a time (1.9 us a frame against 0.5 us)
+        frame = _new_frame(OrderFrame)
+        frame.__dict__.update(
+            time_s=t,
+            rpm=r,
+            crank_angle_rad=j * spacing + TWO_PI * p / steps,
+            orders=orders,
+            channels=plan.channels,
+            amplitudes=amp,
+            channel_ok=ok,
+            rpm_change=dr,
+            leakage=lk,
+            flags=flags,
+            spectrum=sp,
+            spectrum_channel=cfg.spectrum_channel,
+            variance_factor=var,
         )
+        frames.append(frame)
     return frames
 
 

@@ -75,16 +75,59 @@ AVAILABLE = importlib.util.find_spec("numba") is not None
 # benchmarks and tests switch it per call
 USE = AVAILABLE and os.environ.get("PTINERTIA_NUMBA", "0") == "1"
 _compiled: Callable[..., None] | None = None
+_compiled_cubic: Callable[..., None] | None = None
 
 
 def piece_sums(*args: Any) -> None:
     """:func:`_piece_sums` compiled (on the first call; numba's cache keeps the machine code)."""
     global _compiled
     if _compiled is None:
-        from numba import njit  # heavy (0.3 s): only where the kernel is used
-
-        _compiled = njit(cache=True, nogil=True)(_piece_sums)
+        _compiled = _jit(_piece_sums)
     _compiled(*args)
+
+
+def cubic_values(*args: Any) -> None:
+    """:func:`_cubic_values` compiled (on the first call, as :func:`piece_sums`)."""
+    global _compiled_cubic
+    if _compiled_cubic is None:
+        _compiled_cubic = _jit(_cubic_values)
+    _compiled_cubic(*args)
+
+
+def _jit(fn: Callable[..., None]) -> Callable[..., None]:
+    from numba import njit  # heavy (0.3 s): only where a kernel is used
+
+    return njit(cache=True, nogil=True)(fn)
+
+
+def _cubic_values(
+    t: np.ndarray,
+    counts: np.ndarray,
+    t_lo: np.ndarray,
+    phi_lo: np.ndarray,
+    c1: np.ndarray,
+    c2: np.ndarray,
+    c3: np.ndarray,
+    phi: np.ndarray,
+    omega: np.ndarray,
+) -> None:
+    """:func:`dsp.angle.lookup`'s angle and speed, piece by piece in one pass.
+
+    ``t`` (n,) s, ``counts`` (p,) how many of them (in turn) each piece holds, the
+    pieces' start time, angle and coefficients (p,); writes ``phi`` (rad) and ``omega``
+    (rad/s) (n,). The same operations in the same order as the numpy arrays there
+    (no fused multiply-add: numba does not contract without fastmath), so the same bits.
+    """
+    i = 0
+    for p in range(counts.size):
+        tl, pl, a1, a2, a3 = t_lo[p], phi_lo[p], c1[p], c2[p], c3[p]
+        a3x3 = 3.0 * a3
+        a2x2 = 2.0 * a2
+        for _ in range(counts[p]):
+            tau = t[i] - tl
+            phi[i] = ((tau * a3 + a2) * tau + a1) * tau + pl
+            omega[i] = (tau * a3x3 + a2x2) * tau + a1
+            i += 1
 
 
 def compiled_sums(

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import replace
+from dataclasses import fields, replace
 
 import numpy as np
 import pytest
@@ -16,6 +16,7 @@ import pytest
 from acquisition.stream import EdgeBlock, SampleBlock, SourceEvent
 from dsp.config import OrderTrackerConfig, make_plan
 from dsp.errors import DspConfigError
+from dsp.frames import OrderFrame
 from dsp.orders import OrderTracker, initial_state, track
 from dsp.synthetic import Ramp, SyntheticBench, random_content
 from dsp.tacho import TachoConfig
@@ -476,3 +477,12 @@ def test_taper_table_is_np_interp_bit_for_bit():
         (rng.uniform(-0.1, 1.1, 100_000), grid, np.nextafter(grid, 2), np.nextafter(grid, -1))
     )
     np.testing.assert_array_equal(rise_table(s), np.interp(s, _S, _TABLE))
+
+
+def test_frames_carry_every_field_of_the_dataclass():
+    """The assembler sets the frame's fields directly (dsp.assemble._finish): a field added
+    to OrderFrame must not be left unset."""
+    bench = _bench()
+    frames, _ = _run(bench, bench.items(1.0, block_s=0.25))
+    assert frames
+    assert set(vars(frames[0])) == {f.name for f in fields(OrderFrame)}
