@@ -247,23 +247,28 @@ def accumulate(
             ]
             sets = []
             if n_track:
-                # missing samples (a lost CAN frame) are filled from the previous engine
-                # cycle, or summed as zeros and solved for (dsp.gap_fit), and remembered
-                tracked, holes, recent = fill_holes(
-                    [p[:n_track] for p in x], phi[c0:c1], omega[c0:c1] / g.rate_hz, gs.holes,
-                    gs.recent,
-                )  # fmt: skip
-                gs = evolve(gs, holes=holes, recent=recent)
-                sets.append(SumSet(acc, tracked, st.plan.k2, cfg.clip_level))
+                raw = [p[:n_track] for p in x]
+                sets.append(SumSet(acc, raw, st.plan.k2, cfg.clip_level))
             if at is not None:
                 # no clip check (clip_level is in the tracked channels' unit), no mean square
                 sk2 = st.plan.spectrum_k2
                 assert sk2 is not None
                 sets.append(SumSet(spec, [p[at : at + 1] for p in x], sk2, tracked=False))
-            sums = add_sample_sets(
-                sets, phi[c0:c1], omega[c0:c1], int(idx[c0]), g.rate_hz, cfg.frames_per_rev,
-                cfg.taper_deg,
-            )  # fmt: skip
+            args = (phi[c0:c1], omega[c0:c1], int(idx[c0]), g.rate_hz, cfg.frames_per_rev)
+            sums = add_sample_sets(sets, *args, cfg.taper_deg)
+            if n_track:
+                # missing samples (a lost CAN frame) are filled from the previous engine
+                # cycle, or summed as zeros and solved for (dsp.gap_fit), and remembered.
+                # A non-finite sample makes its segment's sums non-finite: finite sums
+                # spare the pass over the samples, and a hole costs the sums twice
+                tracked, holes, recent = fill_holes(
+                    raw, phi[c0:c1], omega[c0:c1] / g.rate_hz, gs.holes, gs.recent,
+                    known_finite=_finite(sums[0]),
+                )  # fmt: skip
+                gs = evolve(gs, holes=holes, recent=recent)
+                if tracked is not raw:
+                    sets[0] = SumSet(acc, tracked, st.plan.k2, cfg.clip_level)
+                    sums = add_sample_sets(sets, *args, cfg.taper_deg)
             if n_track:
                 acc = sums[0]
             if at is not None:
@@ -279,6 +284,11 @@ def accumulate(
         spec=spec,
     )
     return st, gs
+
+
+def _finite(rows: dict[int, np.ndarray]) -> bool:
+    """Whether every sum of every row is finite (a few dozen rows: microseconds)."""
+    return bool(np.isfinite(np.stack(list(rows.values()))).all()) if rows else True
 
 
 def _silent_pressure(st: TrackerState, phi: np.ndarray) -> tuple[int, int]:
