@@ -66,6 +66,7 @@ from typing import Any
 import numpy as np
 
 from dsp.frames import RISE_GRID, RISE_SLOPE, RISE_TABLE
+from dsp.ramp_slopes import ramp_slopes as slopes_loops
 from dsp.sum_sets import POWER_STRIDE, Segments, SetSums, SumSet, base_parts
 
 # numba is optional and imported on first use only: its import and the cached machine
@@ -74,30 +75,32 @@ AVAILABLE = importlib.util.find_spec("numba") is not None
 # PTINERTIA_NUMBA=1: the tracker uses the kernel (long runs, campaigns and studies); the
 # benchmarks and tests switch it per call
 USE = AVAILABLE and os.environ.get("PTINERTIA_NUMBA", "0") == "1"
-_compiled: Callable[..., None] | None = None
-_compiled_cubic: Callable[..., None] | None = None
+_compiled: dict[Callable[..., None], Callable[..., None]] = {}
 
 
 def piece_sums(*args: Any) -> None:
     """:func:`_piece_sums` compiled (on the first call; numba's cache keeps the machine code)."""
-    global _compiled
-    if _compiled is None:
-        _compiled = _jit(_piece_sums)
-    _compiled(*args)
+    _jit(_piece_sums)(*args)
 
 
 def cubic_values(*args: Any) -> None:
     """:func:`_cubic_values` compiled (on the first call, as :func:`piece_sums`)."""
-    global _compiled_cubic
-    if _compiled_cubic is None:
-        _compiled_cubic = _jit(_cubic_values)
-    _compiled_cubic(*args)
+    _jit(_cubic_values)(*args)
+
+
+def ramp_slopes(*args: Any) -> None:
+    """:func:`dsp.ramp_slopes.ramp_slopes` compiled (on the first call, as :func:`piece_sums`)."""
+    _jit(slopes_loops)(*args)
 
 
 def _jit(fn: Callable[..., None]) -> Callable[..., None]:
-    from numba import njit  # heavy (0.3 s): only where a kernel is used
+    """``fn`` compiled by numba, once per process."""
+    compiled = _compiled.get(fn)
+    if compiled is None:
+        from numba import njit  # heavy (0.3 s): only where a kernel is used
 
-    return njit(cache=True, nogil=True)(fn)
+        compiled = _compiled[fn] = njit(cache=True, nogil=True)(fn)
+    return compiled
 
 
 def _cubic_values(
