@@ -239,6 +239,13 @@ def time_at(table: AngleTable, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     if not table.t_lo.size:
         nan = np.full(phi.shape, np.nan)
         return nan, nan
+    if kernels.USE:
+        t, omega = np.empty(phi.size), np.empty(phi.size)
+        kernels.cubic_times(
+            phi, table.t_lo, table.t_hi, table.phi_lo, table.phi_hi, table.c1, table.c2,
+            table.c3, t, omega,
+        )  # fmt: skip
+        return t.reshape(phi.shape), omega.reshape(phi.shape)
     j = np.searchsorted(table.phi_lo, phi, side="right") - 1
     jj = np.maximum(j, 0)
     phi_lo, phi_hi, t_lo = table.phi_lo[jj], table.phi_hi[jj], table.t_lo[jj]

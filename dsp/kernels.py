@@ -93,6 +93,11 @@ def ramp_slopes(*args: Any) -> None:
     _jit(slopes_loops)(*args)
 
 
+def cubic_times(*args: Any) -> None:
+    """:func:`_cubic_times` compiled (on the first call, as :func:`piece_sums`)."""
+    _jit(_cubic_times)(*args)
+
+
 def _jit(fn: Callable[..., None]) -> Callable[..., None]:
     """``fn`` compiled by numba, once per process."""
     compiled = _compiled.get(fn)
@@ -168,6 +173,40 @@ def compiled_sums(
             i += count
         out.append((a, d, s2, n2, clip, list(range(no)), list(range(no, 2 * no))))
     return out, wa, wd
+
+
+def _cubic_times(
+    phi: np.ndarray,
+    t_lo: np.ndarray,
+    t_hi: np.ndarray,
+    phi_lo: np.ndarray,
+    phi_hi: np.ndarray,
+    c1: np.ndarray,
+    c2: np.ndarray,
+    c3: np.ndarray,
+    t: np.ndarray,
+    omega: np.ndarray,
+) -> None:
+    """:func:`dsp.angle.time_at` angle by angle: its Newton steps on the piece's cubic, the
+    same operations in the same order, so the same bits; NaN outside every piece.
+    ``phi`` (n,) rad (any order), the table's columns (p,); writes ``t`` (s), ``omega`` (rad/s).
+    """
+    for i in range(phi.size):
+        j = np.searchsorted(phi_lo, phi[i], side="right") - 1
+        if j < 0 or not phi[i] <= phi_hi[j]:
+            t[i] = np.nan
+            omega[i] = np.nan
+            continue
+        a1, a2, a3 = c1[j], c2[j], c3[j]
+        a2x2 = 2.0 * a2
+        target = phi[i] - phi_lo[j]
+        tau = target / (phi_hi[j] - phi_lo[j]) * (t_hi[j] - t_lo[j])
+        for _ in range(4):
+            f = tau * (a1 + tau * (a2 + tau * a3)) - target
+            fp = a1 + tau * (a2x2 + 3.0 * tau * a3)
+            tau -= f / fp
+        omega[i] = a1 + tau * (a2x2 + 3.0 * tau * a3)
+        t[i] = t_lo[j] + tau
 
 
 def _piece_sums(

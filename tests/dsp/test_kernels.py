@@ -84,8 +84,8 @@ def test_compiled_sums_are_block_invariant_like_numpy():
 
 @pytest.mark.parametrize("seed", range(3))
 def test_compiled_angle_lookup_gives_the_numpy_bits(seed, monkeypatch):
-    """dsp.angle.lookup with the compiled cubic (kernels.USE) gives the numpy path's angles
-    and speeds bit for bit, over two wheel runs and samples before, between and after them."""
+    """dsp.angle.lookup and time_at compiled (kernels.USE) give the numpy path's angles,
+    times and speeds bit for bit, over two wheel runs, before, between and after them."""
     rng = np.random.default_rng(200 + seed)
     table = ang.AngleTable()
     t0 = 0.0
@@ -101,6 +101,15 @@ def test_compiled_angle_lookup_gives_the_numpy_bits(seed, monkeypatch):
     monkeypatch.setattr(kernels, "USE", True)
     got = ang.lookup(table, times)
     assert want[0].sum() > 4000  # most samples lie inside a run
+    for w, g in zip(want, got, strict=True):
+        np.testing.assert_array_equal(g, w)
+    # and back: the times and speeds at angles, NaN before, between and after the runs
+    phis = rng.uniform(-1.0, table.phi_hi[-1] + 1.0, 3000)
+    monkeypatch.setattr(kernels, "USE", False)
+    want = ang.time_at(table, phis)
+    monkeypatch.setattr(kernels, "USE", True)
+    got = ang.time_at(table, phis)
+    assert 100 < np.isnan(want[0]).sum() < 1000
     for w, g in zip(want, got, strict=True):
         np.testing.assert_array_equal(g, w)
 
