@@ -27,9 +27,9 @@ from dsp.frames import OrderFrame
 from dsp.gap_fit import forget_holes
 from dsp.immutable import evolve
 from dsp.leakage import ramp_correction
+from dsp.pressure_votes import decide_pressure
 from dsp.rejoin import rejoin
-from dsp.segments import decide_pressure
-from dsp.state import TWO_PI, TrackerState
+from dsp.state import TWO_PI, TrackerState, last_complete_frame
 from dsp.sum_rows import drop_before, window_sums
 from dsp.window_amplitudes import window_amplitudes
 
@@ -63,7 +63,7 @@ def emit(st: TrackerState) -> tuple[TrackerState, list[OrderFrame]]:
     if not math.isfinite(front):
         return st, []  # a watched group (the spectrum's own, say) has had no angle yet
     assert st.next_frame is not None
-    j_max = math.floor((front - 0.5 * tw) / spacing) - n
+    j_max = last_complete_frame(st, front)
     frames: list[OrderFrame] = []
     for a, b in _ranges(st, st.next_frame, j_max, spacing):
         for c0 in range(a, b + 1, CHUNK):
