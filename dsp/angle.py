@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dsp import kernels
 from dsp.immutable import evolve
 
 
@@ -187,20 +188,28 @@ def lookup(
     head = int(pos[0])  # samples before the first piece
     counts = np.diff(np.append(pos, n))
     tt = t[head:]
-    tau = tt - np.repeat(table.t_lo[sl], counts)
-    c1 = np.repeat(table.c1[sl], counts)
-    c2 = np.repeat(table.c2[sl], counts)
-    c3 = np.repeat(table.c3[sl], counts)
-    phi = tau * c3
-    phi += c2
-    phi *= tau
-    phi += c1
-    phi *= tau
-    phi += np.repeat(table.phi_lo[sl], counts)
-    omega = tau * (3.0 * c3)
-    omega += 2.0 * c2
-    omega *= tau
-    omega += c1
+    if kernels.USE:
+        # one pass, no repeated coefficients: the same bits (dsp.kernels.cubic_values)
+        phi, omega = np.empty(tt.size), np.empty(tt.size)
+        kernels.cubic_values(
+            tt, counts, table.t_lo[sl], table.phi_lo[sl], table.c1[sl], table.c2[sl],
+            table.c3[sl], phi, omega,
+        )  # fmt: skip
+    else:
+        tau = tt - np.repeat(table.t_lo[sl], counts)
+        c1 = np.repeat(table.c1[sl], counts)
+        c2 = np.repeat(table.c2[sl], counts)
+        c3 = np.repeat(table.c3[sl], counts)
+        phi = tau * c3
+        phi += c2
+        phi *= tau
+        phi += c1
+        phi *= tau
+        phi += np.repeat(table.phi_lo[sl], counts)
+        omega = tau * (3.0 * c3)
+        omega += 2.0 * c2
+        omega *= tau
+        omega += c1
     if table.run[i0] == table.run[i1 - 1] and tt[-1] < table.t_hi[i1 - 1]:
         # the pieces of one run follow each other: every sample lies inside one
         ok = np.ones(tt.size, bool)
@@ -230,6 +239,13 @@ def time_at(table: AngleTable, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     if not table.t_lo.size:
         nan = np.full(phi.shape, np.nan)
         return nan, nan
+    if kernels.USE:
+        t, omega = np.empty(phi.size), np.empty(phi.size)
+        kernels.cubic_times(
+            phi, table.t_lo, table.t_hi, table.phi_lo, table.phi_hi, table.c1, table.c2,
+            table.c3, t, omega,
+        )  # fmt: skip
+        return t.reshape(phi.shape), omega.reshape(phi.shape)
     j = np.searchsorted(table.phi_lo, phi, side="right") - 1
     jj = np.maximum(j, 0)
     phi_lo, phi_hi, t_lo = table.phi_lo[jj], table.phi_hi[jj], table.t_lo[jj]

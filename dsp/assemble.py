@@ -27,13 +27,14 @@ from dsp.frames import OrderFrame
 from dsp.gap_fit import forget_holes
 from dsp.immutable import evolve
 from dsp.leakage import ramp_correction
+from dsp.pressure_votes import decide_pressure
 from dsp.rejoin import rejoin
-from dsp.segments import decide_pressure
-from dsp.state import TWO_PI, TrackerState
+from dsp.state import TWO_PI, TrackerState, last_complete_frame
 from dsp.sum_rows import drop_before, window_sums
 from dsp.window_amplitudes import window_amplitudes
 
 CHUNK = 512  # frames computed together at most (bounds memory after a long dropout)
+_new_frame = object.__new__
 
 
 def emit(st: TrackerState) -> tuple[TrackerState, list[OrderFrame]]:
@@ -62,7 +63,7 @@ def emit(st: TrackerState) -> tuple[TrackerState, list[OrderFrame]]:
     if not math.isfinite(front):
         return st, []  # a watched group (the spectrum's own, say) has had no angle yet
     assert st.next_frame is not None
-    j_max = math.floor((front - 0.5 * tw) / spacing) - n
+    j_max = last_complete_frame(st, front)
     frames: list[OrderFrame] = []
     for a, b in _ranges(st, st.next_frame, j_max, spacing):
         for c0 in range(a, b + 1, CHUNK):
@@ -296,23 +297,25 @@ def _finish(
             flags = frozenset(new)
             if not raw_flags:
                 cache[key] = flags
-        frames.append(
-            OrderFrame(
-                time_s=t,
-                rpm=r,
-                crank_angle_rad=j * spacing + TWO_PI * p / steps,
-                orders=orders,
-                channels=plan.channels,
-                amplitudes=amp,
-                channel_ok=ok,
-                rpm_change=dr,
-                leakage=lk,
-                flags=flags,
-                spectrum=sp,
-                spectrum_channel=cfg.spectrum_channel,
-                variance_factor=var,
-            )
+        # the dataclass's fields set directly: its generated __init__ of a frozen class
+        # sets them one object.__setattr__ at a time (1.9 us a frame against 0.5 us)
+        frame = _new_frame(OrderFrame)
+        frame.__dict__.update(
+            time_s=t,
+            rpm=r,
+            crank_angle_rad=j * spacing + TWO_PI * p / steps,
+            orders=orders,
+            channels=plan.channels,
+            amplitudes=amp,
+            channel_ok=ok,
+            rpm_change=dr,
+            leakage=lk,
+            flags=flags,
+            spectrum=sp,
+            spectrum_channel=cfg.spectrum_channel,
+            variance_factor=var,
         )
+        frames.append(frame)
     return frames
 
 

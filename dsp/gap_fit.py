@@ -74,6 +74,7 @@ def fill_holes(
     q: np.ndarray,
     holes: Holes,
     recent: Recent,
+    known_finite: bool = False,
 ) -> tuple[list[np.ndarray], Holes, Recent]:
     """The tracked rows with every non-finite sample filled, the holes extended, the history kept.
 
@@ -82,11 +83,13 @@ def fill_holes(
     are present and close); where there is none it is summed as zero and solved for by
     :func:`refit`. ``pieces`` (n_track, n_i) in the order of the samples ``phi``, ``q``
     (n,); ``recent`` the samples of the last cycle before them (angle, rows), with their NaN.
-    Pieces without a hole are passed on as they are (no copy).
+    Pieces without a hole are passed on as they are (no copy): the same list, so a caller
+    sees at once that nothing was filled. ``known_finite``: the caller knows every sample
+    is finite (their sums are; :func:`dsp.segments.accumulate`), no check is made.
     """
     new_recent = _last_cycle(pieces, phi, recent)
     # a sum is non-finite where a sample is (an overflow only costs the exact check)
-    if all(math.isfinite(float(p.sum())) for p in pieces):
+    if known_finite or all(math.isfinite(float(p.sum())) for p in pieces):
         return pieces, holes, new_recent
     rows = np.concatenate(pieces, axis=1) if len(pieces) > 1 else pieces[0]
     bad = ~np.isfinite(rows)

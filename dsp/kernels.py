@@ -45,6 +45,24 @@ synthetic bench) or sample-fastest (the simulator): neither layout changes the f
 What the tracker spends beyond the sums is Python per block and per frame (frame
 assembly, leakage correction, angle lookup), which a kernel for the sums cannot remove.
 
+Third pass (issue 24): beyond the sums, the compiled path runs through numba the angle
+lookup of the samples (:func:`cubic_values`) and the times of the frames' window ends
+(:func:`cubic_times`), both the numpy path's operations in its order (numba contracts
+no multiply-add without ``fastmath``: the same bits, tested), and the leakage
+correction's ramps (:mod:`dsp.ramp_slopes`, within 1e-12). Tried and left out, none
+faster: the kernel's sums channel by channel with blocks of 4 to 16 rows x 1 to 4
+channels as accumulators in registers, its carriers order by order across the samples,
+fused multiply-add (``fastmath={"contract"}``); the lookup as one merge of samples and
+knots (a branch per sample: 37 us a block against 28 us for the knots' ``searchsorted``
+and a vectorised loop per piece). Measured side by side with main (issue-24 load: 10
+channels at 25.6 kHz, orders 1, 1.5, 2, 30 s sweep in 0.5 s blocks; CPU, best of 3 runs
+of best of 3, load average 11 on the 2 cores): the whole tracker 306x -> 380x real time
+compiled (274x -> 296x numpy; with the held-back samples of :mod:`dsp.segments` and the
+frame objects of :mod:`dsp.assemble`, which serve both paths); ramp_correction 8.7 ->
+2.9 ms and the lookup 7.1 -> 4.4 ms per 30 s. The kernel is now some 40 % of the
+compiled path's time, the frames' assembly (window sums, correction, frame objects) a
+quarter, the tacho's decoding and angle table a tenth.
+
 What stays identical and what does not: the base ``exp(-i delta / 2)`` is still made by
 numpy in single precision (its SIMD ``cos``/``sin`` round differently from libm's), the
 taper weights repeat :func:`dsp.frames.rise_table`'s arithmetic, so the carriers are
@@ -66,6 +84,7 @@ from typing import Any
 import numpy as np
 
 from dsp.frames import RISE_GRID, RISE_SLOPE, RISE_TABLE
+from dsp.ramp_slopes import ramp_slopes as slopes_loops
 from dsp.sum_sets import POWER_STRIDE, Segments, SetSums, SumSet, base_parts
 
 # numba is optional and imported on first use only: its import and the cached machine
@@ -74,17 +93,67 @@ AVAILABLE = importlib.util.find_spec("numba") is not None
 # PTINERTIA_NUMBA=1: the tracker uses the kernel (long runs, campaigns and studies); the
 # benchmarks and tests switch it per call
 USE = AVAILABLE and os.environ.get("PTINERTIA_NUMBA", "0") == "1"
-_compiled: Callable[..., None] | None = None
+_compiled: dict[Callable[..., None], Callable[..., None]] = {}
 
 
 def piece_sums(*args: Any) -> None:
     """:func:`_piece_sums` compiled (on the first call; numba's cache keeps the machine code)."""
-    global _compiled
-    if _compiled is None:
-        from numba import njit  # heavy (0.3 s): only where the kernel is used
+    _jit(_piece_sums)(*args)
 
-        _compiled = njit(cache=True, nogil=True)(_piece_sums)
-    _compiled(*args)
+
+def cubic_values(*args: Any) -> None:
+    """:func:`_cubic_values` compiled (on the first call, as :func:`piece_sums`)."""
+    _jit(_cubic_values)(*args)
+
+
+def ramp_slopes(*args: Any) -> None:
+    """:func:`dsp.ramp_slopes.ramp_slopes` compiled (on the first call, as :func:`piece_sums`)."""
+    _jit(slopes_loops)(*args)
+
+
+def cubic_times(*args: Any) -> None:
+    """:func:`_cubic_times` compiled (on the first call, as :func:`piece_sums`)."""
+    _jit(_cubic_times)(*args)
+
+
+def _jit(fn: Callable[..., None]) -> Callable[..., None]:
+    """``fn`` compiled by numba, once per process."""
+    compiled = _compiled.get(fn)
+    if compiled is None:
+        from numba import njit  # heavy (0.3 s): only where a kernel is used
+
+        compiled = _compiled[fn] = njit(cache=True, nogil=True)(fn)
+    return compiled
+
+
+def _cubic_values(
+    t: np.ndarray,
+    counts: np.ndarray,
+    t_lo: np.ndarray,
+    phi_lo: np.ndarray,
+    c1: np.ndarray,
+    c2: np.ndarray,
+    c3: np.ndarray,
+    phi: np.ndarray,
+    omega: np.ndarray,
+) -> None:
+    """:func:`dsp.angle.lookup`'s angle and speed, piece by piece in one pass.
+
+    ``t`` (n,) s, ``counts`` (p,) how many of them (in turn) each piece holds, the
+    pieces' start time, angle and coefficients (p,); writes ``phi`` (rad) and ``omega``
+    (rad/s) (n,). The same operations in the same order as the numpy arrays there
+    (no fused multiply-add: numba does not contract without fastmath), so the same bits.
+    """
+    i = 0
+    for p in range(counts.size):
+        tl, pl, a1, a2, a3 = t_lo[p], phi_lo[p], c1[p], c2[p], c3[p]
+        a3x3 = 3.0 * a3
+        a2x2 = 2.0 * a2
+        for _ in range(counts[p]):
+            tau = t[i] - tl
+            phi[i] = ((tau * a3 + a2) * tau + a1) * tau + pl
+            omega[i] = (tau * a3x3 + a2x2) * tau + a1
+            i += 1
 
 
 def compiled_sums(
@@ -122,6 +191,40 @@ def compiled_sums(
             i += count
         out.append((a, d, s2, n2, clip, list(range(no)), list(range(no, 2 * no))))
     return out, wa, wd
+
+
+def _cubic_times(
+    phi: np.ndarray,
+    t_lo: np.ndarray,
+    t_hi: np.ndarray,
+    phi_lo: np.ndarray,
+    phi_hi: np.ndarray,
+    c1: np.ndarray,
+    c2: np.ndarray,
+    c3: np.ndarray,
+    t: np.ndarray,
+    omega: np.ndarray,
+) -> None:
+    """:func:`dsp.angle.time_at` angle by angle: its Newton steps on the piece's cubic, the
+    same operations in the same order, so the same bits; NaN outside every piece.
+    ``phi`` (n,) rad (any order), the table's columns (p,); writes ``t`` (s), ``omega`` (rad/s).
+    """
+    for i in range(phi.size):
+        j = np.searchsorted(phi_lo, phi[i], side="right") - 1
+        if j < 0 or not phi[i] <= phi_hi[j]:
+            t[i] = np.nan
+            omega[i] = np.nan
+            continue
+        a1, a2, a3 = c1[j], c2[j], c3[j]
+        a2x2 = 2.0 * a2
+        target = phi[i] - phi_lo[j]
+        tau = target / (phi_hi[j] - phi_lo[j]) * (t_hi[j] - t_lo[j])
+        for _ in range(4):
+            f = tau * (a1 + tau * (a2 + tau * a3)) - target
+            fp = a1 + tau * (a2x2 + 3.0 * tau * a3)
+            tau -= f / fp
+        omega[i] = a1 + tau * (a2x2 + 3.0 * tau * a3)
+        t[i] = t_lo[j] + tau
 
 
 def _piece_sums(

@@ -64,6 +64,7 @@ import math
 
 import numpy as np
 
+from dsp import kernels
 from dsp.frames import rise
 
 # The ramp is fitted through the frame and the two newest valid frames one, two or three
@@ -178,6 +179,34 @@ def ramp_correction(
     if not enabled:
         return history, x, np.zeros((f, n_ch), bool)
 
+    n_int = x.shape[1]
+    if kernels.USE:
+        b = np.empty((f, n_int, n_ch), complex)
+        good = np.empty((f, n_ch), bool)
+        kernels.ramp_slopes(
+            all_j, all_c, all_x, js, chains, tacho_bad, period, SLOPE_PERIODS, b, good
+        )
+    else:
+        b, good = _slopes(all_j, all_c, all_x, js, chains, tacho_bad, period)
+    phase = js % period
+    corr = same[phase] @ b
+    corr += image[phase] @ np.conj(b)
+    return history, x - corr, good
+
+
+def _slopes(
+    all_j: np.ndarray,
+    all_c: np.ndarray,
+    all_x: np.ndarray,
+    js: np.ndarray,
+    chains: np.ndarray,
+    tacho_bad: np.ndarray,
+    period: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ramps ``b`` (f, n_int, n_ch) and where they are ``good`` (f, n_ch), in numpy
+    (the reference of :func:`dsp.ramp_slopes.ramp_slopes`; arguments as there)."""
+    f, n_ch = js.size, all_x.shape[2]
+    x = all_x[all_j.size - f :]  # the new frames'
     first = int(all_j[0])
     gapless = int(all_j[-1]) - first == all_j.size - 1  # the rule: no frame skipped
 
@@ -218,8 +247,4 @@ def ramp_correction(
         # b = (3 X_j - 4 X_j' + X_j'') / 2
         c = (s1 - (x1 - x2) / (d2 - d1)) / d2
         b = s1 + np.where(bent[:, None, :], c, 0.0) * d1
-    b = np.where(good[:, None, :], b, 0.0)  # ramp per 720 deg window
-    phase = js % period
-    corr = same[phase] @ b
-    corr += image[phase] @ np.conj(b)
-    return history, x - corr, good
+    return np.where(good[:, None, :], b, 0.0), good  # ramp per 720 deg window

@@ -51,11 +51,15 @@ measured by ``benchmarks/bench_order_tracking.py`` and ``tests/dsp/test_order_ac
 * Cost. Per sample: one single-precision cos/sin pair, a running complex
   product per order, and a (channels x samples) @ (samples x 2 orders) product
   per segment; 10 channels at 25.6 kHz, orders 1, 1.5, 2 (plus the internal
-  orders of the correction) run about 240x faster than real time on one core
-  in 1 s blocks and 200x in 0.5 s blocks, 9 channels with the cylinder pressure
-  as the cycle reference 195x (BLAS on one thread), with flat memory. The rest
-  is fixed cost per block and per frame, kept down by doing each step once for
-  all samples or frames of a block (a pressure vote, a group's angles, a window).
+  orders of the correction) run about 300x faster than real time on one core
+  in 0.5 s blocks (380x with the compiled kernels of :mod:`dsp.kernels`,
+  ``PTINERTIA_NUMBA=1``), 9 channels with the cylinder pressure as the cycle
+  reference 215x (270x) (BLAS on one thread), with flat memory. The rest is fixed
+  cost per block and per frame, kept down by doing each step once for all samples
+  or frames of a block (a pressure vote, a group's angles, a window) and by
+  holding back samples that cannot complete a frame until the next block
+  (:mod:`dsp.segments`): at 0.1 s blocks the tracker runs at 40 % of its
+  1 s-block rate.
 
 * Spectrum. ``spectrum_channel`` (any unit, any group, e.g. the cylinder
   pressure) adds every half order 0, 0.5, .. ``spectrum_max_order`` of that

@@ -4,7 +4,7 @@ Samples wait in their group until the tacho has given an angle to their time
 (:func:`process_group`); then each gets ``phi`` and ``omega`` and is added to
 its segment's sums (:func:`dsp.sums.add_samples`). Sample gaps and jumps
 between wheel runs are recorded as :class:`dsp.state.Invalid` stretches; the
-cylinder-pressure votes for the 720 deg cycle are collected here too.
+cylinder-pressure votes for the 720 deg cycle are collected here too (:mod:`dsp.pressure_votes`).
 """
 
 from __future__ import annotations
@@ -16,17 +16,16 @@ import numpy as np
 
 from acquisition.stream import SourceEvent
 from dsp import angle as ang
-from dsp import cycle
 from dsp.config import GroupPlan
 from dsp.gap_fit import fill_holes
 from dsp.immutable import evolve
+from dsp.pressure_votes import add_pressure, silent_pressure, steps_per_rev
 from dsp.state import (
     TACHO_REASONS,
-    TWO_PI,
     GroupState,
     Invalid,
     TrackerState,
-    chains_at,
+    last_complete_frame,
     set_group,
 )
 from dsp.sum_sets import SumSet
@@ -68,7 +67,8 @@ def process_group(
     # samples the tacho has not reached within max_wait_s are dropped: memory stays bounded
     t_stale = t_new - st.plan.config.max_wait_s
     t_end = st.table.t_end
-    if max(t_end, t_stale) <= g.t0_s + gs.pend[0][0] / g.rate_hz:
+    t_first = g.t0_s + gs.pend[0][0] / g.rate_hz
+    if max(t_end, t_stale) <= t_first:
         return st  # the tacho has reached none of the samples and none is stale yet
     keep: list[tuple[int, np.ndarray]] = []
     spans: list[tuple[int, np.ndarray]] = []  # ready samples, CHUNK at most per span
@@ -86,6 +86,9 @@ def process_group(
         start = max(n_ready, n_stale)
         if start < n:
             keep.append((first + start, rows[:, start:]))
+    if dropped is None and spans and _can_wait(st, g, gs, spans[-1]):
+        # cut where the tacho stands now, as a pass now would: the same pieces later
+        return set_group(st, gi, evolve(gs, pend=(*spans, *keep)))
     # The tacho stops a few teeth short of a block's end, so a step usually finds the
     # previous block's last samples and the new block: one pass over both, not two.
     for batch in _batches(spans):
@@ -108,6 +111,30 @@ def process_group(
     else:
         gs = evolve(gs, pend=tuple(keep))
     return set_group(st, gi, gs)
+
+
+def _can_wait(st: TrackerState, g: GroupPlan, gs: GroupState, last: tuple[int, np.ndarray]) -> bool:
+    """Whether the ready samples (the ``last`` span the newest) can wait for the next step:
+    none of them can complete a frame. The next tacho edges usually reach the last teeth
+    of the previous sample block, a pass over some twenty samples with the fixed cost of
+    a whole block (a fifth of the tracker's time at 0.5 s blocks). Held back, and cut
+    from the samples not yet reached, they are summed with the next samples as pieces of
+    their own, which round as this pass would (dsp.sums): the frames are the same, bit
+    for bit, and none comes later. Only inside one wheel run (the newest sample then has
+    the largest angle) and never for a group whose pressure votes for the cycle."""
+    table = st.table
+    if not (
+        st.next_frame is not None
+        and g.pressure_at is None
+        and gs.last_index >= 0
+        and not gs.starved
+        and table.run[0] == table.run[-1] == gs.last_run
+    ):
+        return False
+    ok, phi, _, _ = ang.lookup(
+        table, np.array([g.t0_s + (last[0] + last[1].shape[1] - 1) / g.rate_hz])
+    )
+    return bool(ok[0]) and last_complete_frame(st, float(phi[0])) < st.next_frame
 
 
 def _batches(spans: list[tuple[int, np.ndarray]]) -> list[list[tuple[int, np.ndarray]]]:
@@ -225,8 +252,8 @@ def accumulate(
         st = evolve(st, invalid=tuple(inv))
     bounds = np.cumsum([0] + [p.shape[1] for p in pieces]).tolist()  # where each piece begins
     if g.pressure_at is not None:
-        steps = _steps(st)
-        skip_a, skip_b = _silent_pressure(st, phi) if steps == 1 else (0, 0)
+        steps = steps_per_rev(st)
+        skip_a, skip_b = silent_pressure(st, phi) if steps == 1 else (0, 0)
         for p, p0, p1 in zip(pieces, bounds[:-1], bounds[1:], strict=True):
             for a, b in ((p0, min(p1, skip_a)), (max(p0, skip_b), p1)):
                 if b > a:
@@ -247,23 +274,28 @@ def accumulate(
             ]
             sets = []
             if n_track:
-                # missing samples (a lost CAN frame) are filled from the previous engine
-                # cycle, or summed as zeros and solved for (dsp.gap_fit), and remembered
-                tracked, holes, recent = fill_holes(
-                    [p[:n_track] for p in x], phi[c0:c1], omega[c0:c1] / g.rate_hz, gs.holes,
-                    gs.recent,
-                )  # fmt: skip
-                gs = evolve(gs, holes=holes, recent=recent)
-                sets.append(SumSet(acc, tracked, st.plan.k2, cfg.clip_level))
+                raw = [p[:n_track] for p in x]
+                sets.append(SumSet(acc, raw, st.plan.k2, cfg.clip_level))
             if at is not None:
                 # no clip check (clip_level is in the tracked channels' unit), no mean square
                 sk2 = st.plan.spectrum_k2
                 assert sk2 is not None
                 sets.append(SumSet(spec, [p[at : at + 1] for p in x], sk2, tracked=False))
-            sums = add_sample_sets(
-                sets, phi[c0:c1], omega[c0:c1], int(idx[c0]), g.rate_hz, cfg.frames_per_rev,
-                cfg.taper_deg,
-            )  # fmt: skip
+            args = (phi[c0:c1], omega[c0:c1], int(idx[c0]), g.rate_hz, cfg.frames_per_rev)
+            sums = add_sample_sets(sets, *args, cfg.taper_deg)
+            if n_track:
+                # missing samples (a lost CAN frame) are filled from the previous engine
+                # cycle, or summed as zeros and solved for (dsp.gap_fit), and remembered.
+                # A non-finite sample makes its segment's sums non-finite: finite sums
+                # spare the pass over the samples, and a hole costs the sums twice
+                tracked, holes, recent = fill_holes(
+                    raw, phi[c0:c1], omega[c0:c1] / g.rate_hz, gs.holes, gs.recent,
+                    known_finite=_finite(sums[0]),
+                )  # fmt: skip
+                gs = evolve(gs, holes=holes, recent=recent)
+                if tracked is not raw:
+                    sets[0] = SumSet(acc, tracked, st.plan.k2, cfg.clip_level)
+                    sums = add_sample_sets(sets, *args, cfg.taper_deg)
             if n_track:
                 acc = sums[0]
             if at is not None:
@@ -281,93 +313,6 @@ def accumulate(
     return st, gs
 
 
-def _silent_pressure(st: TrackerState, phi: np.ndarray) -> tuple[int, int]:
-    """Samples ``a .. b-1`` whose pressure can no longer vote for a cycle (a, b = 0, 0 if any can).
-
-    A TDC candidate ``k`` votes at ``2 pi k`` and ``2 pi (k + 1)`` for the chain of the run
-    there (:func:`decide_pressure`). When the table is one run whose cycle is known, the
-    votes of the candidates inside it are ignored: their sums are not worth the
-    arithmetic (a twentieth of the tracker's time at 25.6 kHz). Only the
-    newest candidates, whose next TDC lies beyond the table, are still summed.
-    """
-    table = st.table
-    if table.run.size < 3 or table.run[0] != table.run[-1]:
-        return 0, 0
-    if st.chain_of_run.get(int(table.run[0]), -1) not in st.parity:
-        return 0, 0
-    # candidates k_lo .. k_hi-1: both votes inside [phi_lo[1], phi_hi[-2]], where
-    # chains_at gives the run's chain whatever the rounding (and so will any later table)
-    k_lo = math.ceil(float(table.phi_lo[1]) / TWO_PI)
-    k_hi = math.floor(float(table.phi_hi[-2]) / TWO_PI)
-    if k_hi <= k_lo:
-        return 0, 0
-    # their samples lie within 60 deg of 2 pi k, so between the half-way angles
-    a, b = np.searchsorted(phi, (TWO_PI * (k_lo - 0.5), TWO_PI * (k_hi - 0.5)))
-    return int(a), int(b)
-
-
-def add_pressure(gs: GroupState, phi: np.ndarray, p: np.ndarray, steps: int = 1) -> GroupState:
-    k, total, count = cycle.pressure_sums(phi, p, steps)
-    if k.size == 0:
-        return gs
-    cands = dict(gs.pressure)
-    for kk, tt, cc in zip(k, total, count, strict=True):
-        s0, c0 = cands.get(int(kk), (0.0, 0))
-        cands[int(kk)] = (s0 + float(tt), c0 + int(cc))
-    return evolve(gs, pressure=cands)
-
-
-def _steps(st: TrackerState) -> int:
-    """How many candidate TDCs per revolution the tacho leaves (cycle.offset_steps)."""
-    tc = st.plan.config.tacho
-    return cycle.offset_steps(tc.kind, tc.teeth)
-
-
-def decide_pressure(st: TrackerState) -> TrackerState:
-    """Decide the chains' offsets from complete pressure candidates (in crank-angle order).
-
-    A vote takes the ``2 N`` consecutive candidates of one 720 deg cycle (N = 1 for a
-    wheel: two TDCs a revolution apart; N pulses: one at each pulse) and names the
-    firing TDC among them (:func:`dsp.cycle.pressure_offset`) for the chain of the run
-    at the cycle's last candidate.
-    """
-    parity = None
-    groups = list(st.groups)
-    changed = False
-    steps = _steps(st)
-    step = TWO_PI / steps
-    half = cycle.pressure_half_width(steps)
-    span = 2 * steps  # candidates per 720 deg cycle
-    for gi, g in enumerate(st.plan.groups):
-        if g.pressure_row is None:
-            continue
-        gs = groups[gi]
-        if not gs.pressure:
-            continue
-        done = sorted(k for k in gs.pressure if step * k + half < gs.last_phi)
-        cands = gs.pressure
-        complete = set(done)
-        votes = []  # (last candidate of the cycle, offset) of the cycles that decide
-        for k in done:
-            if any(k + i not in complete for i in range(span)):
-                continue
-            means = np.array([cands[k + i][0] / max(cands[k + i][1], 1) for i in range(span)])
-            s = cycle.pressure_offset(means, k, steps)
-            if s is not None:
-                votes.append((k + span - 1, s))
-        if votes:
-            # every vote's chain in one call: a block holds one cycle per two revolutions
-            chains = chains_at(st, step * np.array([k for k, _ in votes]))
-            parity = dict(st.parity) if parity is None else parity
-            for (k, s), chain in zip(votes, chains.tolist(), strict=True):
-                if chain >= 0 and chain not in parity:
-                    parity[chain] = (s, step * k + half)
-        if len(done) >= span:
-            # the newest complete candidates still begin cycles with the next ones: keep them
-            drop = set(done[: len(done) - (span - 1)])
-            kept = {k: v for k, v in cands.items() if k not in drop}
-            groups[gi] = evolve(gs, pressure=kept)
-            changed = True
-    if parity is not None:
-        return evolve(st, groups=tuple(groups), parity=parity)
-    return evolve(st, groups=tuple(groups)) if changed else st
+def _finite(rows: dict[int, np.ndarray]) -> bool:
+    """Whether every sum of every row is finite (a few dozen rows: microseconds)."""
+    return bool(np.isfinite(np.stack(list(rows.values()))).all()) if rows else True

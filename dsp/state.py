@@ -102,6 +102,13 @@ def initial_state(plan: Plan) -> TrackerState:
     return TrackerState(plan=plan, groups=tuple(GroupState() for _ in plan.groups))
 
 
+def last_complete_frame(st: TrackerState, front: float) -> int:
+    """The last frame whose window (and half taper) lies before crank angle ``front`` (rad)."""
+    cfg = st.plan.config
+    spacing = TWO_PI / cfg.frames_per_rev
+    return math.floor((front - 0.5 * math.radians(cfg.taper_deg)) / spacing) - cfg.frames_per_rev
+
+
 def set_group(st: TrackerState, gi: int, gs: GroupState) -> TrackerState:
     """``st`` with group ``gi`` replaced."""
     groups = list(st.groups)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import replace
+from dataclasses import fields, replace
 
 import numpy as np
 import pytest
@@ -16,6 +16,7 @@ import pytest
 from acquisition.stream import EdgeBlock, SampleBlock, SourceEvent
 from dsp.config import OrderTrackerConfig, make_plan
 from dsp.errors import DspConfigError
+from dsp.frames import OrderFrame
 from dsp.orders import OrderTracker, initial_state, track
 from dsp.synthetic import Ramp, SyntheticBench, random_content
 from dsp.tacho import TachoConfig
@@ -476,3 +477,46 @@ def test_taper_table_is_np_interp_bit_for_bit():
         (rng.uniform(-0.1, 1.1, 100_000), grid, np.nextafter(grid, 2), np.nextafter(grid, -1))
     )
     np.testing.assert_array_equal(rise_table(s), np.interp(s, _S, _TABLE))
+
+
+def test_frames_carry_every_field_of_the_dataclass():
+    """The assembler sets the frame's fields directly (dsp.assemble._finish): a field added
+    to OrderFrame must not be left unset."""
+    bench = _bench()
+    frames, _ = _run(bench, bench.items(1.0, block_s=0.25))
+    assert frames
+    assert set(vars(frames[0])) == {f.name for f in fields(OrderFrame)}
+
+
+@pytest.mark.parametrize("block_s", [0.5, 0.07, None])
+def test_held_back_samples_change_no_frame_and_delay_none(block_s, monkeypatch):
+    """Ready samples that cannot complete a frame wait for the next block
+    (dsp.segments._can_wait): every frame is the same, bit for bit, and comes out with the
+    same stream item as when every ready sample is summed at once. None: random blocks
+    down to one sample."""
+    from dsp import segments
+
+    bench = _bench(ramp=Ramp(1500.0, 3000.0, 2.0))
+    rng = None if block_s else np.random.default_rng(5)
+    items = list(bench.items(2.0, block_s=block_s or 0.03, rng_blocks=rng))
+    waits = []
+    can_wait = segments._can_wait
+
+    def counted(*args):
+        waits.append(can_wait(*args))
+        return waits[-1]
+
+    def emitted(tracker_items):
+        tracker = OrderTracker.from_layout(bench.layout, _config())
+        return [(k, f) for k, item in enumerate(tracker_items) for f in tracker.process(item)[0]]
+
+    monkeypatch.setattr(segments, "_can_wait", counted)
+    held = emitted(items)
+    monkeypatch.setattr(segments, "_can_wait", lambda *args: False)
+    at_once = emitted(items)
+    assert sum(waits) >= 3  # samples were held back
+    assert len(held) == len(at_once) > 20
+    for (k_a, a), (k_b, b) in zip(held, at_once, strict=True):
+        assert k_a == k_b and a.crank_angle_rad == b.crank_angle_rad and a.flags == b.flags
+        np.testing.assert_array_equal(a.amplitudes, b.amplitudes)
+        np.testing.assert_array_equal(a.leakage, b.leakage)
