@@ -8,6 +8,8 @@ unbounded first queue, so a slow viewer or disk never makes us drop samples:
 the backlog is measured and reported instead. A file or unpaced simulator gets
 a bounded one (back-pressure keeps memory flat; nothing is lost either way);
 the queue between dsp and estimator is always bounded (:data:`TRACKED_ITEMS`).
+The backlog is the time from an item's arrival to the processing thread taking
+it up, its dsp included.
 
 Why a dsp thread (issue 24): the dsp stage spends most of its time in numpy
 calls on whole blocks, which release the GIL, while the estimator is small-matrix
