@@ -2,8 +2,15 @@
 
 Prints:
 1. ``run`` on the simulated i3, 10 channels (9 accelerometers + cylinder pressure) at 25.6 kHz,
-   60 s sweep, MCAP recording on, viewer off: real-time factor, MCAP size per hour;
-2. ``replay`` of that log: real-time factor, and whether the result is identical;
+   60 s sweep, MCAP recording on, viewer off: real-time factor, MCAP size per hour, and the CPU
+   of each of the pipeline's threads (``RunSummary.thread_cpu_s``: source, dsp, estimator and
+   sinks; the rest is the MCAP writer's and the set-up's);
+2. ``replay`` of that log: real-time factor, whether the result is identical, CPU by thread.
+   The busiest thread's CPU bounds what threading can give: "Nx with a free core per thread".
+   The GIL lowers that bound: perf samples of a replay (issue 24) put the dsp thread's time
+   55-60 % in numpy, BLAS and libm (GIL released for arrays past a few hundred elements) and
+   the estimator's 45 % in the interpreter and most of the rest in numpy calls on arrays
+   too small to release it;
 3. a paced (real-time) run, MCAP recording on: the largest delay from a block's arrival to the estimate it
    produced being in every sink;
 4. each stage on its own, per minute of data (simulator, MCAP reader, dsp, estimator): CPU

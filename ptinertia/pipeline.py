@@ -110,12 +110,16 @@ class _Reader(threading.Thread):
         self.cpu_s = 0.0  # CPU seconds of this thread, set before its end is queued
 
     def run(self) -> None:
+        # a recording's samples are its float32 values already: rounding them again would
+        # cost two casts per block and change nothing (replay.source.McapSource)
+        recorded = getattr(self.items, "samples_as_recorded", False) is True
         try:
             for item in self.items:
                 arrived = time.monotonic()
                 # the float32 rounding here, not on the processing thread: its casts release
                 # the GIL, so it runs beside the dsp on the other core (bit for bit the same)
-                item = as_recorded(item)
+                if not recorded:
+                    item = as_recorded(item)
                 if not _put(self.q, (arrived, item), self.stop):
                     break
         except BaseException as err:  # handed to the processing thread, re-raised there
