@@ -50,7 +50,9 @@ TRACKED_ITEMS = 4
 
 
 class FrameTracker(Protocol):
-    """The dsp stage as the pipeline drives it."""
+    """The dsp stage as the pipeline drives it, on a thread of its own: it must leave the
+    items it is fed as they are (the sinks get them after it) and not write again into
+    arrays of the frames it returned (the estimator reads them while it goes on)."""
 
     def feed(self, item: StreamItem) -> tuple[list[Any], list[SourceEvent]]:
         """Process one item; return the frames and events it completed."""
