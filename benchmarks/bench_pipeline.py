@@ -7,10 +7,13 @@ Prints:
    sinks; the rest is the MCAP writer's and the set-up's);
 2. ``replay`` of that log: real-time factor, whether the result is identical, CPU by thread.
    The busiest thread's CPU bounds what threading can give: "Nx with a free core per thread".
-   The GIL lowers that bound: perf samples of a replay (issue 24) put the dsp thread's time
-   55-60 % in numpy, BLAS and libm (GIL released for arrays past a few hundred elements) and
-   the estimator's 45 % in the interpreter and most of the rest in numpy calls on arrays
-   too small to release it;
+   The GIL lowers that bound. perf samples by thread (issue 24, 3 runs each, loaded machine):
+   replay: processing thread (estimator, set-up) python 44 %, numpy 34 % (arrays too small
+   to release the GIL), libc 10 %; dsp thread numpy 47 %, BLAS 9 %, python 34 %, libc 8 %;
+   source python 33 %, libc 22 %, zstd/zlib 8 %. Counting the processing thread whole and
+   the others' interpreter, libc and kernel time as held, the GIL is held for about 75 %
+   of a replay's CPU (about 70 % live with recording): with these stages, no arrangement
+   of threads passes about 1.3 busy cores, i.e. about 80x for replay, 55x live;
 3. a paced (real-time) run, MCAP recording on: the largest delay from a block's arrival to the estimate it
    produced being in every sink;
 4. each stage on its own, per minute of data (simulator, MCAP reader, dsp, estimator): CPU
