@@ -2,8 +2,18 @@
 
 Prints:
 1. ``run`` on the simulated i3, 10 channels (9 accelerometers + cylinder pressure) at 25.6 kHz,
-   60 s sweep, MCAP recording on, viewer off: real-time factor, MCAP size per hour;
-2. ``replay`` of that log: real-time factor, and whether the result is identical;
+   60 s sweep, MCAP recording on, viewer off: real-time factor, MCAP size per hour, and the CPU
+   of each of the pipeline's threads (``RunSummary.thread_cpu_s``: source, dsp, estimator and
+   sinks; the rest is the MCAP writer's and the set-up's);
+2. ``replay`` of that log: real-time factor, whether the result is identical, CPU by thread.
+   The busiest thread's CPU bounds what threading can give: "Nx with a free core per thread".
+   The GIL lowers that bound. perf samples by thread (issue 24, 3 runs each, loaded machine):
+   replay: processing thread (estimator, set-up) python 44 %, numpy 34 % (arrays too small
+   to release the GIL), libc 10 %; dsp thread numpy 47 %, BLAS 9 %, python 34 %, libc 8 %;
+   source python 33 %, libc 22 %, zstd/zlib 8 %. Counting the processing thread whole and
+   the others' interpreter, libc and kernel time as held, the GIL is held for about 75 %
+   of a replay's CPU (about 70 % live with recording): with these stages, no arrangement
+   of threads passes about 1.3 busy cores, i.e. about 80x for replay, 55x live;
 3. a paced (real-time) run, MCAP recording on: the largest delay from a block's arrival to the estimate it
    produced being in every sink;
 4. each stage on its own, per minute of data (simulator, MCAP reader, dsp, estimator): CPU
@@ -84,7 +94,7 @@ def live_and_replay(tmp: Path) -> Path:
     channels = sum(len(g.channels) for g in source.layout.groups if g.rate_hz == 25600.0)
     log = tmp / "live.mcap"
     t0, c0 = time.perf_counter(), time.process_time()
-    _, doc = run_source(
+    summary, doc = run_source(
         bench, text, source, "sim", RunOptions(quiet=True, sinks=(McapRecorder(log),))
     )
     # process CPU counts every thread (source, processing, MCAP writer): CPU / wall is how
@@ -96,20 +106,41 @@ def live_and_replay(tmp: Path) -> Path:
         f"  {live:.1f} s = {60 / live:.0f}x real time (CPU {live_cpu:.1f} s: {live_cpu / live:.2f} "
         f"cores busy);  MCAP {log.stat().st_size / 1e6:.0f} MB per minute, {size_h:.2f} GB per hour"
     )
+    print(f"  {_threads(summary.thread_cpu_s, live_cpu, 'MCAP writer, set-up')}")
     t0, c0 = time.perf_counter(), time.process_time()
-    _, again = run_source(bench, text, McapSource(log), "sim", RunOptions(quiet=True))
+    replayed, again = run_source(bench, text, McapSource(log), "sim", RunOptions(quiet=True))
     rep, rep_cpu = time.perf_counter() - t0, time.process_time() - c0
     same = json.dumps(doc, sort_keys=True) == json.dumps(again, sort_keys=True)
     print(
         f"replay: {rep:.1f} s = {60 / rep:.0f}x real time (CPU {rep_cpu:.1f} s, "
         f"{rep_cpu / rep:.2f} cores busy); result identical to the live run: {same}"
     )
+    print(f"  {_threads(replayed.thread_cpu_s, rep_cpu, 'set-up, file scan')}")
     load = _load()
     FIGURES["live with recording"] = (
-        f"{60 / live:.0f}x (wall; {live_cpu / live:.2f} cores busy; load {load})"
+        f"{60 / live:.0f}x (wall; {live_cpu / live:.2f} cores busy; load {load}); "
+        f"{_bound(summary.thread_cpu_s)}"
     )
     FIGURES["replay"] = f"{60 / rep:.0f}x (wall; load {load}), identical to live: {same}"
     return log
+
+
+def _threads(cpu: dict[str, float], process_cpu: float, other: str) -> str:
+    """The pipeline's threads' CPU seconds (``RunSummary.thread_cpu_s``), and the rest of
+    the process's (``other``: what else ran)."""
+    rest = process_cpu - sum(cpu.values())
+    return (
+        "CPU by thread: "
+        + ", ".join(f"{name} {s:.2f} s" for name, s in cpu.items())
+        + f", other ({other}) {rest:.2f} s"
+    )
+
+
+def _bound(cpu: dict[str, float]) -> str:
+    """The real-time factor of the 60 s stream if each thread had a core to itself: the
+    busiest thread's CPU (the GIL can only lower it: numpy releases it, Python holds it)."""
+    name, busiest = max(cpu.items(), key=lambda kv: kv[1])
+    return f"{60 / busiest:.0f}x with a free core per thread ({name} {busiest:.2f} s CPU)"
 
 
 def _cpu_s(work: Callable[[], Any]) -> tuple[float, Any]:
@@ -122,13 +153,13 @@ def _cpu_s(work: Callable[[], Any]) -> tuple[float, Any]:
 def stage_budget(log: Path) -> None:
     """Each stage alone on the 60 s log: what the targets leave no room for."""
     from acquisition.stream import SourceEvent
-    from ptinertia.pipeline import as_recorded
     from ptinertia.runner import processing_chain
     from replay.source import McapSource
 
     bench, source, _ = _bench(25600.0, 60.0)
     sim, _ = _cpu_s(lambda: sum(1 for _ in source))
-    reader, items = _cpu_s(lambda: [as_recorded(i) for i in McapSource(log)])
+    # as the pipeline reads a recording: its samples are float32 already, not rounded again
+    reader, items = _cpu_s(lambda: list(McapSource(log)))
     tracker, estimator = processing_chain(bench, source.layout)  # as run_source sets it up
     batches = []
 
@@ -168,16 +199,18 @@ def stage_budget(log: Path) -> None:
         f" ({1e3 * est / max(used, 1):.2f} ms per used frame, {used} frames)"
     )
     # The stages' CPU shared perfectly over two cores is the bound for any arrangement
-    # of these stages (threads, processes); today dsp and estimator also run one after
-    # the other on the processing thread, which bounds it at 60 / (dsp + estimator).
-    live_cores = 60 / max(sim, dsp + est, (sim + dsp + est) / 2)
-    replay_cores = 60 / max(reader, dsp + est, (reader + dsp + est) / 2)
-    live_any = 60 / ((sim + dsp + est) / 2)
-    replay_any = 60 / ((reader + dsp + est) / 2)
+    # of these stages (threads, processes). The pipeline runs source, dsp and estimator
+    # on three threads (ptinertia.pipeline): with no GIL, the busiest stage would bound it;
+    # with the GIL, the time each stage holds it adds up (the estimator holds it most of
+    # its time, the dsp about half of its time: perf samples, see the docstring).
+    live_cores = 60 / max(sim, dsp, est, (sim + dsp + est) / 2)
+    replay_cores = 60 / max(reader, dsp, est, (reader + dsp + est) / 2)
+    live_serial = 60 / max(sim, dsp + est)
+    replay_serial = 60 / max(reader, dsp + est)
     print(
-        f"  best case on two cores, dsp and estimator on one thread: live {live_cores:.0f}x, "
-        f"replay {replay_cores:.0f}x; all CPU split evenly over both cores: live {live_any:.0f}x, "
-        f"replay {replay_any:.0f}x (targets 100x, 300x)"
+        f"  best case on two cores, stages on their own threads, GIL aside: live "
+        f"{live_cores:.0f}x, replay {replay_cores:.0f}x; with dsp and estimator one after the "
+        f"other: live {live_serial:.0f}x, replay {replay_serial:.0f}x (targets 100x, 300x)"
     )
 
 
@@ -322,17 +355,23 @@ def replay_repeated(log: Path, repeat: int = 3) -> None:
     from replay.source import McapSource
 
     bench, _, text = _bench(25600.0, 60.0)
-    walls, cpus = [], []
+    walls, cpus, threads = [], [], []
     for _ in range(repeat):
         t0, c0 = time.perf_counter(), time.process_time()
-        run_source(bench, text, McapSource(log), "sim", RunOptions(quiet=True))
+        summary, _ = run_source(bench, text, McapSource(log), "sim", RunOptions(quiet=True))
         walls.append(time.perf_counter() - t0)
         cpus.append(time.process_time() - c0)
+        threads.append(summary.thread_cpu_s)
+    best = min(threads, key=lambda cpu: max(cpu.values()))
     print(
         f"replay, best of {repeat}: {60 / min(walls):.0f}x real time (wall), "
-        f"{60 / min(cpus):.0f}x per CPU second (all threads)"
+        f"{60 / min(cpus):.0f}x per CPU second (all threads); "
+        f"{_threads(best, min(cpus), 'set-up, file scan')}"
     )
-    FIGURES["replay, best of 3"] = f"{60 / min(walls):.0f}x (wall), {60 / min(cpus):.0f}x (CPU)"
+    FIGURES["replay, best of 3"] = (
+        f"{60 / min(walls):.0f}x (wall), {60 / min(cpus):.0f}x (CPU); {_bound(best)} "
+        f"(load {_load()})"
+    )
 
 
 def cold_start(repeat: int = 3) -> None:

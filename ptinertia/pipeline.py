@@ -1,11 +1,22 @@
-"""source -> dsp -> estimator -> sinks, with acquisition decoupled from processing.
+"""source -> dsp -> estimator -> sinks, each of the first two stages on its own thread.
 
-A reader thread pulls items from the source into a queue; the processing
-thread tracks orders, updates the estimate and feeds the sinks. A live source
-(CAN bus, paced simulator) gets an unbounded queue, so a slow viewer or disk
-never makes us drop samples: the backlog is measured and reported instead. A
-file or unpaced simulator gets a bounded queue (back-pressure keeps memory
-flat; nothing is lost either way).
+A reader thread pulls items from the source into a queue; a dsp thread tracks
+orders and hands each item with the frames it completed to the processing
+thread (the caller's), which updates the estimate and feeds the sinks, in the
+order one thread would. A live source (CAN bus, paced simulator) gets an
+unbounded first queue, so a slow viewer or disk never makes us drop samples:
+the backlog is measured and reported instead. A file or unpaced simulator gets
+a bounded one (back-pressure keeps memory flat; nothing is lost either way);
+the queue between dsp and estimator is always bounded (:data:`TRACKED_ITEMS`).
+The backlog is the time from an item's arrival to the processing thread taking
+it up, its dsp included.
+
+Why a dsp thread (issue 24): the dsp stage spends most of its time in numpy
+calls on whole blocks, which release the GIL, while the estimator is small-matrix
+numpy that holds it; on two cores they overlap. The tracker depends on nothing
+the estimator does, so every frame, estimate and sink call is the same as with
+one thread. An error in the dsp stage reaches the processing thread with the
+item that raised it, after that item's ``on_item``, as it did with one thread.
 
 Samples are rounded to float32 before anything sees them (on the reader thread,
 beside the processing): that is what the recorder stores, so a replay of the
@@ -30,10 +41,18 @@ from estimator.streaming import InertiaEstimator
 from ptinertia.sinks import RunContext, Sink
 
 _END = object()
+_FINISHED = object()  # the tracker's finish(): what it flushed follows
+
+# Items between the dsp and the processing thread: enough to ride out an estimate's
+# publication (a few blocks' worth of dsp), few enough that memory stays flat (a 0.5 s
+# block of 10 channels at 25.6 kHz is 1 MB).
+TRACKED_ITEMS = 4
 
 
 class FrameTracker(Protocol):
-    """The dsp stage as the pipeline drives it."""
+    """The dsp stage as the pipeline drives it, on a thread of its own: it must leave the
+    items it is fed as they are (the sinks get them after it) and not write again into
+    arrays of the frames it returned (the estimator reads them while it goes on)."""
 
     def feed(self, item: StreamItem) -> tuple[list[Any], list[SourceEvent]]:
         """Process one item; return the frames and events it completed."""
@@ -63,6 +82,21 @@ class RunSummary:
     orders_rejected: dict[str, int] = field(default_factory=dict)  # (frame, order)s, per reason
     # stretches without crank angle (a tacho or CAN outage): start_s, end_s, message
     gaps: list[dict[str, Any]] = field(default_factory=list)
+    # CPU seconds of each thread: "source" (reading, decoding or simulating), "dsp", and
+    # "estimator and sinks" (the caller's, from start to close); what bounds a run on
+    # two cores is the largest (benchmarks/bench_pipeline.py prints them)
+    thread_cpu_s: dict[str, float] = field(default_factory=dict)
+
+
+def _put(q: queue.Queue[Any], value: Any, stop: threading.Event) -> bool:
+    """Put ``value`` on a bounded queue unless ``stop`` is set first; True when it was put."""
+    while not stop.is_set():
+        try:
+            q.put(value, timeout=0.1)
+            return True
+        except queue.Full:
+            continue
+    return False
 
 
 class _Reader(threading.Thread):
@@ -75,26 +109,76 @@ class _Reader(threading.Thread):
         self.q = q
         self.error: BaseException | None = None
         self.stop = threading.Event()
+        self.cpu_s = 0.0  # CPU seconds of this thread, set before its end is queued
 
     def run(self) -> None:
+        # a recording's samples are its float32 values already: rounding them again would
+        # cost two casts per block and change nothing (replay.source.McapSource)
+        recorded = getattr(self.items, "samples_as_recorded", False) is True
         try:
             for item in self.items:
                 arrived = time.monotonic()
                 # the float32 rounding here, not on the processing thread: its casts release
                 # the GIL, so it runs beside the dsp on the other core (bit for bit the same)
-                item = as_recorded(item)
-                while not self.stop.is_set():
-                    try:
-                        self.q.put((arrived, item), timeout=0.1)
-                        break
-                    except queue.Full:
-                        continue
-                if self.stop.is_set():
+                if not recorded:
+                    item = as_recorded(item)
+                if not _put(self.q, (arrived, item), self.stop):
                     break
         except BaseException as err:  # handed to the processing thread, re-raised there
             self.error = err
-        finally:
-            self.q.put((time.monotonic(), _END))
+        finally:  # unless stopped: then nobody reads on, and a full queue would block for ever
+            self.cpu_s = time.thread_time()
+            _put(self.q, (time.monotonic(), _END), self.stop)
+
+
+class _Tracking(threading.Thread):
+    """The dsp stage on its own thread: takes the reader's ``(arrival, item)`` and puts
+    ``(arrival, item, done)`` on ``out``, ``done`` being what ``tracker.feed`` returned
+    (None for a source event, the exception if it raised); at the end of the stream
+    ``(arrival, _FINISHED, done)`` with ``tracker.finish()``'s (or the reader's error),
+    then nothing more. Stops early when ``stop`` is set."""
+
+    def __init__(
+        self,
+        tracker: FrameTracker,
+        items: queue.Queue[Any],
+        out: queue.Queue[Any],
+        reader: _Reader,
+    ) -> None:
+        super().__init__(name="ptinertia-dsp", daemon=True)
+        self.tracker = tracker
+        self.items = items
+        self.out = out
+        self.reader = reader
+        self.stop = threading.Event()
+        self.cpu_s = 0.0  # CPU seconds of this thread, set before the end of the stream is queued
+
+    def run(self) -> None:
+        done: Any
+        while True:
+            try:
+                arrived, item = self.items.get(timeout=0.1)
+            except queue.Empty:
+                if self.stop.is_set():
+                    return
+                continue
+            if item is _END:
+                arrived, item = time.monotonic(), _FINISHED
+            try:
+                if item is _FINISHED:
+                    error = self.reader.error  # set before the reader put its end
+                    done = error if error is not None else self.tracker.finish()
+                elif isinstance(item, SourceEvent):
+                    done = None
+                else:
+                    done = self.tracker.feed(item)
+            except BaseException as err:  # handed on with its item, re-raised there
+                done = err
+            self.cpu_s = time.thread_time()
+            if not _put(self.out, (arrived, item, done), self.stop):
+                return
+            if item is _FINISHED or isinstance(done, BaseException):
+                return
 
 
 class Pipeline:
@@ -188,42 +272,52 @@ class Pipeline:
             for sink in self.sinks:
                 sink.on_backlog(lag)
 
+    def _item(self, enqueued: float, item: StreamItem) -> None:
+        self._backlog(enqueued)
+        self.items += 1
+        for sink in self.sinks:
+            sink.on_item(item)
+
     def run(self) -> RunSummary:
         """Process the whole stream; always closes the source and every sink."""
         reader = _Reader(self.source, self.queue)
+        tracked: queue.Queue[Any] = queue.Queue(maxsize=TRACKED_ITEMS)
+        tracking = _Tracking(self.tracker, self.queue, tracked, reader)
         interrupted = False
         error: BaseException | None = None
         final: Estimate | None = None
+        cpu0 = time.thread_time()
         for sink in self.sinks:
             sink.start(self.context)
         reader.start()
+        tracking.start()
         try:
             while True:
-                enqueued, item = self.queue.get()
-                if item is _END:
+                enqueued, item, done = tracked.get()
+                if isinstance(done, BaseException):
+                    if item is not _FINISHED:
+                        self._item(enqueued, item)  # as before the stage raised
+                    raise done
+                if item is _FINISHED:
+                    self._frames(*done)
                     break
-                self._backlog(enqueued)
-                self.items += 1
-                for sink in self.sinks:
-                    sink.on_item(item)
+                self._item(enqueued, item)
                 if isinstance(item, SourceEvent):
                     for sink in self.sinks:
                         sink.on_event(item)
                     continue
-                self._frames(*self.tracker.feed(item))
+                self._frames(*done)
                 if self._published:
                     self._published = False
                     lag = time.monotonic() - enqueued
                     self.estimate_latency_max = max(self.estimate_latency_max, lag)
-            if reader.error is not None:
-                raise reader.error
-            self._frames(*self.tracker.finish())
         except KeyboardInterrupt:
             interrupted = True
         except BaseException as err:
             error = err
         finally:
             reader.stop.set()
+            tracking.stop.set()
             self.source.close()
             final = self.estimator.estimate() if self.estimator.stats.used else None
             close_errors: list[BaseException] = []
@@ -246,4 +340,9 @@ class Pipeline:
             dict(self.estimator.stats.rejected),
             dict(self.estimator.stats.orders_rejected),
             list(self.gaps),
+            {
+                "source": reader.cpu_s,
+                "dsp": tracking.cpu_s,
+                "estimator and sinks": time.thread_time() - cpu0,
+            },
         )

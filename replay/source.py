@@ -49,6 +49,10 @@ class McapSource(Source):
         if the source was closed meanwhile.
     """
 
+    # The sample blocks hold the recorded float32 values (in float64): the pipeline need not
+    # round them to float32 again (ptinertia.pipeline.as_recorded would give them back unchanged).
+    samples_as_recorded = True
+
     def __init__(
         self,
         log: RecordedLog | str | Path,

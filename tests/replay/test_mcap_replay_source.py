@@ -6,6 +6,7 @@ import json
 import threading
 from pathlib import Path
 
+import numpy as np
 import pytest
 from support.mcap_logs import (
     FakeClock,
@@ -17,6 +18,7 @@ from support.mcap_logs import (
 
 from acquisition.stream import SampleBlock, StreamItem
 from estimator.result import EstimateUpdate
+from ptinertia.pipeline import as_recorded
 from ptinertia.sinks import Sink
 from replay.errors import LogError
 from replay.recorder import McapRecorder
@@ -53,6 +55,25 @@ def test_source_yields_the_recorded_stream(
         assert 0 < len(got) < len(items)
         assert_same_items(got, items[: len(got)])
         assert any("unfinished recording" in line for line in source.report.lines())
+
+
+def test_replayed_samples_are_already_as_recorded(
+    log_path: tuple[Path, list[StreamItem]],
+) -> None:
+    """The pipeline skips its float32 rounding for a replay (``samples_as_recorded``): the
+    rounding must change nothing, and the samples must be what was recorded."""
+    path, items = log_path
+    blocks = [i for i in McapSource(path) if isinstance(i, SampleBlock)]
+    assert McapSource.samples_as_recorded and blocks
+    for block in blocks:
+        rounded = as_recorded(block)
+        assert isinstance(rounded, SampleBlock)
+        assert block.data.dtype == np.float64
+        assert np.array_equal(rounded.data, block.data, equal_nan=True)
+    recorded = [as_recorded(i) for i in items if isinstance(i, SampleBlock)]
+    for got, want in zip(blocks, recorded, strict=True):
+        assert isinstance(want, SampleBlock)
+        assert np.array_equal(got.data, want.data, equal_nan=True)
 
 
 def test_realtime_pacing_follows_stream_time(log_path: tuple[Path, list[StreamItem]]) -> None:
