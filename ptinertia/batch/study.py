@@ -48,7 +48,7 @@ from ptinertia.batch.study_stats import (
     write_runs,
     write_stats,
 )
-from ptinertia.config import Bench, ConfigError, load_bench, parse_bench
+from ptinertia.config import Bench, ConfigError, decode_toml, load_bench, parse_bench
 from ptinertia.errors import UsageError, user_error_types
 from ptinertia.no_estimate import no_estimate_reason
 from ptinertia.runner import RunOptions, run_source
@@ -150,7 +150,9 @@ def load_layouts(path: str | None, bench: Bench) -> list[Layout]:
     if path is None:
         return layouts
     try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        # as a bench file is read: UTF-8 with or without a byte order mark, anything
+        # else one line
+        data = tomllib.loads(decode_toml(Path(path).read_bytes(), path))
     except OSError as err:
         raise UsageError(f"--layouts: cannot read {path} ({err.strerror})") from None
     except tomllib.TOMLDecodeError as err:

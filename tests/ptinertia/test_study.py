@@ -135,3 +135,23 @@ def test_bad_study_inputs_are_one_line(tmp_path: Path, capsys: pytest.CaptureFix
         err = capsys.readouterr().err.strip()
         assert code == 2, argv
         assert "\n" not in err and "Traceback" not in err, err
+
+
+def test_layouts_file_is_read_as_a_bench_file_is(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], i3: Bench
+) -> None:
+    """UTF-8 with a byte order mark (Windows editors) reads as without; not UTF-8 is one
+    line naming the file and the byte (it was a UnicodeDecodeError traceback)."""
+    from ptinertia.batch.study import load_layouts
+
+    bench = i3
+    plain, bom, latin = tmp_path / "plain.toml", tmp_path / "bom.toml", tmp_path / "latin.toml"
+    plain.write_text(LAYOUTS, encoding="utf-8")
+    bom.write_bytes(b"\xef\xbb\xbf" + LAYOUTS.encode())
+    latin.write_bytes(("# Kapazit\u00e4t\n" + LAYOUTS).encode("latin-1"))
+    assert load_layouts(str(bom), bench) == load_layouts(str(plain), bench)
+    assert len(load_layouts(str(plain), bench)) > 1
+    code = main(["study", "--out", str(tmp_path / "o"), "--quiet", "--layouts", str(latin)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert "\n" not in err and "not UTF-8" in err and "latin.toml" in err, err
