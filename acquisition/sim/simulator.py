@@ -199,6 +199,10 @@ class SimulatedBench(Source):
         }
         meta.update(metadata or {})
         self._layout = StreamLayout(tuple(groups), edge_channels, meta)
+        self._last_motion: tuple[tuple[float, int, int], tuple[np.ndarray, ...]] = (
+            (math.nan, 0, 0),
+            (),
+        )
 
     @property
     def layout(self) -> StreamLayout:
@@ -236,17 +240,31 @@ class SimulatedBench(Source):
         """Samples with ``t < k * block_s`` (the same integer for every caller)."""
         return min(n_total, max(0, math.ceil(k * self.block_s * rate_hz - 1e-9)))
 
+    def _motion(self, rate_hz: float, i0: int, i1: int) -> tuple[np.ndarray, ...]:
+        """Times, segments, crank angles and speeds of samples ``i0 .. i1 - 1`` at ``rate_hz``.
+
+        Kept for the next group of the same window at the same rate (the pressure
+        beside the accelerations): the profile is evaluated once per block, not per group.
+        """
+        key = (rate_hz, i0, i1)
+        if self._last_motion[0] != key:
+            t = np.arange(i0, i1) / rate_hz
+            self._last_motion = (key, (t, *self.profile.evaluate(t)))
+        return self._last_motion[1]
+
     def _group_data(self, group: SampleGroup, i0: int, i1: int) -> np.ndarray:
-        t = np.arange(i0, i1) / group.rate_hz
+        if group.name in ("accel", "pressure"):
+            t, seg, phi, omega = self._motion(group.rate_hz, i0, i1)
+        else:
+            t = np.arange(i0, i1) / group.rate_hz
         if group.name == "accel":
-            x = synthesize_accel(self.table, self.profile, t)
+            x = synthesize_accel(self.table, self.profile, t, (seg, phi, omega))
             if self._noisy:
                 for c, rng in enumerate(self._rngs):
                     x[c] += self.noise_std[c] * rng.standard_normal(t.size)
             x[self._dead] = np.nan
             return x
         if group.name == "pressure":
-            phi = np.mod(self.profile.phi(t), 4 * math.pi)
             return np.asarray(self.model.pressure(phi), dtype=float)[None, :] / 1e5
         if group.name == "rpm":
             return self.profile.rpm(t)[None, :]

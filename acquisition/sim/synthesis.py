@@ -41,14 +41,20 @@ def order_basis(phi: np.ndarray, n_orders: int) -> np.ndarray:
 _CHUNK = 1024  # samples per matmul: keeps the operands in cache (measured ~1.5x faster than 2560)
 
 
-def synthesize_accel(table: AmplitudeTable, profile: RpmProfile, t: np.ndarray) -> np.ndarray:
+def synthesize_accel(
+    table: AmplitudeTable,
+    profile: RpmProfile,
+    t: np.ndarray,
+    motion: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
     """Noise-free accelerations at times ``t`` (s, increasing): (n_ch, n) float, m/s^2.
 
     The pure function behind :class:`SimulatedBench`; a sample's value depends
-    only on its time, never on the block it belongs to.
+    only on its time, never on the block it belongs to. ``motion``: ``profile.evaluate(t)``
+    when the caller has it already (the pressure channel needs the same angles).
     """
     t = np.asarray(t, dtype=float)
-    seg, phi, omega = profile.evaluate(t)
+    seg, phi, omega = profile.evaluate(t) if motion is None else motion
     rpm = omega * (60.0 / (2.0 * math.pi))
     basis = order_basis(phi, table.orders.size)
     n_ch = table.coeffs[0].shape[3]
