@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from acquisition.sim import tacho_synth
+from acquisition.sim import kernels, tacho_synth
 from acquisition.sim.amplitude_table import AmplitudeModel, AmplitudeTable
 from acquisition.sim.sweep import RpmProfile
 from acquisition.sim.synthesis import half_orders, synthesize_accel
@@ -134,6 +134,8 @@ class SimulatedBench(Source):
         self.table = AmplitudeTable(
             model, self.orders, profile, degree=table_degree, rtol=table_rtol
         )
+        omega_max = profile.rpm_max * 2 * math.pi / 60
+        self._anchor_spacing = kernels.anchor_spacing(omega_max, self.fs)
         channels = tuple(model.channel_names)
         unknown = sorted(set(dead_channels) - set(channels))
         if unknown:
@@ -258,7 +260,13 @@ class SimulatedBench(Source):
         else:
             t = np.arange(i0, i1) / group.rate_hz
         if group.name == "accel":
-            x = synthesize_accel(self.table, self.profile, t, (seg, phi, omega))
+            anchors = None
+            if kernels.USE:  # exact phases every `spacing` samples, at indices fixed by the stream
+                a0 = i0 - i0 % self._anchor_spacing
+                at = np.arange(a0, i1, self._anchor_spacing) / group.rate_hz
+                anchors = (self.profile.phi(at), i0 - a0, self._anchor_spacing)
+            motion = (seg, phi, omega)
+            x = synthesize_accel(self.table, self.profile, t, motion, anchors, kernels.USE)
             if self._noisy:
                 for c, rng in enumerate(self._rngs):
                     x[c] += self.noise_std[c] * rng.standard_normal(t.size)

@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 
+from acquisition.sim import kernels
 from acquisition.sim.amplitude_table import AmplitudeTable
 from acquisition.sim.sweep import RpmProfile
 
@@ -46,17 +47,30 @@ def synthesize_accel(
     profile: RpmProfile,
     t: np.ndarray,
     motion: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    anchors: tuple[np.ndarray, int, int] | None = None,
+    compiled: bool | None = None,
 ) -> np.ndarray:
     """Noise-free accelerations at times ``t`` (s, increasing): (n_ch, n) float, m/s^2.
 
     The pure function behind :class:`SimulatedBench`; a sample's value depends
     only on its time, never on the block it belongs to. ``motion``: ``profile.evaluate(t)``
     when the caller has it already (the pressure channel needs the same angles).
+    ``compiled``: the carriers and the Horner sum by :mod:`acquisition.sim.kernels`
+    (default :data:`kernels.USE`), with the carriers' exact phases taken at ``anchors``
+    ``(anchor_phi, offset, spacing)`` (see :func:`kernels.carriers`; default: every
+    sample its own anchor).
     """
     t = np.asarray(t, dtype=float)
     seg, phi, omega = profile.evaluate(t) if motion is None else motion
     rpm = omega * (60.0 / (2.0 * math.pi))
-    basis = order_basis(phi, table.orders.size)
+    compiled = kernels.USE if compiled is None else compiled
+    n_o = table.orders.size
+    if compiled:
+        rows = np.empty((2 * n_o, t.size))  # (2 n_o, n): cos, sin rows as BLAS reads them
+        kernels.carriers(phi, *(anchors or (phi, 0, 1)), rows)
+        y_buf = np.empty(max(c.shape[1] for c in table.real_coeffs) * _CHUNK)
+    else:
+        rows = order_basis(phi, n_o).T  # a view of the sample-major carriers
     n_ch = table.coeffs[0].shape[3]
     out = np.empty((n_ch, t.size))
     if t.size == 0:
@@ -72,7 +86,13 @@ def synthesize_accel(
             d = coeffs[j[a]]
             for c0 in range(a, b, _CHUNK):
                 c1 = min(b, c0 + _CHUNK)
-                y = (d @ basis[a0 + c0 : a0 + c1].T).reshape(-1, n_ch, c1 - c0)
+                if compiled:
+                    # contiguous (numba vectorises only what it knows is)
+                    y = y_buf[: d.shape[0] * (c1 - c0)].reshape(d.shape[0], c1 - c0)
+                    np.matmul(d, rows[:, a0 + c0 : a0 + c1], out=y)
+                    kernels.horner(y, u[c0:c1], out, a0 + c0)
+                    continue
+                y = (d @ rows[:, a0 + c0 : a0 + c1]).reshape(-1, n_ch, c1 - c0)
                 acc = y[-1]
                 if y.shape[0] > 1:
                     uu = u[c0:c1]
