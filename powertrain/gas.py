@@ -89,6 +89,13 @@ class PressureCycle:
         self._per_rad = p.size / CYCLE
         self._c = [np.ascontiguousarray(c) for c in self._spline.c]  # highest power first
 
+    @property
+    def pieces(self) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Grid (rad, n + 1 points from 0 to 4 pi), intervals per rad, and the coefficients
+        ``c0 .. c3`` (n,) of ``s^3 .. s^0``, ``s`` rad from the interval's start."""
+        c0, c1, c2, c3 = self._c
+        return self._grid, self._per_rad, c0, c1, c2, c3
+
     def __call__(self, phi: npt.ArrayLike) -> np.ndarray:
         """Pa at crank angles ``phi`` (rad, any range: the cycle repeats every 4 pi).
 

@@ -172,6 +172,11 @@ class AmplitudeTable:
             np.clip(j, 0, len(e) - 2, out=j)
         return j, (rpm - self._centre[segment][j]) * self._inv_half[segment][j]
 
+    def intervals(self, segment: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Edges (rpm), centres (rpm) and inverse half widths (1/rpm, 0 at a hold) of a
+        segment's intervals: what :meth:`locate` reads (``acquisition.sim.kernels.locate`` too)."""
+        return self.edges[segment], self._centre[segment], self._inv_half[segment]
+
     def evaluate(self, segment: int, rpm: np.ndarray) -> np.ndarray:
         """Tabulated ``X`` at rpm values of one segment: (n, n_o, n_ch) complex, m/s^2."""
         rpm = np.atleast_1d(np.asarray(rpm, dtype=float))

@@ -1,29 +1,41 @@
-"""Compiled per-sample work of the simulated bench: the order carriers and the Horner sum.
+"""Compiled per-sample work of the simulated bench (numba; ``PTINERTIA_NUMBA=1``).
 
-:func:`acquisition.sim.synthesis.synthesize_accel` spends, per sample, a complex ``exp``
-for the base carrier ``exp(i phi / 2)``, a strided complex product per half order for
-its powers, a BLAS product of the table's coefficients with those carriers, and a
-Horner pass over the product's rows in the table's normalised rpm ``u``. The product
-is BLAS's best and stays; the rest is a dozen numpy passes over the samples. Compiled
-here:
+Per sample, the numpy path spends a complex ``exp`` for the base carrier
+``exp(i phi / 2)``, a strided complex product per half order for its powers, a BLAS
+product of the table's coefficients with those carriers, a Horner pass over the
+product's rows in the table's normalised rpm ``u``, and a dozen passes for the crank
+angle, the table interval and the pressure. The BLAS product is the machine's best
+and stays (about half of the compiled path's time); the rest is compiled here:
 
 * :func:`carriers`: the base carrier from an exact one at an anchor sample every
-  ``spacing`` samples (``cos``, ``sin`` of the anchor's half angle) times
-  ``exp(i d)``, ``d`` the half angle travelled since the anchor (``|d| <= 1/4`` rad by
-  the choice of ``spacing``), by its Taylor series to ``d^15`` (truncation below
-  ``1e-19``); then its powers by the running complex product, one row per half order
-  (``cos h phi``, ``sin h phi`` rows: the layout BLAS reads as is). Anchors sit at
-  absolute sample indices (multiples of ``spacing``), so a sample's carriers depend on
-  its index only, never on the block it falls in.
-* :func:`horner`: the rows of the product summed in ``u`` per channel, sample
-  loops innermost (vectorised), the arithmetic of the numpy path's in-place Horner.
+  ``spacing`` samples (``cos``, ``sin`` of the anchor's half angle) times ``exp(i d)``,
+  ``d`` the half angle travelled since the anchor (``|d| <= 1/4`` rad by the choice of
+  ``spacing``), by its Taylor series to ``d^15`` (truncation below ``1e-19``); then its
+  powers by the running product, a row per half order (``cos h phi``, ``sin h phi``:
+  the layout BLAS reads as is). Anchors sit at absolute sample indices, so a sample's
+  carriers depend on its index only, never on the block it falls in.
+* :func:`horner`: the product's rows summed in ``u`` per channel in one pass.
+* :func:`motion`, :func:`locate`, :func:`pressure`: ``RpmProfile.evaluate``,
+  ``AmplitudeTable.locate`` and ``PressureCycle.__call__`` (after numpy's ``mod``: the
+  kernel's own ``fmod`` call measured slower than the rest of the spline), one pass
+  each, the interval found by walking from the previous sample's instead of bisecting.
 
 What moves: numpy's ``exp`` rounds its own way; the anchored carriers agree with it to
-a few units in the last place (measured under 1e-14 absolute on the twelve half
-orders' cos and sin, ``tests/acquisition/sim/test_kernels.py`` checks 1e-13), so the
-samples move at the rounding level, 1e-14 of the channel's rms. The Horner kernel is
-the numpy path's arithmetic, operation for operation (numba contracts no ``a * b + c``
-into a fused multiply-add unless asked to).
+a few units in the last place, so the accelerations move at the rounding level (under
+5e-15 of each channel's rms on the i3; the tests check 1e-13). Everything else is the
+numpy path's arithmetic, operation for operation (numba contracts no ``a * b + c`` into
+a fused multiply-add unless asked to): angles, speeds, rpm, intervals, ``u``, the Horner
+sums and the pressure are the same bits (tests). The runs' results (``ptinertia run``,
+default and ``--realistic``) are identical to the numpy path's: the pipeline rounds the
+samples to float32.
+
+Measured (issue 24, 2-core machine shared with other work, load average 6 to 17, CPU
+time, best of 3 to 40): per minute of the i3's 9 accelerometers at 25.6 kHz the carriers
+take 14 ms (numpy 38), the Horner sums 10 (27), the angles 3 (9), the intervals 3 (9),
+the pressure 13 (22, and 50 with scipy's evaluation before this issue); the BLAS
+product 47-70 ms, which is now the limit: 1080 multiply-adds per sample (12 half orders,
+cos and sin, 9 channels, degree 4 in rpm). The whole simulator on the stage budget's
+load (``benchmarks/bench_pipeline.py``): see its ``simulator_alone``.
 
 As :mod:`dsp.kernels`, numba is optional and imported on first use only (its import and
 the cached machine code cost about 0.5 s of CPU per process), and used only when asked
@@ -36,8 +48,12 @@ import importlib.util
 import math
 import os
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
+
+from acquisition.sim.amplitude_table import AmplitudeTable
+from acquisition.sim.sweep import RPM_TO_RAD_S, RpmProfile
 
 # numba is optional and imported on first use only, as in dsp.kernels
 AVAILABLE = importlib.util.find_spec("numba") is not None
@@ -73,6 +89,127 @@ def carriers(
 def horner(y: np.ndarray, u: np.ndarray, out: np.ndarray, first: int) -> None:
     """:func:`_horner` compiled (on the first call)."""
     _jit("horner", _horner)(y, u, out, first)
+
+
+def motion(
+    profile: RpmProfile, t: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``profile.evaluate(t)`` (segment, crank angle rad, speed rad/s) and the speed in rpm,
+    by :func:`_motion`: the same operations in the same order, so the same bits."""
+    n = t.size
+    seg = np.empty(n, dtype=np.intp)
+    phi, omega, rpm = np.empty(n), np.empty(n), np.empty(n)
+    w1_end = profile.segments[-1].rpm_to * RPM_TO_RAD_S
+    limits = np.array([profile.duration_s, profile.phi_end, w1_end])
+    _jit("motion", _motion)(t, *profile.pieces, limits, (seg, phi, omega, rpm))
+    return seg, phi, omega, rpm
+
+
+def locate(table: AmplitudeTable, segment: int, rpm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``table.locate(segment, rpm)`` (interval index, normalised rpm) by :func:`_locate`."""
+    j = np.empty(rpm.size, dtype=np.intp)
+    u = np.empty(rpm.size)
+    _jit("locate", _locate)(rpm, *table.intervals(segment), j, u)
+    return j, u
+
+
+def pressure(pieces: tuple[Any, ...], phi: np.ndarray) -> np.ndarray:
+    """A pressure cycle's spline (``powertrain.gas.PressureCycle.pieces``) at the crank
+    angles ``phi`` (rad), Pa, by :func:`_spline`: its ``__call__``'s arithmetic, so its bits."""
+    out = np.empty(phi.size)
+    # numpy's mod (libm's fmod: the kernel's own call to it measured slower than all the rest)
+    _jit("spline", _spline)(np.mod(phi, 4.0 * np.pi), *pieces, out)
+    return out
+
+
+def _spline(
+    x_cycle: np.ndarray,
+    grid: np.ndarray,
+    per_rad: float,
+    c0: np.ndarray,
+    c1: np.ndarray,
+    c2: np.ndarray,
+    c3: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """The periodic cubic of ``PressureCycle.__call__`` at angles ``x`` in ``[0, 4 pi]``."""
+    last = grid.size - 2
+    for s in range(x_cycle.size):
+        x = x_cycle[s]
+        i = min(int(x * per_rad), last)
+        if x < grid[i]:
+            i -= 1
+        if x >= grid[i + 1] and i < last:
+            i += 1
+        d = x - grid[i]
+        z = d
+        v = c3[i] + c2[i] * z
+        z = z * d
+        v = v + c1[i] * z
+        z = z * d
+        out[s] = v + c0[i] * z
+
+
+def _motion(
+    t: np.ndarray,
+    t_start: np.ndarray,
+    phi_start: np.ndarray,
+    w0: np.ndarray,
+    acc: np.ndarray,
+    limits: np.ndarray,
+    out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+) -> None:
+    """:meth:`RpmProfile.evaluate`'s arithmetic sample by sample (``limits``: duration s,
+    end angle rad, end speed rad/s), and the rpm as the synthesis takes it."""
+    seg, phi, omega, rpm = out
+    n_seg = t_start.size
+    duration, phi_end, w_end = limits[0], limits[1], limits[2]
+    to_rpm = 60.0 / (2.0 * math.pi)
+    k = 0
+    for s in range(t.size):
+        ts = t[s]
+        # the last segment starting at or before ts (searchsorted 'right' - 1, clipped)
+        while k < n_seg - 1 and t_start[k + 1] <= ts:
+            k += 1
+        while k > 0 and t_start[k] > ts:
+            k -= 1
+        tau = ts - t_start[k]
+        w = w0[k]
+        a = acc[k]
+        ref = phi_start[k]
+        if ts < 0.0:  # before the start the speed holds
+            a = 0.0
+        elif ts > duration:  # after the end too, from the end's angle
+            a = 0.0
+            w = w_end
+            tau = ts - duration
+            ref = phi_end
+        seg[s] = k
+        phi[s] = ref + tau * (w + 0.5 * a * tau)
+        omega[s] = w + a * tau
+        rpm[s] = omega[s] * to_rpm
+
+
+def _locate(
+    rpm: np.ndarray,
+    edges: np.ndarray,
+    centre: np.ndarray,
+    inv_half: np.ndarray,
+    j_out: np.ndarray,
+    u_out: np.ndarray,
+) -> None:
+    """:meth:`AmplitudeTable.locate`'s interval (the last edge at or below the rpm, clipped
+    to the intervals) found by walking from the previous sample's, and its ``u``."""
+    last = edges.size - 2
+    j = 0
+    for s in range(rpm.size):
+        r = rpm[s]
+        while j < last and edges[j + 1] <= r:
+            j += 1
+        while j > 0 and edges[j] > r:
+            j -= 1
+        j_out[s] = j
+        u_out[s] = (r - centre[j]) * inv_half[j]
 
 
 def _carriers(

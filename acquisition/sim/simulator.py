@@ -251,7 +251,10 @@ class SimulatedBench(Source):
         key = (rate_hz, i0, i1)
         if self._last_motion[0] != key:
             t = np.arange(i0, i1) / rate_hz
-            self._last_motion = (key, (t, *self.profile.evaluate(t)))
+            motion = (
+                kernels.motion(self.profile, t)[:3] if kernels.USE else self.profile.evaluate(t)
+            )
+            self._last_motion = (key, (t, *motion))
         return self._last_motion[1]
 
     def _group_data(self, group: SampleGroup, i0: int, i1: int) -> np.ndarray:
@@ -273,6 +276,9 @@ class SimulatedBench(Source):
             x[self._dead] = np.nan
             return x
         if group.name == "pressure":
+            cycle = getattr(self.model, "pressure_cycle", None) if kernels.USE else None
+            if cycle is not None:  # the model's spline, compiled (a bench model has one)
+                return kernels.pressure(cycle.pieces, phi)[None, :] / 1e5
             return np.asarray(self.model.pressure(phi), dtype=float)[None, :] / 1e5
         if group.name == "rpm":
             return self.profile.rpm(t)[None, :]

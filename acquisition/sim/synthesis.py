@@ -79,7 +79,7 @@ def synthesize_accel(
     seg_cuts = [0, *(np.flatnonzero(seg[1:] != seg[:-1]) + 1).tolist(), t.size]
     for a0, b0 in itertools.pairwise(seg_cuts):
         s = int(seg[a0])
-        j, u = table.locate(s, rpm[a0:b0])
+        j, u = kernels.locate(table, s, rpm[a0:b0]) if compiled else table.locate(s, rpm[a0:b0])
         cuts = [0, *(np.flatnonzero(j[1:] != j[:-1]) + 1).tolist(), b0 - a0]
         coeffs = table.real_coeffs[s]
         for a, b in itertools.pairwise(cuts):

@@ -74,3 +74,45 @@ def test_compiled_stream_equals_the_numpy_stream_at_the_rounding_level(i3, monke
         assert err.max() < 1e-13, err
         for g in ref.keys() - {"accel"}:
             assert np.array_equal(got[g], ref[g])
+
+
+def test_motion_and_locate_are_the_numpy_methods_bit_for_bit(i3) -> None:
+    """kernels.motion = RpmProfile.evaluate (and its rpm), kernels.locate =
+    AmplitudeTable.locate, on a profile with a hold, a falling ramp and a step, times
+    before, at, between and after its segments, and rpm at, beside and between the edges."""
+    profile = RpmProfile(
+        [ramp(1500, 4500, 0.3), hold(4500, 0.1), ramp(4500, 900, 0.2), ramp(2000, 2500, 0.1)]
+    )
+    edges = np.concatenate([profile.t_start, [profile.duration_s]])
+    t = np.sort(
+        np.concatenate(
+            [np.linspace(-0.1, 0.8, 20001), edges, np.nextafter(edges, -1), np.nextafter(edges, 9)]
+        )
+    )
+    seg, phi, omega, rpm = kernels.motion(profile, t)
+    want_seg, want_phi, want_omega = profile.evaluate(t)
+    assert np.array_equal(seg, want_seg) and np.array_equal(phi, want_phi)
+    assert np.array_equal(omega, want_omega)
+    assert np.array_equal(rpm, want_omega * (60.0 / (2.0 * np.pi)))
+    table = open_source("sim", i3, profile=profile).table  # the i3's table on that profile
+    rng = np.random.default_rng(2)
+    for s in range(len(profile.segments)):
+        e = table.edges[s]
+        r = np.concatenate(
+            [rng.uniform(800, 4600, 3000), e, np.nextafter(e, 0), np.nextafter(e, 1e4)]
+        )
+        for order in (r, np.sort(r)):
+            j, u = kernels.locate(table, s, order)
+            want_j, want_u = table.locate(s, order)
+            assert np.array_equal(j, want_j) and np.array_equal(u, want_u)
+
+
+def test_pressure_is_the_cycles_own_evaluation_bit_for_bit(i3) -> None:
+    """kernels.pressure on a cycle's pieces = PressureCycle.__call__ (itself scipy's spline,
+    tests/powertrain), over several cycles either side of zero and at every grid point."""
+    cycle = open_source("sim", i3, tacho={"phase_reference": "pressure"}).model.pressure_cycle
+    grid = cycle.pieces[0]
+    rng = np.random.default_rng(3)
+    near = np.concatenate([grid, np.nextafter(grid, -1), np.nextafter(grid, 99), -grid])
+    phi = np.concatenate([rng.uniform(-40.0, 400.0, 50000), near, [-0.0, -1e-300]])
+    assert np.array_equal(kernels.pressure(cycle.pieces, phi), cycle(phi))
