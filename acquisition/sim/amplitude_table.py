@@ -11,11 +11,13 @@ hold is exact.
 from __future__ import annotations
 
 import math
+from functools import cached_property
 from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 
+from acquisition.sim.compact_design import CompactDesign, compact_design
 from acquisition.sim.sweep import RpmProfile
 from acquisition.stream import SourceError
 
@@ -171,6 +173,11 @@ class AmplitudeTable:
             j = np.searchsorted(e, rpm, side="right") - 1
             np.clip(j, 0, len(e) - 2, out=j)
         return j, (rpm - self._centre[segment][j]) * self._inv_half[segment][j]
+
+    @cached_property
+    def compact(self) -> CompactDesign:
+        """The compiled synthesis' operands (:mod:`acquisition.sim.compact_design`)."""
+        return compact_design(self.coeffs, self.real_coeffs)
 
     def intervals(self, segment: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Edges (rpm), centres (rpm) and inverse half widths (1/rpm, 0 at a hold) of a

@@ -21,8 +21,10 @@ and stays (about half of the compiled path's time); the rest is compiled here:
   each, the interval found by walking from the previous sample's instead of bisecting.
 
 What moves: numpy's ``exp`` rounds its own way; the anchored carriers agree with it to
-a few units in the last place, so the accelerations move at the rounding level (under
-5e-15 of each channel's rms on the i3; the tests check 1e-13). Everything else is the
+a few units in the last place, and the orders :mod:`acquisition.sim.compact_design`
+leaves without rpm dependence lose at most 1e-14 of the channel's largest amplitude
+(2e-16 on the i3), so the accelerations move at the rounding level (under 5e-15 of each
+channel's rms on the i3; the tests check 1e-13). Everything else is the
 numpy path's arithmetic, operation for operation (numba contracts no ``a * b + c`` into
 a fused multiply-add unless asked to): angles, speeds, rpm, intervals, ``u``, the Horner
 sums and the pressure are the same bits (tests). The runs' results (``ptinertia run``,
@@ -34,8 +36,10 @@ time, best of 3 to 40): per minute of the i3's 9 accelerometers at 25.6 kHz the 
 take 14 ms (numpy 38), the Horner sums 10 (27), the angles 3 (9), the intervals 3 (9),
 the pressure 13 (22, and 50 with scipy's evaluation before this issue); the BLAS
 product 47-70 ms, which is now the limit: 1080 multiply-adds per sample (12 half orders,
-cos and sin, 9 channels, degree 4 in rpm). The whole simulator on the stage budget's
-load (``benchmarks/bench_pipeline.py``): see its ``simulator_alone``.
+cos and sin, 9 channels, degree 4 in rpm), 792 on the i3 once its four cancelled orders
+lose their rpm dependence (:mod:`acquisition.sim.compact_design`; the compiled path
+only). The whole simulator on the stage budget's load (``benchmarks/bench_pipeline.py``):
+see its ``simulator_alone``.
 
 As :mod:`dsp.kernels`, numba is optional and imported on first use only (its import and
 the cached machine code cost about 0.5 s of CPU per process), and used only when asked
@@ -79,11 +83,16 @@ def anchor_spacing(omega_max_rad_s: float, rate_hz: float, longest: int = 64) ->
 
 
 def carriers(
-    phi: np.ndarray, anchor_phi: np.ndarray, offset: int, spacing: int, out: np.ndarray
+    phi: np.ndarray,
+    anchor_phi: np.ndarray,
+    offset: int,
+    spacing: int,
+    position: np.ndarray,
+    out: np.ndarray,
 ) -> None:
     """:func:`_carriers` then :func:`_powers`, compiled on the first call (numba's cache keeps the machine code)."""
-    _jit("carriers", _carriers)(phi, anchor_phi, offset, spacing, out)
-    _jit("powers", _powers)(out)
+    _jit("carriers", _carriers)(phi, anchor_phi, offset, spacing, 2 * position[0], out)
+    _jit("powers", _powers)(position, out)
 
 
 def horner(y: np.ndarray, u: np.ndarray, out: np.ndarray, first: int) -> None:
@@ -213,9 +222,9 @@ def _locate(
 
 
 def _carriers(
-    phi: np.ndarray, anchor_phi: np.ndarray, offset: int, spacing: int, out: np.ndarray
+    phi: np.ndarray, anchor_phi: np.ndarray, offset: int, spacing: int, row: int, out: np.ndarray
 ) -> None:
-    """Rows 0, 1 of ``out`` (2 n_o, n): ``cos(phi / 2)``, ``sin(phi / 2)``.
+    """Rows ``row``, ``row + 1`` of ``out`` (2 n_o, n): ``cos(phi / 2)``, ``sin(phi / 2)``.
 
     ``phi`` (n,) rad the samples' crank angles; sample ``s`` takes anchor
     ``(offset + s) // spacing`` of ``anchor_phi`` (rad), whose half angle must lie
@@ -240,27 +249,30 @@ def _carriers(
         sn = d * (1.0 + d2 * (-1.0 / 6 + d2 * (1.0 / 120 + d2 * (-1.0 / 5040 + d2 * (
             1.0 / 362880 + d2 * (-1.0 / 39916800 + d2 * (1.0 / 6227020800 + d2 * (
                 -1.0 / 1307674368000))))))))  # fmt: skip
-        out[0, s] = ac[j] * c - asn[j] * sn
-        out[1, s] = ac[j] * sn + asn[j] * c
+        out[row, s] = ac[j] * c - asn[j] * sn
+        out[row + 1, s] = ac[j] * sn + asn[j] * c
 
 
-def _powers(out: np.ndarray) -> None:
-    """Rows ``2 k``, ``2 k + 1`` of ``out`` (2 n_o, n) the carrier of rows 0, 1 to the ``k + 1``.
+def _powers(position: np.ndarray, out: np.ndarray) -> None:
+    """The carrier of order ``k + 1`` (half orders) in rows ``2 position[k]`` and the next
+    of ``out`` (2 n_o, n), from order 1's (``position[0]``) by the running product.
 
-    A row at a time, by the running product (contiguous; indexing the one array, not row
-    views of it, and a kernel of its own let LLVM vectorise: measured 2.7x faster).
+    A row at a time (contiguous; indexing the one array, not row views of it, and a kernel
+    of its own let LLVM vectorise: measured 2.7x faster).
     """
-    n_o = out.shape[0] // 2
     n = out.shape[1]
-    for k in range(1, n_o):
+    b = 2 * position[0]
+    for k in range(1, position.size):
+        p = 2 * position[k - 1]
+        q = 2 * position[k]
         for s in range(n):
             # every load before the stores (else each store forces a reload)
-            pr = out[2 * k - 2, s]
-            pi = out[2 * k - 1, s]
-            br = out[0, s]
-            bi = out[1, s]
-            out[2 * k, s] = pr * br - pi * bi
-            out[2 * k + 1, s] = pr * bi + pi * br
+            pr = out[p, s]
+            pi = out[p + 1, s]
+            br = out[b, s]
+            bi = out[b + 1, s]
+            out[q, s] = pr * br - pi * bi
+            out[q + 1, s] = pr * bi + pi * br
 
 
 def _horner(y: np.ndarray, u: np.ndarray, out: np.ndarray, first: int) -> None:

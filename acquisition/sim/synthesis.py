@@ -66,8 +66,10 @@ def synthesize_accel(
     compiled = kernels.USE if compiled is None else compiled
     n_o = table.orders.size
     if compiled:
+        design = table.compact  # the orders with an rpm dependence first
         rows = np.empty((2 * n_o, t.size))  # (2 n_o, n): cos, sin rows as BLAS reads them
-        kernels.carriers(phi, *(anchors or (phi, 0, 1)), rows)
+        kernels.carriers(phi, *(anchors or (phi, 0, 1)), design.position, rows)
+        kept = 2 * design.n_kept
         y_buf = np.empty(max(c.shape[1] for c in table.real_coeffs) * _CHUNK)
     else:
         rows = order_basis(phi, n_o).T  # a view of the sample-major carriers
@@ -87,9 +89,13 @@ def synthesize_accel(
             for c0 in range(a, b, _CHUNK):
                 c1 = min(b, c0 + _CHUNK)
                 if compiled:
-                    # contiguous (numba vectorises only what it knows is)
+                    # u^0 rows against every carrier, u^1.. against the kept orders' only;
+                    # y contiguous (numba vectorises only what it knows is)
+                    d0, dk = design.constant[s][j[a]], design.varying[s][j[a]]
                     y = y_buf[: d.shape[0] * (c1 - c0)].reshape(d.shape[0], c1 - c0)
-                    np.matmul(d, rows[:, a0 + c0 : a0 + c1], out=y)
+                    np.matmul(d0, rows[:, a0 + c0 : a0 + c1], out=y[:n_ch])
+                    if dk.shape[0]:
+                        np.matmul(dk, rows[:kept, a0 + c0 : a0 + c1], out=y[n_ch:])
                     kernels.horner(y, u[c0:c1], out, a0 + c0)
                     continue
                 y = (d @ rows[:, a0 + c0 : a0 + c1]).reshape(-1, n_ch, c1 - c0)

@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 
 from acquisition.sim import kernels
+from acquisition.sim.amplitude_table import AmplitudeTable
+from acquisition.sim.compact_design import DROP_RTOL
 from acquisition.sim.sweep import RpmProfile, hold, ramp
-from acquisition.sim.synthesis import half_orders
+from acquisition.sim.synthesis import half_orders, synthesize_accel
 from acquisition.stream import SampleBlock
 from ptinertia.sources import open_source
 
@@ -23,7 +25,8 @@ def _carriers(profile: RpmProfile, rate: float, i0: int, i1: int, n_o: int) -> n
     a0 = i0 - i0 % spacing
     anchor_phi = profile.phi(np.arange(a0, i1, spacing) / rate)
     rows = np.empty((2 * n_o, i1 - i0))
-    kernels.carriers(profile.phi(np.arange(i0, i1) / rate), anchor_phi, i0 - a0, spacing, rows)
+    phi = profile.phi(np.arange(i0, i1) / rate)
+    kernels.carriers(phi, anchor_phi, i0 - a0, spacing, np.arange(n_o), rows)
     return rows
 
 
@@ -116,3 +119,37 @@ def test_pressure_is_the_cycles_own_evaluation_bit_for_bit(i3) -> None:
     near = np.concatenate([grid, np.nextafter(grid, -1), np.nextafter(grid, 99), -grid])
     phi = np.concatenate([rng.uniform(-40.0, 400.0, 50000), near, [-0.0, -1e-300]])
     assert np.array_equal(kernels.pressure(cycle.pieces, phi), cycle(phi))
+
+
+class _TwoOrderModel:
+    """Orders 1 and 2 carry a rigid-body line, the others only a 1e-16 residue in rpm
+    (what cancelling cylinders leave), every channel."""
+
+    channel_names = ("a", "b", "c")
+
+    def channel_amplitudes(self, rpm: np.ndarray, orders: np.ndarray) -> np.ndarray:
+        w = np.asarray(rpm, dtype=float)[:, None] / 1000.0
+        h = np.asarray(orders)[None, :]
+        x = (1 + 0.3j) * w**2 / (1 + 0.2 * w - 0.05j * w**2) * np.exp(1j * h)
+        x = np.where(np.isin(h, (1.0, 2.0)), x, 1e-16 * w**3 * np.exp(0.7j * h))
+        return x[:, :, None] * np.array([1.0, -0.5j, 2.0])[None, None, :]
+
+    def pressure(self, phi: np.ndarray) -> None:
+        return None
+
+
+def test_orders_without_rpm_dependence_worth_keeping_are_dropped_within_their_bound() -> None:
+    """The residue orders lose their u^1.. rows, the samples move within DROP_RTOL of each
+    channel's largest amplitude (against the numpy path, which keeps every term), and a
+    model whose orders all carry something keeps them all (FakeModel in test_simulator)."""
+    profile = RpmProfile([ramp(1000, 5000, 1.0)])
+    orders = half_orders(6.0)
+    table = AmplitudeTable(_TwoOrderModel(), orders, profile)
+    design = table.compact
+    assert design.n_kept == 2 and set(design.position[[1, 3]]) == {0, 1}
+    assert design.dropped_bound <= DROP_RTOL
+    t = np.arange(20000) / 20000.0
+    fast = synthesize_accel(table, profile, t, compiled=True)
+    ref = synthesize_accel(table, profile, t, compiled=False)
+    largest = np.abs(table.coeffs[0][:, 0]).max(axis=(0, 1))
+    assert np.max(np.abs(fast - ref).max(axis=1) / largest) < DROP_RTOL
