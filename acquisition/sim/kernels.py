@@ -16,9 +16,9 @@ and stays (about half of the compiled path's time); the rest is compiled here:
   carriers depend on its index only, never on the block it falls in.
 * :func:`horner`: the product's rows summed in ``u`` per channel in one pass.
 * :func:`motion`, :func:`locate`, :func:`pressure`: ``RpmProfile.evaluate``,
-  ``AmplitudeTable.locate`` and ``PressureCycle.__call__`` (after numpy's ``mod``: the
-  kernel's own ``fmod`` call measured slower than the rest of the spline), one pass
-  each, the interval found by walking from the previous sample's instead of bisecting.
+  ``AmplitudeTable.locate`` and ``PressureCycle.__call__`` (its ``mod`` without libm's
+  ``fmod``, exactly), one pass each, the interval found by walking from the previous
+  sample's instead of bisecting.
 
 What moves: numpy's ``exp`` rounds its own way; the anchored carriers agree with it to
 a few units in the last place, and the orders :mod:`acquisition.sim.compact_design`
@@ -34,7 +34,7 @@ samples to float32.
 Measured (issue 24, 2-core machine shared with other work, load average 6 to 17, CPU
 time, best of 3 to 40): per minute of the i3's 9 accelerometers at 25.6 kHz the carriers
 take 14 ms (numpy 38), the Horner sums 10 (27), the angles 3 (9), the intervals 3 (9),
-the pressure 13 (22, and 50 with scipy's evaluation before this issue); the BLAS
+the pressure 9 (22, and 50 with scipy's evaluation before this issue); the BLAS
 product 47-70 ms, which is now the limit: 1080 multiply-adds per sample (12 half orders,
 cos and sin, 9 channels, degree 4 in rpm), 792 on the i3 once its four cancelled orders
 lose their rpm dependence (:mod:`acquisition.sim.compact_design`; the compiled path
@@ -126,13 +126,17 @@ def pressure(pieces: tuple[Any, ...], phi: np.ndarray) -> np.ndarray:
     """A pressure cycle's spline (``powertrain.gas.PressureCycle.pieces``) at the crank
     angles ``phi`` (rad), Pa, by :func:`_spline`: its ``__call__``'s arithmetic, so its bits."""
     out = np.empty(phi.size)
-    # numpy's mod (libm's fmod: the kernel's own call to it measured slower than all the rest)
-    _jit("spline", _spline)(np.mod(phi, 4.0 * np.pi), *pieces, out)
+    cycle = 4.0 * np.pi
+    cycle_hi = float(np.float32(cycle))  # 24 significant bits: q * cycle_hi is exact
+    _jit("spline", _spline)(phi, cycle, cycle_hi, cycle - cycle_hi, *pieces, out)
     return out
 
 
 def _spline(
-    x_cycle: np.ndarray,
+    phi: np.ndarray,
+    cycle: float,
+    cycle_hi: float,
+    cycle_lo: float,
     grid: np.ndarray,
     per_rad: float,
     c0: np.ndarray,
@@ -141,10 +145,31 @@ def _spline(
     c3: np.ndarray,
     out: np.ndarray,
 ) -> None:
-    """The periodic cubic of ``PressureCycle.__call__`` at angles ``x`` in ``[0, 4 pi]``."""
+    """The periodic cubic of ``PressureCycle.__call__`` at the angles ``phi`` (rad).
+
+    Its ``np.mod(phi, cycle)`` exactly, without libm's ``fmod`` (6 ns a call, as much as
+    the rest): the remainder ``phi - q cycle`` is a double (fmod is exact), and with
+    ``cycle = cycle_hi + cycle_lo`` (24 and 29 significant bits) both products with an
+    integer ``q < 2^24`` are exact, ``phi - q cycle_hi`` is too (the difference of two
+    doubles needing no more than 53 bits), and so is the last subtraction, whose exact
+    value is the remainder itself. A negative angle (or one past 2^24 cycles) takes
+    Python's ``%``, which is numpy's ``mod``.
+    """
     last = grid.size - 2
-    for s in range(x_cycle.size):
-        x = x_cycle[s]
+    for s in range(phi.size):
+        x = phi[s]
+        q = math.floor(x / cycle)
+        if x >= 0.0 and q < 16777216.0:
+            r = (x - q * cycle_hi) - q * cycle_lo
+            if r < 0.0:  # the quotient rounded up
+                q -= 1.0
+                r = (x - q * cycle_hi) - q * cycle_lo
+            elif r >= cycle:
+                q += 1.0
+                r = (x - q * cycle_hi) - q * cycle_lo
+            x = r
+        else:
+            x = x % cycle
         i = min(int(x * per_rad), last)
         if x < grid[i]:
             i -= 1

@@ -112,12 +112,17 @@ def test_motion_and_locate_are_the_numpy_methods_bit_for_bit(i3) -> None:
 
 def test_pressure_is_the_cycles_own_evaluation_bit_for_bit(i3) -> None:
     """kernels.pressure on a cycle's pieces = PressureCycle.__call__ (itself scipy's spline,
-    tests/powertrain), over several cycles either side of zero and at every grid point."""
+    tests/powertrain), over several cycles either side of zero, at every grid point, and
+    at whole cycles (and the floats beside them) up to 1e6 rad."""
     cycle = open_source("sim", i3, tacho={"phase_reference": "pressure"}).model.pressure_cycle
     grid = cycle.pieces[0]
     rng = np.random.default_rng(3)
     near = np.concatenate([grid, np.nextafter(grid, -1), np.nextafter(grid, 99), -grid])
-    phi = np.concatenate([rng.uniform(-40.0, 400.0, 50000), near, [-0.0, -1e-300]])
+    # whole cycles and their neighbours up to 1e6 rad: the kernel's own exact mod
+    cycles = np.arange(0.0, 80000.0, 3.0) * grid[-1]
+    whole = np.concatenate([cycles, np.nextafter(cycles, 0), np.nextafter(cycles, 1e9)])
+    far = rng.uniform(0.0, 1e6, 50000)
+    phi = np.concatenate([rng.uniform(-40.0, 400.0, 50000), near, whole, far, [-0.0, -1e-300]])
     assert np.array_equal(kernels.pressure(cycle.pieces, phi), cycle(phi))
 
 
