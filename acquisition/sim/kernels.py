@@ -90,7 +90,9 @@ def carriers(
     position: np.ndarray,
     out: np.ndarray,
 ) -> None:
-    """:func:`_carriers` then :func:`_powers`, compiled on the first call (numba's cache keeps the machine code)."""
+    """:func:`_carriers` then :func:`_powers`, compiled on the first call (numba's cache
+    keeps the machine code); ``position``: ``CompactDesign.position``, the row pair of each
+    order."""
     _jit("carriers", _carriers)(phi, anchor_phi, offset, spacing, 2 * position[0], out)
     _jit("powers", _powers)(position, out)
 

@@ -147,13 +147,13 @@ def test_orders_without_rpm_dependence_worth_keeping_are_dropped_within_their_bo
     """The residue orders lose their u^1.. rows, the samples move within DROP_RTOL of each
     channel's largest amplitude (against the numpy path, which keeps every term), and a
     model whose orders all carry something keeps them all (FakeModel in test_simulator)."""
-    profile = RpmProfile([ramp(1000, 5000, 1.0)])
+    profile = RpmProfile([ramp(1000, 5000, 1.0), hold(5000, 0.2), ramp(5000, 3000, 0.3)])
     orders = half_orders(6.0)
     table = AmplitudeTable(_TwoOrderModel(), orders, profile)
     design = table.compact
     assert design.n_kept == 2 and set(design.position[[1, 3]]) == {0, 1}
     assert design.dropped_bound <= DROP_RTOL
-    t = np.arange(20000) / 20000.0
+    t = np.arange(30000) / 20000.0  # the ramps and the hold between them
     fast = synthesize_accel(table, profile, t, compiled=True)
     ref = synthesize_accel(table, profile, t, compiled=False)
     largest = np.abs(table.coeffs[0][:, 0]).max(axis=(0, 1))
