@@ -192,8 +192,13 @@ def simulator_alone(repeat: int = 3) -> tuple[float, float | None]:
     the clock starts), best of ``repeat``: the numpy path (the default), and the compiled
     kernels (``PTINERTIA_NUMBA=1``, acquisition.sim.kernels; warmed up), None without numba.
 
-    Measured (issue 24, load average 6-8 on the 2 cores): numpy 0.22-0.24 s (250-270x),
-    compiled 0.17 s (345x); before the kernels 0.25-0.30 s (200-240x).
+    Measured (issue 24, load average 11.6-12 on the 2 cores, interleaved runs, best of 3):
+    main at 42d3d9f 0.27-0.28 s (215-223x); numpy now 0.225-0.23 s (261-267x: the angles
+    computed once for accelerations and pressure, the pressure spline on its uniform grid);
+    compiled 0.127-0.131 s (458-472x). The compiled path's time: the BLAS product about
+    60 ms, carriers 14, Horner sums 10, pressure 9, angles and intervals 6, tacho edges 6,
+    the per-block Python the rest. With --realistic's noise (9 channels of numpy's normal
+    draws, 0.12 s a minute whichever path): main 0.40-0.44 s, numpy 0.37, compiled 0.27.
     """
     from acquisition.sim import kernels
 
