@@ -32,7 +32,7 @@ import numpy.typing as npt
 
 from acquisition.sim import kernels, tacho_synth
 from acquisition.sim.amplitude_table import AmplitudeModel, AmplitudeTable
-from acquisition.sim.sweep import RpmProfile
+from acquisition.sim.sweep import RPM_TO_RAD_S, RpmProfile
 from acquisition.sim.synthesis import half_orders, synthesize_accel
 from acquisition.sim.tacho_synth import TachoSpec
 from acquisition.stream import (
@@ -267,7 +267,7 @@ class SimulatedBench(Source):
             if kernels.USE:  # exact phases every `spacing` samples, at indices fixed by the stream
                 a0 = i0 - i0 % self._anchor_spacing
                 at = np.arange(a0, i1, self._anchor_spacing) / group.rate_hz
-                anchors = (self.profile.phi(at), i0 - a0, self._anchor_spacing)
+                anchors = (kernels.motion(self.profile, at)[1], i0 - a0, self._anchor_spacing)
             motion = (seg, phi, omega)
             x = synthesize_accel(self.table, self.profile, t, motion, anchors, kernels.USE)
             if self._noisy:
@@ -280,8 +280,9 @@ class SimulatedBench(Source):
             if cycle is not None:  # the model's spline, compiled (a bench model has one)
                 return kernels.pressure(cycle.pieces, phi)[None, :] / 1e5
             return np.asarray(self.model.pressure(phi), dtype=float)[None, :] / 1e5
-        if group.name == "rpm":
-            return self.profile.rpm(t)[None, :]
+        if group.name == "rpm":  # RpmProfile.rpm's arithmetic either way
+            omega = kernels.motion(self.profile, t)[2] if kernels.USE else self.profile.omega(t)
+            return (omega / RPM_TO_RAD_S)[None, :]
         # sampled tacho (and cam)
         return np.stack(
             [
