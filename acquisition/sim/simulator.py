@@ -12,6 +12,8 @@ Signals (``phi``, ``rpm`` from :class:`~acquisition.sim.sweep.RpmProfile`):
 The model is slow compared with the sample rate, so ``X(rpm)`` is tabulated
 once per sweep segment (:mod:`acquisition.sim.amplitude_table`) and the
 accelerations are synthesised from that table (:mod:`acquisition.sim.synthesis`).
+The angles of a block are evaluated once for the accelerations and the pressure;
+with ``PTINERTIA_NUMBA=1`` the per-sample work is compiled (:mod:`acquisition.sim.kernels`).
 
 Noise: white, per channel, ``std_c = rms_c / 10^(snr_db / 20)`` with ``rms_c``
 the rms of channel ``c``'s noise-free signal over the whole sweep (that is the
