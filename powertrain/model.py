@@ -36,6 +36,7 @@ import numpy.typing as npt
 
 from powertrain.engine import Engine
 from powertrain.errors import PhysicsError
+from powertrain.gas import PressureCycle
 from powertrain.half_orders import rpm_to_omega
 from powertrain.mounted import Modes, Mount, MountedPowertrain
 from powertrain.rigidbody import RigidBody
@@ -225,6 +226,12 @@ class BenchModel:
     def modes(self, rpm: float | None = None) -> Modes:
         """Rigid-body modes: undamped at zero speed, or complex at ``rpm`` (gyroscopic + loss)."""
         return self.mounted.modes(None if rpm is None else float(rpm_to_omega(rpm)))
+
+    @property
+    def pressure_cycle(self) -> PressureCycle | None:
+        """Cylinder 1's pressure over the cycle (its spline's pieces: a compiled evaluation
+        reads them), None without a pressure model."""
+        return self.engine.pressure_cycle
 
     def pressure(self, phi: npt.ArrayLike) -> np.ndarray | None:
         """Cylinder-1 pressure (Pa) at crank angles ``phi`` (rad), None without a pressure model."""

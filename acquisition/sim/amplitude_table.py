@@ -11,11 +11,13 @@ hold is exact.
 from __future__ import annotations
 
 import math
+from functools import cached_property
 from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 
+from acquisition.sim.compact_design import CompactDesign, compact_design
 from acquisition.sim.sweep import RpmProfile
 from acquisition.stream import SourceError
 
@@ -171,6 +173,16 @@ class AmplitudeTable:
             j = np.searchsorted(e, rpm, side="right") - 1
             np.clip(j, 0, len(e) - 2, out=j)
         return j, (rpm - self._centre[segment][j]) * self._inv_half[segment][j]
+
+    @cached_property
+    def compact(self) -> CompactDesign:
+        """The compiled synthesis' operands (:mod:`acquisition.sim.compact_design`)."""
+        return compact_design(self.coeffs, self.real_coeffs)
+
+    def intervals(self, segment: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Edges (rpm), centres (rpm) and inverse half widths (1/rpm, 0 at a hold) of a
+        segment's intervals: what :meth:`locate` reads (``acquisition.sim.kernels.locate`` too)."""
+        return self.edges[segment], self._centre[segment], self._inv_half[segment]
 
     def evaluate(self, segment: int, rpm: np.ndarray) -> np.ndarray:
         """Tabulated ``X`` at rpm values of one segment: (n, n_o, n_ch) complex, m/s^2."""

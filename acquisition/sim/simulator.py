@@ -12,6 +12,8 @@ Signals (``phi``, ``rpm`` from :class:`~acquisition.sim.sweep.RpmProfile`):
 The model is slow compared with the sample rate, so ``X(rpm)`` is tabulated
 once per sweep segment (:mod:`acquisition.sim.amplitude_table`) and the
 accelerations are synthesised from that table (:mod:`acquisition.sim.synthesis`).
+The angles of a block are evaluated once for the accelerations and the pressure;
+with ``PTINERTIA_NUMBA=1`` the per-sample work is compiled (:mod:`acquisition.sim.kernels`).
 
 Noise: white, per channel, ``std_c = rms_c / 10^(snr_db / 20)`` with ``rms_c``
 the rms of channel ``c``'s noise-free signal over the whole sweep (that is the
@@ -30,9 +32,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from acquisition.sim import tacho_synth
+from acquisition.sim import kernels, tacho_synth
 from acquisition.sim.amplitude_table import AmplitudeModel, AmplitudeTable
-from acquisition.sim.sweep import RpmProfile
+from acquisition.sim.sweep import RPM_TO_RAD_S, RpmProfile
 from acquisition.sim.synthesis import half_orders, synthesize_accel
 from acquisition.sim.tacho_synth import TachoSpec
 from acquisition.stream import (
@@ -134,6 +136,8 @@ class SimulatedBench(Source):
         self.table = AmplitudeTable(
             model, self.orders, profile, degree=table_degree, rtol=table_rtol
         )
+        omega_max = profile.rpm_max * 2 * math.pi / 60
+        self._anchor_spacing = kernels.anchor_spacing(omega_max, self.fs)
         channels = tuple(model.channel_names)
         unknown = sorted(set(dead_channels) - set(channels))
         if unknown:
@@ -199,6 +203,10 @@ class SimulatedBench(Source):
         }
         meta.update(metadata or {})
         self._layout = StreamLayout(tuple(groups), edge_channels, meta)
+        self._last_motion: tuple[tuple[float, int, int], tuple[np.ndarray, ...]] = (
+            (math.nan, 0, 0),
+            (),
+        )
 
     @property
     def layout(self) -> StreamLayout:
@@ -236,20 +244,47 @@ class SimulatedBench(Source):
         """Samples with ``t < k * block_s`` (the same integer for every caller)."""
         return min(n_total, max(0, math.ceil(k * self.block_s * rate_hz - 1e-9)))
 
+    def _motion(self, rate_hz: float, i0: int, i1: int) -> tuple[np.ndarray, ...]:
+        """Times, segments, crank angles and speeds of samples ``i0 .. i1 - 1`` at ``rate_hz``.
+
+        Kept for the next group of the same window at the same rate (the pressure
+        beside the accelerations): the profile is evaluated once per block, not per group.
+        """
+        key = (rate_hz, i0, i1)
+        if self._last_motion[0] != key:
+            t = np.arange(i0, i1) / rate_hz
+            motion = (
+                kernels.motion(self.profile, t)[:3] if kernels.USE else self.profile.evaluate(t)
+            )
+            self._last_motion = (key, (t, *motion))
+        return self._last_motion[1]
+
     def _group_data(self, group: SampleGroup, i0: int, i1: int) -> np.ndarray:
-        t = np.arange(i0, i1) / group.rate_hz
+        if group.name in ("accel", "pressure"):
+            t, seg, phi, omega = self._motion(group.rate_hz, i0, i1)
+        else:
+            t = np.arange(i0, i1) / group.rate_hz
         if group.name == "accel":
-            x = synthesize_accel(self.table, self.profile, t)
+            anchors = None
+            if kernels.USE:  # exact phases every `spacing` samples, at indices fixed by the stream
+                a0 = i0 - i0 % self._anchor_spacing
+                at = np.arange(a0, i1, self._anchor_spacing) / group.rate_hz
+                anchors = (kernels.motion(self.profile, at)[1], i0 - a0, self._anchor_spacing)
+            motion = (seg, phi, omega)
+            x = synthesize_accel(self.table, self.profile, t, motion, anchors, kernels.USE)
             if self._noisy:
                 for c, rng in enumerate(self._rngs):
                     x[c] += self.noise_std[c] * rng.standard_normal(t.size)
             x[self._dead] = np.nan
             return x
         if group.name == "pressure":
-            phi = np.mod(self.profile.phi(t), 4 * math.pi)
+            cycle = getattr(self.model, "pressure_cycle", None) if kernels.USE else None
+            if cycle is not None:  # the model's spline, compiled (a bench model has one)
+                return kernels.pressure(cycle.pieces, phi)[None, :] / 1e5
             return np.asarray(self.model.pressure(phi), dtype=float)[None, :] / 1e5
-        if group.name == "rpm":
-            return self.profile.rpm(t)[None, :]
+        if group.name == "rpm":  # RpmProfile.rpm's arithmetic either way
+            omega = kernels.motion(self.profile, t)[2] if kernels.USE else self.profile.omega(t)
+            return (omega / RPM_TO_RAD_S)[None, :]
         # sampled tacho (and cam)
         return np.stack(
             [

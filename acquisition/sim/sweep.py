@@ -158,6 +158,12 @@ class RpmProfile:
             phi_ref = np.where(after, self.phi_end, phi_ref)
         return k, phi_ref + tau * (w0 + 0.5 * a * tau), w0 + a * tau
 
+    @property
+    def pieces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Per segment: start time (s), start angle (rad), start speed (rad/s), acceleration
+        (rad/s^2): what :meth:`evaluate` reads (``acquisition.sim.kernels.motion`` too)."""
+        return self.t_start, self.phi_start, self._w0, self._a
+
     def omega(self, t: np.ndarray) -> np.ndarray:
         """Crank angular speed (rad/s) at times ``t`` (s)."""
         return self.evaluate(t)[2]

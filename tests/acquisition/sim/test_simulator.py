@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from acquisition.sim import kernels
 from acquisition.sim.amplitude_table import AmplitudeTable
 from acquisition.sim.simulator import SimulatedBench
 from acquisition.sim.sweep import RpmProfile, hold, ramp
@@ -121,8 +122,18 @@ def test_table_refuses_a_rough_model() -> None:
         )
 
 
-def test_synthesised_samples_match_the_direct_sum(i3) -> None:
-    """x(t) = sum_h Re{X_h(rpm(t)) exp(i h phi(t))} with X straight from the model."""
+@pytest.mark.parametrize(
+    "compiled",
+    [
+        False,
+        pytest.param(
+            True, marks=pytest.mark.skipif(not kernels.AVAILABLE, reason="numba is not installed")
+        ),
+    ],
+)
+def test_synthesised_samples_match_the_direct_sum(i3, compiled: bool) -> None:
+    """x(t) = sum_h Re{X_h(rpm(t)) exp(i h phi(t))} with X straight from the model (numpy
+    path and compiled kernels)."""
     model = FakeModel(n_ch=3)
     profile = RpmProfile([ramp(1200, 4800, 4.0)])
     orders = half_orders(6.0)
@@ -131,7 +142,7 @@ def test_synthesised_samples_match_the_direct_sum(i3) -> None:
     phi, rpm = profile.phi(t), profile.rpm(t)
     x_model = model.channel_amplitudes(rpm, orders)  # (n, n_o, n_ch)
     direct = np.einsum("noc,no->cn", x_model, np.exp(1j * np.outer(phi, orders))).real
-    got = synthesize_accel(table, profile, t)
+    got = synthesize_accel(table, profile, t, compiled=compiled)
     scale = np.abs(x_model).sum(axis=1).max(axis=0)  # (n_ch,) peak possible amplitude
     assert np.max(np.abs(got - direct) / scale[:, None]) < 1e-9
 

@@ -1,0 +1,160 @@
+"""The simulator's compiled carriers and Horner sum (acquisition.sim.kernels) against
+closed forms and against the numpy path, over block splits."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from acquisition.sim import kernels
+from acquisition.sim.amplitude_table import AmplitudeTable
+from acquisition.sim.compact_design import DROP_RTOL
+from acquisition.sim.sweep import RpmProfile, hold, ramp
+from acquisition.sim.synthesis import half_orders, synthesize_accel
+from acquisition.stream import SampleBlock
+from ptinertia.sources import open_source
+
+pytestmark = pytest.mark.skipif(not kernels.AVAILABLE, reason="numba is not installed")
+
+
+def _carriers(profile: RpmProfile, rate: float, i0: int, i1: int, n_o: int) -> np.ndarray:
+    """The kernel's rows for samples i0 .. i1 - 1, anchored as the simulator anchors them."""
+    spacing = kernels.anchor_spacing(profile.rpm_max * 2 * np.pi / 60, rate)
+    a0 = i0 - i0 % spacing
+    anchor_phi = profile.phi(np.arange(a0, i1, spacing) / rate)
+    rows = np.empty((2 * n_o, i1 - i0))
+    phi = profile.phi(np.arange(i0, i1) / rate)
+    kernels.carriers(phi, anchor_phi, i0 - a0, spacing, np.arange(n_o), rows)
+    return rows
+
+
+@pytest.mark.parametrize("rate", [25_600.0, 2_048.0])
+def test_carriers_are_cos_and_sin_of_every_half_order(rate: float) -> None:
+    """cos(h phi), sin(h phi) in closed form (angles kept below 64 rad, so that h phi itself
+    rounds below 3e-14), to 1e-13; at 2048 Hz and 6000 rpm every sample is its own anchor."""
+    profile = RpmProfile([ramp(900, 6000, 0.08), hold(6000, 0.03)])
+    n = int(0.11 * rate)
+    h = half_orders(6.0)
+    phi = profile.phi(np.arange(n) / rate)
+    assert phi.max() < 64
+    rows = _carriers(profile, rate, 0, n, h.size)
+    np.testing.assert_allclose(rows[0::2], np.cos(np.outer(h, phi)), rtol=0, atol=1e-13)
+    np.testing.assert_allclose(rows[1::2], np.sin(np.outer(h, phi)), rtol=0, atol=1e-13)
+
+
+def test_carriers_do_not_depend_on_the_block_split() -> None:
+    """A sample's carriers come from its own index: random cuts give the same bits."""
+    profile = RpmProfile([ramp(1500, 4500, 2.0)])
+    rate, n = 25_600.0, 20_000
+    whole = _carriers(profile, rate, 0, n, 12)
+    cuts = [0, *sorted(np.random.default_rng(5).choice(n, 7, replace=False).tolist()), n]
+    parts = [_carriers(profile, rate, a, b, 12) for a, b in itertools.pairwise(cuts)]
+    assert np.array_equal(np.concatenate(parts, axis=1), whole)
+
+
+def _stream(i3, block_s: float, monkeypatch, compiled: bool) -> dict[str, np.ndarray]:
+    monkeypatch.setattr(kernels, "USE", compiled)
+    tacho = {"phase_reference": "pressure"}
+    src = open_source("sim", i3, duration_s=0.6, noise_snr_db=40.0, tacho=tacho, block_s=block_s)
+    out: dict[str, list[np.ndarray]] = {}
+    for item in src:
+        if isinstance(item, SampleBlock):
+            out.setdefault(item.group, []).append(item.data)
+    return {g: np.concatenate(v, axis=1) for g, v in out.items()}
+
+
+def test_compiled_stream_equals_the_numpy_stream_at_the_rounding_level(i3, monkeypatch) -> None:
+    """Accelerations within 1e-13 of each channel's rms of the numpy path's, in 0.1 s and
+    in 0.0137 s blocks; the pressure, rpm and noise (drawn by numpy either way) exact."""
+    ref = _stream(i3, 0.1, monkeypatch, compiled=False)
+    rms = np.sqrt(np.mean(ref["accel"] ** 2, axis=1))
+    for block_s in (0.1, 0.0137):
+        got = _stream(i3, block_s, monkeypatch, compiled=True)
+        assert got.keys() == ref.keys()
+        err = np.abs(got["accel"] - ref["accel"]).max(axis=1) / rms
+        assert err.max() < 1e-13, err
+        for g in ref.keys() - {"accel"}:
+            assert np.array_equal(got[g], ref[g])
+
+
+def test_motion_and_locate_are_the_numpy_methods_bit_for_bit(i3) -> None:
+    """kernels.motion = RpmProfile.evaluate (and its rpm), kernels.locate =
+    AmplitudeTable.locate, on a profile with a hold, a falling ramp and a step, times
+    before, at, between and after its segments, and rpm at, beside and between the edges."""
+    profile = RpmProfile(
+        [ramp(1500, 4500, 0.3), hold(4500, 0.1), ramp(4500, 900, 0.2), ramp(2000, 2500, 0.1)]
+    )
+    edges = np.concatenate([profile.t_start, [profile.duration_s]])
+    t = np.sort(
+        np.concatenate(
+            [np.linspace(-0.1, 0.8, 20001), edges, np.nextafter(edges, -1), np.nextafter(edges, 9)]
+        )
+    )
+    seg, phi, omega, rpm = kernels.motion(profile, t)
+    want_seg, want_phi, want_omega = profile.evaluate(t)
+    assert np.array_equal(seg, want_seg) and np.array_equal(phi, want_phi)
+    assert np.array_equal(omega, want_omega)
+    assert np.array_equal(rpm, want_omega * (60.0 / (2.0 * np.pi)))
+    table = open_source("sim", i3, profile=profile).table  # the i3's table on that profile
+    rng = np.random.default_rng(2)
+    for s in range(len(profile.segments)):
+        e = table.edges[s]
+        r = np.concatenate(
+            [rng.uniform(800, 4600, 3000), e, np.nextafter(e, 0), np.nextafter(e, 1e4)]
+        )
+        for order in (r, np.sort(r)):
+            j, u = kernels.locate(table, s, order)
+            want_j, want_u = table.locate(s, order)
+            assert np.array_equal(j, want_j) and np.array_equal(u, want_u)
+
+
+def test_pressure_is_the_cycles_own_evaluation_bit_for_bit(i3) -> None:
+    """kernels.pressure on a cycle's pieces = PressureCycle.__call__ (itself scipy's spline,
+    tests/powertrain), over several cycles either side of zero, at every grid point, and
+    at whole cycles (and the floats beside them) up to 1e6 rad."""
+    cycle = open_source("sim", i3, tacho={"phase_reference": "pressure"}).model.pressure_cycle
+    grid = cycle.pieces[0]
+    rng = np.random.default_rng(3)
+    near = np.concatenate([grid, np.nextafter(grid, -1), np.nextafter(grid, 99), -grid])
+    # whole cycles and their neighbours up to 1e6 rad: the kernel's own exact mod
+    cycles = np.arange(0.0, 80000.0, 3.0) * grid[-1]
+    whole = np.concatenate([cycles, np.nextafter(cycles, 0), np.nextafter(cycles, 1e9)])
+    far = rng.uniform(0.0, 1e6, 50000)
+    phi = np.concatenate([rng.uniform(-40.0, 400.0, 50000), near, whole, far, [-0.0, -1e-300]])
+    assert np.array_equal(kernels.pressure(cycle.pieces, phi), cycle(phi))
+
+
+class _TwoOrderModel:
+    """Orders 1 and 2 carry a rigid-body line, the others only a 1e-16 residue in rpm
+    (what cancelling cylinders leave), every channel."""
+
+    channel_names = ("a", "b", "c")
+
+    def channel_amplitudes(self, rpm: np.ndarray, orders: np.ndarray) -> np.ndarray:
+        w = np.asarray(rpm, dtype=float)[:, None] / 1000.0
+        h = np.asarray(orders)[None, :]
+        x = (1 + 0.3j) * w**2 / (1 + 0.2 * w - 0.05j * w**2) * np.exp(1j * h)
+        x = np.where(np.isin(h, (1.0, 2.0)), x, 1e-16 * w**3 * np.exp(0.7j * h))
+        return x[:, :, None] * np.array([1.0, -0.5j, 2.0])[None, None, :]
+
+    def pressure(self, phi: np.ndarray) -> None:
+        return None
+
+
+def test_orders_without_rpm_dependence_worth_keeping_are_dropped_within_their_bound() -> None:
+    """The residue orders lose their u^1.. rows, the samples move within DROP_RTOL of each
+    channel's largest amplitude (against the numpy path, which keeps every term), and a
+    model whose orders all carry something keeps them all (FakeModel in test_simulator)."""
+    profile = RpmProfile([ramp(1000, 5000, 1.0), hold(5000, 0.2), ramp(5000, 3000, 0.3)])
+    orders = half_orders(6.0)
+    table = AmplitudeTable(_TwoOrderModel(), orders, profile)
+    design = table.compact
+    assert design.n_kept == 2 and set(design.position[[1, 3]]) == {0, 1}
+    assert design.dropped_bound <= DROP_RTOL
+    t = np.arange(30000) / 20000.0  # the ramps and the hold between them
+    fast = synthesize_accel(table, profile, t, compiled=True)
+    ref = synthesize_accel(table, profile, t, compiled=False)
+    largest = np.abs(table.coeffs[0][:, 0]).max(axis=(0, 1))
+    assert np.max(np.abs(fast - ref).max(axis=1) / largest) < DROP_RTOL
