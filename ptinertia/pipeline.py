@@ -47,6 +47,9 @@ _FINISHED = object()  # the tracker's finish(): what it flushed follows
 # publication (a few blocks' worth of dsp), few enough that memory stays flat (a 0.5 s
 # block of 10 channels at 25.6 kHz is 1 MB).
 TRACKED_ITEMS = 4
+# How long a stopped run waits for the dsp thread to end the item it is in (a 0.5 s block
+# takes milliseconds; a wait this long means the dsp hangs, and a stop must not).
+DSP_STOP_WAIT_S = 10.0
 
 
 class FrameTracker(Protocol):
@@ -114,8 +117,8 @@ class _Reader(threading.Thread):
     def run(self) -> None:
         # a recording's samples are its float32 values already: rounding them again would
         # cost two casts per block and change nothing (replay.source.McapSource)
-        recorded = getattr(self.items, "samples_as_recorded", False) is True
         try:
+            recorded = getattr(self.items, "samples_as_recorded", False) is True
             for item in self.items:
                 arrived = time.monotonic()
                 # the float32 rounding here, not on the processing thread: its casts release
@@ -319,6 +322,9 @@ class Pipeline:
             reader.stop.set()
             tracking.stop.set()
             self.source.close()
+            # the dsp thread stops between items: wait for the one it may be in, so that
+            # nothing feeds the tracker after run() returns (bounded: never hang a stop)
+            tracking.join(timeout=DSP_STOP_WAIT_S)
             final = self.estimator.estimate() if self.estimator.stats.used else None
             close_errors: list[BaseException] = []
             for sink in self.sinks:

@@ -14,7 +14,6 @@ keeps the indexes and statistics the summary needs.
 
 from __future__ import annotations
 
-import os
 import struct
 import tempfile
 import zlib
@@ -327,9 +326,10 @@ class SpilledBytes:
         f, self._file = self._file, None
         try:
             # the appends made in full (a failed one may have left part of itself after them)
+            f.seek(0)
             self._memory = bytearray()
             while len(self._memory) < self._size:
-                got = os.pread(f.fileno(), self._size - len(self._memory), len(self._memory))
+                got = f.read(self._size - len(self._memory))  # raw reads may return less
                 if not got:
                     raise OSError(
                         f"temporary index file: {len(self._memory)} of {self._size} bytes read back"

@@ -185,6 +185,8 @@ class ThreadedWriter:
         if self._thread.is_alive():
             self._jobs.put(None)
             self._thread.join()
+        # the summary, if written, read them already; after a failed write it never will
+        self._out.chunk_index_records.close()
 
     def cut_end_ns(self) -> int | None:
         """After a failed chunk write: the log time (ns) of the last message the file now

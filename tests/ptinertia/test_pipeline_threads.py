@@ -9,6 +9,7 @@ stage or the estimator; the replay tests check the real chain (replay equals liv
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterator
 from types import SimpleNamespace
 from typing import Any
@@ -203,3 +204,68 @@ def test_a_source_error_comes_after_every_item_before_it_and_nothing_is_flushed(
     expected = _expected(items)[:-2]  # all but what finish() would have flushed
     assert sink.calls == [*expected, ("close", sum(i % 3 for i in range(30)))]
     assert not tracker.finished
+
+
+class ProbedSource(ListSource):
+    """A source whose attributes are looked up elsewhere (a proxy): the lookup of
+    ``samples_as_recorded`` itself fails."""
+
+    @property
+    def samples_as_recorded(self) -> bool:
+        raise ConnectionError("proxy: remote source gone")
+
+
+def test_an_error_reading_the_source_s_attributes_ends_the_run_not_hangs_it() -> None:
+    items = _items(5)
+    sink, tracker = Log(), ScriptedTracker()
+    pipeline = Pipeline(
+        ProbedSource(items),
+        tracker,
+        ScriptedEstimator(),  # type: ignore[arg-type]
+        [sink],
+        SimpleNamespace(),  # type: ignore[arg-type]
+        estimate_period_s=0.0,
+    )
+    # (was: the reader thread died before queueing its end, and run() waited for ever)
+    with pytest.raises(ConnectionError, match="remote source gone"):
+        pipeline.run()
+    assert sink.calls == [("start",), ("close", None)]
+
+
+class SlowTracker(ScriptedTracker):
+    """From block 2 on, a feed that signals it has begun and then computes for a while
+    (tens of ms, no sleep); records whether a feed was still running when the run ended."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.begun = threading.Event()
+        self.feeding = False
+
+    def feed(self, item: StreamItem) -> tuple[list[Any], list[SourceEvent]]:
+        assert isinstance(item, SampleBlock)
+        if item.first_index >= 2:
+            self.feeding = True
+            self.begun.set()
+            sum(range(2_000_000))
+            self.feeding = False
+        return super().feed(item)
+
+
+class SinkFailingInAFeed(Log):
+    """Fails on the first frame, once the dsp thread is inside a feed."""
+
+    def __init__(self, tracker: SlowTracker) -> None:
+        super().__init__()
+        self.tracker = tracker
+
+    def on_frame(self, frame: Any, outcome: Any) -> None:
+        assert self.tracker.begun.wait(timeout=60)
+        raise ValueError("sink failed")
+
+
+def test_a_failed_run_waits_for_the_dsp_thread_to_leave_its_feed() -> None:
+    tracker = SlowTracker()
+    with pytest.raises(ValueError, match="sink failed"):
+        _run(_items(10), tracker, SinkFailingInAFeed(tracker), queue_items=2)
+    # nothing feeds the tracker once run() is over (it was: the dsp thread ran on)
+    assert not tracker.feeding

@@ -80,3 +80,15 @@ def test_the_temporary_file_is_not_linked_anywhere() -> None:
     # tempfile.TemporaryFile is unnamed (O_TMPFILE or unlinked at once): its name is the fd
     assert isinstance(name, int), name
     spill.close()
+
+
+def test_a_writer_stopped_without_its_summary_lets_the_temporary_file_go() -> None:
+    """After a failed chunk write (or a failed start) the summary never comes: stop()
+    closes the temporary file (it stayed open, a deleted file and its descriptor)."""
+    from replay.mcapwriter import ThreadedWriter
+
+    writer = ThreadedWriter(io.BytesIO())
+    spill = writer._out.chunk_index_records
+    assert spill._file is not None
+    writer.stop()
+    assert spill._file is None
