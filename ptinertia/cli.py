@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
 import os
 import platform
 import re
@@ -172,6 +173,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     module = importlib.import_module(COMMANDS[args.command][0])
+    if os.environ.get("PTINERTIA_NUMBA") == "1" and importlib.util.find_spec("numba") is None:
+        # asked for the compiled kernels without numba: the numpy ones run (same results)
+        print(
+            f"ptinertia {args.command}: PTINERTIA_NUMBA=1 but numba is not installed "
+            "(pip install 'ptinertia[fast]'): running the numpy kernels",
+            file=sys.stderr,
+        )
     try:
         return int(module.run(args) or 0)
     except user_error_types() as err:

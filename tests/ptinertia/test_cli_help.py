@@ -59,3 +59,21 @@ def test_python_dash_m_runs_the_cli() -> None:
     )
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith("ptinertia ")
+
+
+def test_compiled_kernels_asked_for_without_numba_say_so_in_one_line(monkeypatch, capsys) -> None:
+    """PTINERTIA_NUMBA=1 on an install without the fast extra: one line, the numpy
+    kernels run (it was silent)."""
+    import importlib.util
+
+    from ptinertia.cli import main
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "numba" else real(name, *a)
+    )
+    monkeypatch.setenv("PTINERTIA_NUMBA", "1")
+    assert main(["excitation", "--rpm", "2000", "--orders", "1.5"]) == 0
+    err = capsys.readouterr().err
+    assert "PTINERTIA_NUMBA=1 but numba is not installed" in err
+    assert len(err.strip().splitlines()) == 1
