@@ -240,16 +240,17 @@ class RowAssembler:
             return np.repeat(np.array([getattr(p, name) for p in batch]), counts, axis=0)[sel]
 
         sg = sign[sel]
+        origin, orders, rpm = rep("origin"), cat("orders"), rep("rpm")
         r = frame_rows(
             self.setup,
             self.layout,
             lin,
             sg[:, None] * gamma_o,
             sg[:, None] * omega_dot,
-            rep("origin"),
+            origin,
             rep("cov_unit"),
-            cat("orders"),
-            rep("rpm"),
+            orders,
+            rpm,
             cat("force"),
             cat("moment"),
             cat("var"),
@@ -267,9 +268,9 @@ class RowAssembler:
                 not self.layout.mass,
                 sg[:, None] * gamma_o,
                 sg[:, None] * omega_dot,
-                rep("origin"),
-                cat("orders"),
-                rep("rpm"),
+                origin,
+                orders,
+                rpm,
             )
         if self.cal and calibrate:
             # self-calibration: what was a systematic error becomes an unknown
