@@ -260,7 +260,9 @@ class OrderGates:
         # that grows like (f / f_e)^2, noise one that follows the measured channel
         # noise (left out of ``excess``). The first frames of each order set the
         # baseline; a frame whose excess has grown past it is off the mass line.
-        base = self.residual_baseline.setdefault(h, [])
+        base = self.residual_baseline.get(h)
+        if base is None:  # (not setdefault: that would build a list per order and frame)
+            base = self.residual_baseline[h] = []
         if len(base) < gates.baseline_frames:
             base.append(float(share))
             if len(base) == gates.baseline_frames:
