@@ -65,16 +65,18 @@ class ChannelFits:
 
         Frames sharing their channels and orders are masked with one array call."""
         masks: list[tuple[np.ndarray, np.ndarray]] = []
+        used_amps: list[np.ndarray] = []  # per frame (k, n_setup), NaN where not used
         start = 0
         for end in range(1, len(frames) + 1):
             if end < len(frames) and _same_layout(frames[end], frames[start]):
                 continue
-            masks.extend(self._masks(frames[start:end]))
+            group, amps = self._masks(frames[start:end])
+            masks.extend(group)
+            used_amps.extend(amps)
             start = end
         tracked: list[tuple[int, tuple[float, ...], np.ndarray] | None] = []
-        for frame, (used, cols) in zip(frames, masks, strict=True):
+        for frame, x in zip(frames, used_amps, strict=True):
             if (rev := revolution(frame)) is not None:
-                x = np.where(used, frame.amplitudes[:, np.where(used, cols, 0)], np.nan)
                 tracked.append((rev, tuple(frame.orders), x))
             else:
                 tracked.append(None)
@@ -111,16 +113,20 @@ class ChannelFits:
                 return "sensor_geometry", None
         return None, fitter
 
-    def _masks(self, frames: list[FrameLike]) -> list[tuple[np.ndarray, np.ndarray]]:
+    def _masks(
+        self, frames: list[FrameLike]
+    ) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
         """Usable setup channels (bool: present, flagged good, finite) and, per setup
-        channel, its column in the frame, of frames with the same channels and orders."""
+        channel, its column in the frame, of frames with the same channels and orders;
+        and their amplitudes (n, k, n_setup) in setup channel order, NaN where not used."""
         cols = self._columns_of(frames[0].channels)
         present = cols >= 0
         at = np.where(present, cols, 0)
         amps = np.array([f.amplitudes for f in frames])[:, :, at]  # (n, k, n_setup)
         finite = np.isfinite(amps).all(axis=1)
         ok = np.array([np.asarray(f.channel_ok, bool) for f in frames])[:, at]
-        return [(row, cols) for row in present & ok & finite]
+        used = present & ok & finite
+        return [(row, cols) for row in used], np.where(used[:, None, :], amps, np.nan)
 
     def variance_steps(
         self, frame: FrameLike, used: np.ndarray, cols: np.ndarray

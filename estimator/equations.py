@@ -34,6 +34,7 @@ and in N m are weighed consistently and correlated rows are not over-counted.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -61,7 +62,7 @@ class ParameterLayout:
     mount_scales: tuple[str, ...] = ()  # mounts whose stiffness scale is estimated
     calibrate: tuple[str, ...] = ()  # systematic parameters estimated (sensor gains, alignment)
 
-    @property
+    @functools.cached_property  # (frozen: built once; index() is called per flush)
     def names(self) -> tuple[str, ...]:
         names = [*INERTIA_TERMS, "Gx", "Gy", "Gz"]
         if self.unbalance:
@@ -172,6 +173,49 @@ def inertia_columns_batch(w: np.ndarray) -> np.ndarray:
     return a
 
 
+@dataclass(frozen=True)
+class _BenchTerms:
+    """What :func:`frame_rows` takes from a setup that no frame changes (built once:
+    at a dozen pairs per call, building them again was a tenth of the call)."""
+
+    p: np.ndarray  # (M, 3) mount positions, m
+    stiff: np.ndarray  # (M, 3, 3) their complex stiffnesses, N/m
+    sk_p: np.ndarray  # (M, 1, 3, 3) skew(p_i)
+    sk_p_t: np.ndarray  # (M, 3, 3) skew(p_i).T
+    skew_s: np.ndarray  # (3, 3) skew(crank axis)
+    c_it: np.ndarray  # (3,) c - i t, t = s x c
+    skew_ref_t: np.ndarray  # (3, 3) skew(reference point).T
+
+
+_TERMS: dict[int, tuple[EstimatorSetup, _BenchTerms]] = {}
+
+
+def _bench_terms(setup: EstimatorSetup) -> _BenchTerms:
+    """The setup's :class:`_BenchTerms`, cached by identity (the setup is frozen)."""
+    hit = _TERMS.get(id(setup))
+    if hit is not None and hit[0] is setup:
+        return hit[1]
+    if len(_TERMS) >= 8:
+        _TERMS.clear()  # a handful of setups per process; the cache must not grow
+    p = np.array([mount.position for mount in setup.mounts]).reshape(-1, 3)
+    sk_p = skew_batch(p)[:, None]
+    terms = _BenchTerms(
+        p=p,
+        stiff=np.array([mount.stiffness for mount in setup.mounts]),
+        sk_p=sk_p,
+        sk_p_t=sk_p[:, 0].transpose(0, 2, 1),
+        skew_s=skew(setup.crank_axis),
+        c_it=setup.cylinder_axis - 1j * cross(setup.crank_axis, setup.cylinder_axis),
+        skew_ref_t=skew(setup.reference_point).T,
+    )
+    _TERMS[id(setup)] = (setup, terms)
+    return terms
+
+
+_EYE3 = np.eye(3)
+_EYE12 = np.eye(12)
+
+
 def _scales(lin: Linearisation, n: int) -> np.ndarray:
     return np.ones(n) if lin.mount_scale is None else np.asarray(lin.mount_scale, float)[:n]
 
@@ -220,7 +264,8 @@ def frame_rows(
     o = np.broadcast_to(np.asarray(origin, float), (n_o, 3))
     sk_cog_o = skew_batch(lin.cog - o)  # (n_o, 3, 3)
     corr = setup.corrections
-    eye = np.broadcast_to(np.eye(3), (n_o, 3, 3))
+    bt = _bench_terms(setup)
+    eye = np.broadcast_to(_EYE3, (n_o, 3, 3))
 
     # Mount reactions f_i = K_i gamma_i / W^2 and their derivatives w.r.t. [gamma_O, Omega'],
     # every mount at once (axis 0); sums over the mounts in mount order (np.add.reduce
@@ -231,11 +276,9 @@ def frame_rows(
     df_dgo, df_dw, dmp_dgo, dmp_dw = zeros, zeros, zeros, zeros
     scale_cols = []  # per estimated mount scale: its reaction f_i at nominal stiffness
     if corr.suspension and setup.mounts:
-        p = np.array([mount.position for mount in setup.mounts])  # (M, 3)
+        p, stiff, sk_p = bt.p, bt.stiff, bt.sk_p
         s_m = np.ones(len(p)) if lin.mount_scale is None else np.asarray(lin.mount_scale, float)
-        stiff = np.array([mount.stiffness for mount in setup.mounts])  # (M, 3, 3)
         sk_r = skew_batch(p[:, None, :] - o[None])  # (M, n_o, 3, 3)
-        sk_p = skew_batch(p)[:, None]  # (M, 1, 3, 3)
         kw = s_m[:, None, None, None] * stiff[:, None] / big_w2[None, :, None, None]
         # row-vector forms: a x v = a @ skew(v), v x a = a @ skew(v).T
         gamma_i = gamma_o[None] + np.einsum("oi,moij->moj", omega_dot, sk_r)
@@ -244,21 +287,16 @@ def frame_rows(
             scale_cols = [(f_i[m] / s_m[m], p[m]) for m in range(len(p))]
         else:
             f_mounts = f_mounts + np.add.reduce(f_i, axis=0)
-            m_mounts_origin = m_mounts_origin + np.add.reduce(
-                f_i @ sk_p[:, 0].transpose(0, 2, 1), axis=0
-            )
+            m_mounts_origin = m_mounts_origin + np.add.reduce(f_i @ bt.sk_p_t, axis=0)
         dfi_dw = -kw @ sk_r
         df_dgo = zeros + np.add.reduce(kw, axis=0)
         df_dw = zeros + np.add.reduce(dfi_dw, axis=0)
         dmp_dgo = zeros + np.add.reduce(sk_p @ kw, axis=0)
         dmp_dw = zeros + np.add.reduce(sk_p @ dfi_dw, axis=0)
 
-    s = setup.crank_axis
-    c = setup.cylinder_axis
-    t = cross(s, c)
     spin = (setup.spin_inertia / (1j * h)) if corr.gyroscopic else np.zeros(n_o, complex)
-    gyro = spin[:, None] * (omega_dot @ skew(s))
-    dgyro_dw = -spin[:, None, None] * skew(s)[None]
+    gyro = spin[:, None] * (omega_dot @ bt.skew_s)
+    dgyro_dw = -spin[:, None, None] * bt.skew_s[None]
 
     ht = np.zeros((n_o, 3, n), complex)  # translation rows
     hr = np.zeros((n_o, 3, n), complex)  # rotation rows
@@ -292,7 +330,7 @@ def frame_rows(
     # I Omega' + G x (F_exc + F_m) - (P_u - G) x F_unb = M_R + R x F_exc + sum p_i x f_i - gyro
     hr[:, :, :6] = inertia_columns_batch(omega_dot)
     hr[:, :, 6:9] = -skew_batch(f_known + f_scaled)
-    yr = moment_r + force @ skew(setup.reference_point).T + m_mounts_origin - gyro
+    yr = moment_r + force @ bt.skew_ref_t + m_mounts_origin - gyro
     if scale_cols:
         if layout.mass:
             raise ValueError("mount stiffness scales need a known mass")
@@ -308,9 +346,7 @@ def frame_rows(
     if layout.unbalance:
         first = np.flatnonzero(h == 1.0)
         if first.size:
-            col_a = (w[first] ** 2)[:, None] * (
-                c - 1j * t
-            )  # z = a + i b: F_unb = a col_a + b (i col_a)
+            col_a = (w[first] ** 2)[:, None] * bt.c_it  # z = a + i b: F_unb = a col_a + b (i col_a)
             col_b = 1j * col_a
             arm = setup.unbalance_point - lin.cog
             ia, ib = layout.index("unb_re"), layout.index("unb_im")
@@ -353,7 +389,7 @@ def frame_rows(
     # Whitening with the Cholesky factor of the row covariance (tiny jitter keeps
     # it positive definite when a row does not depend on the measurement at all).
     jitter = 1e-12 * np.trace(cov_rows, axis1=1, axis2=2) / 12 + 1e-300
-    cov_rows += jitter[:, None, None] * np.eye(12)
+    cov_rows += jitter[:, None, None] * _EYE12
     whiten = np.linalg.inv(np.linalg.cholesky(cov_rows))
     return FrameRows(
         H=whiten @ H, y=np.einsum("oij,oj->oi", whiten, y), whiten=whiten, d_meas=d_real

@@ -16,6 +16,7 @@ product per frame): a frame gets the same bits in a run of one as in a run of fi
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -78,9 +79,16 @@ class FittedRun:
     def gate_inputs(self, j: int) -> tuple[list[int], list[float], list[float], list[float]]:
         """Frame ``j``'s rows of ``why``, ``relative``, ``share``, ``beyond``, as the
         residual gate takes them (:meth:`estimator.gating.OrderGates.judge`)."""
+        why, relative, share, beyond = self._gate_lists
+        return why[j], relative[j], share[j], beyond[j]
+
+    @functools.cached_property
+    def _gate_lists(self) -> tuple[list[Any], ...]:
+        """The run's ``why``, ``relative``, ``share``, ``beyond`` as nested lists (four
+        conversions per run rather than per frame)."""
         return (
-            self.why[j].tolist(), self.relative[j].tolist(), self.share[j].tolist(),
-            self.beyond[j].tolist(),
+            self.why.tolist(), self.relative.tolist(), self.share.tolist(),
+            self.beyond.tolist(),
         )  # fmt: skip
 
     def queued(self, j: int) -> tuple[Any, ...]:
@@ -118,7 +126,7 @@ def fit_run(
     if setup.gas_moment is not None:
         for j, f in enumerate(run_frames):
             spectrum = getattr(f, "spectrum", None)
-            if spectrum is not None and np.all(np.isfinite(spectrum)):
+            if spectrum is not None and np.isfinite(spectrum).all():
                 gas[j] = setup.gas_moment(orders, spectrum)
                 moment[j] = moment[j] + gas[j]
     why, floor = gates.screen_orders(rpm, orders, force, moment, bends, power, relative, fit)

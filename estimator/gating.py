@@ -12,7 +12,9 @@ noise grows along a sweep and must never confirm a mode.
 
 from __future__ import annotations
 
+import collections
 import functools
+import math
 from typing import Protocol
 
 import numpy as np
@@ -71,7 +73,8 @@ class OrderGates:
     def __init__(self, setup: EstimatorSetup) -> None:
         self.setup = setup
         self.elastic: dict[str, float] | None = None  # set once the residual gate confirms one
-        self._non_rigid_recent: dict[float, list[bool]] = {}
+        # per order, whether its last ELASTIC_WINDOW gated frames were non-rigid
+        self._non_rigid_recent: dict[float, collections.deque[bool]] = {}
         self.residual_baseline: dict[float, list[float]] = {}  # first rigid-fit residuals per order
         self.residual_limit: dict[float, float] = {}
         # the last two revolutions and their Omega' (k, 3) per tracked order set
@@ -134,8 +137,12 @@ class OrderGates:
         max_curvature = self.setup.gates.max_curvature
         leak_var = neighbour_leakage(orders, curvature, power)
         leaking = leak_var > max_curvature**2 * power
-        why = np.select(
-            [~excited, near, curvature > max_curvature, leaking], [1, 2, 3, 4], default=0
+        # np.select([~excited, near, curvature > max_curvature, leaking], [1, 2, 3, 4]):
+        # the first reason that holds, as nested np.where (a tenth of np.select's overhead)
+        why = np.where(
+            ~excited,
+            1,
+            np.where(near, 2, np.where(curvature > max_curvature, 3, np.where(leaking, 4, 0))),
         )
         # Near a mode the dsp errs by about the bend of the motion across its window,
         # and by what a bending neighbour leaks in: error floors of the readings, so
@@ -221,7 +228,11 @@ class OrderGates:
         bend = np.sqrt(np.sum(d.real**2 + d.imag**2, axis=2)) / size
         # what noise alone puts into a second difference of three fits (sqrt 6
         # sigma), sigma from this frame's rigid-fit residual: only the excess bends
-        trace = np.array([np.trace(motions[j].cov_unit[3:, 3:]) for j in at])
+        covs = [motions[j].cov_unit for j in at]
+        if all(c is covs[0] for c in covs):  # a run's frames share their fit's
+            trace = np.full(len(at), np.trace(covs[0][3:, 3:]))
+        else:
+            trace = np.array([np.trace(c[3:, 3:]) for c in covs])
         noise = np.array([motions[j].noise_var for j in at])  # (n, k)
         sigma = np.sqrt(2 * noise * trace[:, None]) / size
         excess = np.maximum(0.0, bend - 3 * np.sqrt(6.0) * sigma)
@@ -249,7 +260,9 @@ class OrderGates:
         # that grows like (f / f_e)^2, noise one that follows the measured channel
         # noise (left out of ``excess``). The first frames of each order set the
         # baseline; a frame whose excess has grown past it is off the mass line.
-        base = self.residual_baseline.setdefault(h, [])
+        base = self.residual_baseline.get(h)
+        if base is None:  # (not setdefault: that would build a list per order and frame)
+            base = self.residual_baseline[h] = []
         if len(base) < gates.baseline_frames:
             base.append(float(share))
             if len(base) == gates.baseline_frames:
@@ -263,8 +276,10 @@ class OrderGates:
 
     def _note_non_rigid(self, h: float, f_hz: float, flagged: bool) -> None:
         """Confirm an elastic mode once one order keeps failing the residual gate."""
-        recent = [*self._non_rigid_recent.get(h, [])[-(ELASTIC_WINDOW - 1) :], flagged]
-        self._non_rigid_recent[h] = recent
+        recent = self._non_rigid_recent.get(h)
+        if recent is None:
+            recent = self._non_rigid_recent[h] = collections.deque(maxlen=ELASTIC_WINDOW)
+        recent.append(flagged)
         if self.elastic is None and sum(recent) >= ELASTIC_CONFIRM:
             self.elastic = {"order": h, "frequency_hz": f_hz}
 
@@ -300,7 +315,7 @@ def neighbour_leakage(orders: np.ndarray, bend: np.ndarray, power: np.ndarray) -
 def revolution(frame: FrameLike) -> int | None:
     """The frame's crank revolution number (None without a crank angle)."""
     angle = getattr(frame, "crank_angle_rad", None)
-    if angle is None or not np.isfinite(angle):
+    if angle is None or not math.isfinite(angle):  # (np.isfinite: a ufunc call per frame)
         return None
     return round(float(angle) / (2 * np.pi))
 
@@ -308,7 +323,7 @@ def revolution(frame: FrameLike) -> int | None:
 def overlaps_previous(frame: FrameLike) -> bool:
     """True for the frames between the 720 deg-spaced ones (odd revolution numbers)."""
     angle = getattr(frame, "crank_angle_rad", None)
-    if angle is None or not np.isfinite(angle):
+    if angle is None or not math.isfinite(angle):
         return False
     return round(float(angle) / (2 * np.pi)) % 2 == 1
 

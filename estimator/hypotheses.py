@@ -136,7 +136,7 @@ def add_frames(
     n_f = len(sizes)
     info, vec = np.empty((n_f, n, n)), np.empty((n_f, n))
     yty, sens = np.empty(n_f), np.empty((n_f, n, dr.shape[-1]))
-    for k in np.unique(sizes).tolist():
+    for k in sorted(set(sizes.tolist())):  # (np.unique: a dozen calls for a few sizes)
         fs = np.flatnonzero(sizes == k)
         pick = (starts[fs][:, None] + np.arange(k)).ravel()
         Hk, yk = H[pick].reshape(len(fs), 12 * k, n), y[pick].reshape(len(fs), 12 * k)

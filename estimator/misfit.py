@@ -69,7 +69,9 @@ class MisfitSample:
     def add(self, sign: int, orders: np.ndarray, H: np.ndarray, y: np.ndarray) -> None:
         """One frame's whitened rows: orders (p,), H (p, 12, n), y (p, 12). They are
         copied: views would keep the whole flush batch they were cut from alive."""
-        kept = self._rows.setdefault(sign, ThinnedSample(CAPACITY))
+        kept = self._rows.get(sign)
+        if kept is None:  # (not setdefault: that would build a sample per frame)
+            kept = self._rows[sign] = ThinnedSample(CAPACITY)
         kept.add_made(lambda: (np.array(orders, float), H.copy(), y.copy()))
 
     def copy(self) -> MisfitSample:

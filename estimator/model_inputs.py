@@ -65,6 +65,7 @@ def model_input_rows(
     g = np.asarray(lin.cog, float)
     per_force = 1.0 if mass_known else 1.0 / lin.mass  # translation rows per newton
     s = setup.crank_axis
+    mounts = []  # (column, mount) of the mount stiffness inputs
     for j, inp in enumerate(inputs):
         if inp.kind == "excitation":
             assert inp.d_excitation is not None
@@ -74,10 +75,16 @@ def model_input_rows(
         elif inp.kind == "spin_inertia":
             out[:, 3:, j] = cross(omega_dot, s) / (1j * h)[:, None]
         else:
-            mount = setup.mounts[inp.mount]
-            big_w2 = (h * w) ** 2
-            gamma_i = gamma_o + cross(omega_dot, mount.position - origin)
-            f_i = np.einsum("ij,oj->oi", mount.stiffness, gamma_i) / big_w2[:, None]
-            out[:, :3, j] = -per_force * f_i
-            out[:, 3:, j] = cross(g - mount.position, f_i)
+            mounts.append((j, setup.mounts[inp.mount]))
+    if mounts:
+        # every mount at once (axis 0: the same elementwise products and the same
+        # three-term sums per mount as one mount at a time)
+        cols = [j for j, _ in mounts]
+        p = np.array([m.position for _, m in mounts])  # (M, 3)
+        stiff = np.array([m.stiffness for _, m in mounts])  # (M, 3, 3)
+        big_w2 = (h * w) ** 2
+        gamma_i = gamma_o[None] + cross(omega_dot[None], p[:, None] - origin[None])
+        f_i = np.einsum("mij,moj->moi", stiff, gamma_i) / big_w2[None, :, None]
+        out[:, :3, cols] = (-per_force * f_i).transpose(1, 2, 0)
+        out[:, 3:, cols] = cross(g - p[:, None], f_i).transpose(1, 2, 0)
     return np.concatenate([out.real, out.imag], axis=1)

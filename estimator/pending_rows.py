@@ -91,7 +91,8 @@ class FrameQueue:
         per order, ``dsp_var`` (k,) a floor for the channel noise variance (what the
         dsp errs by near modes), ``gas`` the measured gas moment in ``moment``.
         """
-        floor = max(1e-16 * float(np.mean(power)), 1e-30)
+        # np.mean's sum and division without its wrapper's checks (the same bits)
+        floor = max(1e-16 * (float(np.add.reduce(power)) / power.size), 1e-30)
         redundancy = self._redundancy_raw(fit, motion, readings, ks)
         var = self._noise_var(self._raw_noise_var(motion, ks, redundancy), ks, orders, floor)
         # every order used (the common case): the frame's arrays as they are, no copies
@@ -154,9 +155,9 @@ class FrameQueue:
         floored so noise-free data keep finite weights."""
         out = []
         smoothed = self.noise_var
+        hs, raws = orders.tolist(), raw_var.tolist()
         for k in ks.tolist():
-            h = float(orders[k])
-            raw = float(raw_var[k])
+            h, raw = hs[k], raws[k]
             var = 0.8 * smoothed[h] + 0.2 * raw if h in smoothed else raw
             smoothed[h] = var
             out.append(max(var, floor))
@@ -240,16 +241,17 @@ class RowAssembler:
             return np.repeat(np.array([getattr(p, name) for p in batch]), counts, axis=0)[sel]
 
         sg = sign[sel]
+        origin, orders, rpm = rep("origin"), cat("orders"), rep("rpm")
         r = frame_rows(
             self.setup,
             self.layout,
             lin,
             sg[:, None] * gamma_o,
             sg[:, None] * omega_dot,
-            rep("origin"),
+            origin,
             rep("cov_unit"),
-            cat("orders"),
-            rep("rpm"),
+            orders,
+            rpm,
             cat("force"),
             cat("moment"),
             cat("var"),
@@ -267,9 +269,9 @@ class RowAssembler:
                 not self.layout.mass,
                 sg[:, None] * gamma_o,
                 sg[:, None] * omega_dot,
-                rep("origin"),
-                cat("orders"),
-                rep("rpm"),
+                origin,
+                orders,
+                rpm,
             )
         if self.cal and calibrate:
             # self-calibration: what was a systematic error becomes an unknown

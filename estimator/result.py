@@ -320,12 +320,13 @@ def build_estimate(
     obs = sol.observable
     cov_rand = sol.cov.copy()
     factor = max(1.0, sol.rss / sol.dof) if sol.dof > 0 else 1.0
-    cov_rand[np.ix_(obs, obs)] *= factor
+    block = np.ix_(obs, obs)
+    cov_rand[block] *= factor
     cov_sys = np.zeros((n, n))
     if np.any(obs):
-        inv = sol.cov[np.ix_(obs, obs)]
+        inv = sol.cov[block]
         dtheta = -inv @ acc.sens[obs]  # (n_obs, n_sys): d theta / d p
-        cov_sys[np.ix_(obs, obs)] = (dtheta * sys_std**2) @ dtheta.T
+        cov_sys[block] = (dtheta * sys_std**2) @ dtheta.T
     return Estimate(
         names=names,
         theta=sol.theta,

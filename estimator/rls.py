@@ -121,7 +121,8 @@ def rls_solve(
     """
     n = state.vec.size
     s = np.ones(n) if scale is None else np.asarray(scale, dtype=float)
-    info = state.info * np.outer(s, s)
+    ss = np.outer(s, s)
+    info = state.info * ss
     vec = state.vec * s
     if len(anchored):
         inv, observable, kept = _anchored_inverse(info, np.asarray(anchored, int), rcond)
@@ -131,9 +132,10 @@ def rls_solve(
         kept = int(np.sum(keep))
     theta_s = inv @ vec
     theta = theta_s * s
-    cov = inv * np.outer(s, s)
-    cov[~observable, :] = np.where(np.eye(n, dtype=bool)[~observable, :], np.inf, 0.0)
-    cov[:, ~observable] = np.where(np.eye(n, dtype=bool)[:, ~observable], np.inf, 0.0)
+    cov = inv * ss
+    eye = np.eye(n, dtype=bool)
+    cov[~observable, :] = np.where(eye[~observable, :], np.inf, 0.0)
+    cov[:, ~observable] = np.where(eye[:, ~observable], np.inf, 0.0)
     theta = np.where(observable, theta, 0.0)
     rss = max(state.yty - float(vec @ theta_s), 0.0)
     dof = max(state.rows - kept, 1.0)

@@ -222,7 +222,8 @@ class InertiaEstimator:
         # estimate must not move the relinearisation points.)
         if relinearise_due(self.stats.used):
             relinearise(self)
-        used_orders = tuple(float(orders[k]) for k in ks)
+        order_list = orders.tolist()
+        used_orders = tuple(order_list[k] for k in ks)
         return FrameOutcome(frame.time_s, frame.rpm, used_orders, rejected, None, residuals, motion)
 
     def _reject(self, frame: FrameLike, reason: str) -> FrameOutcome:
@@ -272,8 +273,8 @@ class InertiaEstimator:
                 hyp[-1] = (Hf, yf, drf)
         bounds = np.cumsum([0] + [len(p.orders) for p in batch])
         kin = self.rows.redundancy(batch) if self._cal else None
-        f_hz = np.concatenate([p.orders * p.rpm / 60.0 for p in batch])
         orders = np.concatenate([p.orders for p in batch])
+        f_hz = orders * np.repeat([p.rpm for p in batch], np.diff(bounds)) / 60.0
         for sign_, (Hs, ys, drs) in hyp.items():
             Ha = with_tail(Hs, f_hz)
             # one update per frame, in stream order: the same sums whatever the batch

@@ -101,7 +101,16 @@ def motion_sensitivity(
     out[:, :, used] = fit.gain[None] * amplitudes[:, None, :]
     # The channels of a sensor summed in channel order (elementwise products, a fixed
     # order): the result of a pair does not depend on how many pairs are assembled
-    # together, and it is the dense product's sum without its zero terms.
-    for j, base in enumerate((n_ch + 6 * setup.sensor_of_channel[used]).tolist()):
-        out[:, :, base : base + 6] += fit.gain[None, :, j, None] * d_sensor[:, j, None, :]
+    # together, and it is the dense product's sum without its zero terms. Each pass adds
+    # every sensor's channel at one place at once (their column blocks are disjoint).
+    bases = (n_ch + 6 * setup.sensor_of_channel[used]).tolist()
+    seen: dict[int, int] = {}
+    rank = []  # each used channel's place among its sensor's channels
+    for base in bases:
+        rank.append(seen.get(base, 0))
+        seen[base] = rank[-1] + 1
+    for place in range(max(rank, default=-1) + 1):
+        js = [j for j, q in enumerate(rank) if q == place]
+        cols = np.array([bases[j] for j in js])[:, None] + np.arange(6)  # (k, 6)
+        out[:, :, cols] += fit.gain[None, :, js, None] * d_sensor[:, js][:, None]
     return np.concatenate([out.real, out.imag], axis=1)

@@ -17,4 +17,8 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     b = np.asarray(b)
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+    c0, c1, c2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    # three copies into one array: np.stack's checks and reshapes cost more than that
+    out = np.empty((*c0.shape, 3), dtype=c0.dtype)
+    out[..., 0], out[..., 1], out[..., 2] = c0, c1, c2
+    return out
