@@ -35,18 +35,8 @@ def stage_budget(log: Path) -> None:
     dsp, _ = _cpu_s(track)
     dsp_compiled = _compiled_dsp(bench, source.layout, items)
 
-    def estimate() -> None:
-        published = -float("inf")
-        for frames in batches:
-            outcomes = estimator.update_many(frames) if frames else []
-            used = [f for f, o in zip(frames, outcomes, strict=True) if o.reason is None]
-            # as the pipeline does as fast as possible: an estimate every 0.5 s of stream
-            if used and used[-1].time_s - published >= 0.5:
-                published = used[-1].time_s
-                estimator.estimate(final=False)
-        estimator.estimate()
-
-    est, _ = _cpu_s(estimate)
+    # as the pipeline does as fast as possible: an estimate every 0.5 s of stream
+    est, _ = _cpu_s(lambda: _feed(estimator, batches, single=False))
     used = estimator.stats.used
     load = _load()
     FIGURES["dsp stage of this run"] = (
