@@ -1,6 +1,7 @@
-"""source -> dsp -> estimator -> sinks, each of the first two stages on its own thread.
+"""source -> dsp -> estimator -> sinks: the source on a thread of its own, the dsp on the
+processing thread or (``dsp_thread``) on a third.
 
-A reader thread pulls items from the source into a queue; a dsp thread tracks
+A reader thread pulls items from the source into a queue; the dsp tracks
 orders and hands each item with the frames it completed to the processing
 thread (the caller's), which updates the estimate and feeds the sinks, in the
 order one thread would. A live source (CAN bus, paced simulator) gets an
@@ -11,11 +12,11 @@ the queue between dsp and estimator is always bounded (:data:`TRACKED_ITEMS`).
 The backlog is the time from an item's arrival to the processing thread taking
 it up, its dsp included.
 
-Why a dsp thread (issue 24): the dsp stage spends most of its time in numpy
-calls on whole blocks, which release the GIL, while the estimator is small-matrix
-numpy that holds it; on two cores they overlap. The tracker depends on nothing
-the estimator does, so every frame, estimate and sink call is the same as with
-one thread. An error in the dsp stage reaches the processing thread with the
+A dsp thread (issue 24) overlaps the dsp's numpy calls on whole blocks, which
+release the GIL, with the estimator's small-matrix numpy, which holds it; measured,
+the hand-overs cost more than that gains today (:data:`DSP_THREAD`), so it is off by
+default. The tracker depends on nothing the estimator does, so every frame,
+estimate and sink call is the same either way. An error in the dsp stage reaches the processing thread with the
 item that raised it, after that item's ``on_item``, as it did with one thread.
 
 Samples are rounded to float32 before anything sees them (on the reader thread,
@@ -29,7 +30,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
@@ -47,6 +48,14 @@ _FINISHED = object()  # the tracker's finish(): what it flushed follows
 # publication (a few blocks' worth of dsp), few enough that memory stays flat (a 0.5 s
 # block of 10 channels at 25.6 kHz is 1 MB).
 TRACKED_ITEMS = 4
+# The dsp on a thread of its own (between the reader and the processing thread) only pays
+# when the stages release the GIL for most of their time. Today they hold it for about 75 %
+# of a replay's CPU (perf by thread), and the hand-overs cost more than the overlap gains:
+# replay of the 60 s 10 x 25.6 kHz log on a quiet 2-core machine, interleaved, 4 runs each:
+# 65-78x wall with the dsp on the processing thread, 59-73x on its own (CPU 62-75x against
+# 52-64x); with PTINERTIA_NUMBA=1 95-98x against 89-91x. So the dsp runs on the processing
+# thread; the threaded arrangement stays (tested) for stages that release the GIL.
+DSP_THREAD = False
 # How long a stopped run waits for the dsp thread to end the item it is in (a 0.5 s block
 # takes milliseconds; a wait this long means the dsp hangs, and a stop must not).
 DSP_STOP_WAIT_S = 10.0
@@ -156,31 +165,39 @@ class _Tracking(threading.Thread):
         self.stop = threading.Event()
         self.cpu_s = 0.0  # CPU seconds of this thread, set before the end of the stream is queued
 
-    def run(self) -> None:
+    def step(self, timeout: float | None = None) -> tuple[float, Any, Any] | None:
+        """Take one item from the reader and run the dsp on it: ``(arrival, item, done)``
+        as put on ``out`` (None when nothing came within ``timeout`` s)."""
         done: Any
+        try:
+            arrived, item = self.items.get(timeout=timeout)
+        except queue.Empty:
+            return None
+        if item is _END:
+            arrived, item = time.monotonic(), _FINISHED
+        try:
+            if item is _FINISHED:
+                error = self.reader.error  # set before the reader put its end
+                done = error if error is not None else self.tracker.finish()
+            elif isinstance(item, SourceEvent):
+                done = None
+            else:
+                done = self.tracker.feed(item)
+        except BaseException as err:  # handed on with its item, re-raised there
+            done = err
+        return arrived, item, done
+
+    def run(self) -> None:
         while True:
-            try:
-                arrived, item = self.items.get(timeout=0.1)
-            except queue.Empty:
+            got = self.step(timeout=0.1)
+            if got is None:
                 if self.stop.is_set():
                     return
                 continue
-            if item is _END:
-                arrived, item = time.monotonic(), _FINISHED
-            try:
-                if item is _FINISHED:
-                    error = self.reader.error  # set before the reader put its end
-                    done = error if error is not None else self.tracker.finish()
-                elif isinstance(item, SourceEvent):
-                    done = None
-                else:
-                    done = self.tracker.feed(item)
-            except BaseException as err:  # handed on with its item, re-raised there
-                done = err
             self.cpu_s = time.thread_time()
-            if not _put(self.out, (arrived, item, done), self.stop):
+            if not _put(self.out, got, self.stop):
                 return
-            if item is _FINISHED or isinstance(done, BaseException):
+            if got[1] is _FINISHED or isinstance(got[2], BaseException):
                 return
 
 
@@ -207,8 +224,10 @@ class Pipeline:
         live: bool = False,
         queue_items: int = 64,
         estimate_period_s: float | None = None,
+        dsp_thread: bool | None = None,
     ) -> None:
         self.source = source
+        self.dsp_thread = DSP_THREAD if dsp_thread is None else dsp_thread
         self.tracker = tracker
         self.estimator = estimator
         self.sinks = list(sinks)
@@ -293,10 +312,14 @@ class Pipeline:
         for sink in self.sinks:
             sink.start(self.context)
         reader.start()
-        tracking.start()
+        if self.dsp_thread:
+            tracking.start()
+            next_tracked: Callable[[], Any] = tracked.get
+        else:  # the dsp on this thread, an item at a time (see DSP_THREAD)
+            next_tracked = tracking.step
         try:
             while True:
-                enqueued, item, done = tracked.get()
+                enqueued, item, done = next_tracked()
                 if isinstance(done, BaseException):
                     if item is not _FINISHED:
                         self._item(enqueued, item)  # as before the stage raised
@@ -324,7 +347,8 @@ class Pipeline:
             self.source.close()
             # the dsp thread stops between items: wait for the one it may be in, so that
             # nothing feeds the tracker after run() returns (bounded: never hang a stop)
-            tracking.join(timeout=DSP_STOP_WAIT_S)
+            if self.dsp_thread:
+                tracking.join(timeout=DSP_STOP_WAIT_S)
             final = self.estimator.estimate() if self.estimator.stats.used else None
             close_errors: list[BaseException] = []
             for sink in self.sinks:
@@ -336,6 +360,7 @@ class Pipeline:
                 error = close_errors[0]
         if error is not None:
             raise error
+        processing = time.thread_time() - cpu0
         return RunSummary(
             final,
             self.frames,
@@ -346,9 +371,7 @@ class Pipeline:
             dict(self.estimator.stats.rejected),
             dict(self.estimator.stats.orders_rejected),
             list(self.gaps),
-            {
-                "source": reader.cpu_s,
-                "dsp": tracking.cpu_s,
-                "estimator and sinks": time.thread_time() - cpu0,
-            },
+            {"source": reader.cpu_s, "dsp": tracking.cpu_s, "estimator and sinks": processing}
+            if self.dsp_thread
+            else {"source": reader.cpu_s, "dsp, estimator and sinks": processing},
         )

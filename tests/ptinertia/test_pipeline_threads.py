@@ -1,4 +1,5 @@
-"""The pipeline's stages on their own threads (reader, dsp, processing): the sinks hear
+"""The pipeline's stages on their own threads (reader, dsp inline or on a third thread,
+processing): the sinks hear
 what one thread would have told them, in the same order, and an error in a stage
 reaches the caller as it did.
 
@@ -161,6 +162,7 @@ def _run(
     sink: Log,
     error: BaseException | None = None,
     queue_items: int = 64,
+    dsp_thread: bool = True,
 ) -> Any:
     context: Any = SimpleNamespace()
     estimator: Any = ScriptedEstimator()
@@ -172,35 +174,43 @@ def _run(
         context,
         queue_items=queue_items,
         estimate_period_s=0.0,
+        dsp_thread=dsp_thread,
     )
     return pipeline.run()
 
 
-def test_sinks_hear_every_call_in_the_order_one_thread_makes() -> None:
+@pytest.mark.parametrize("dsp_thread", [True, False], ids=["dsp thread", "dsp inline"])
+def test_sinks_hear_every_call_in_the_order_one_thread_makes(dsp_thread: bool) -> None:
     items = _items(60)
     sink = Log()
-    summary = _run(items, ScriptedTracker(), sink, queue_items=2)  # the reader often waits
+    summary = _run(items, ScriptedTracker(), sink, queue_items=2, dsp_thread=dsp_thread)
     final = summary.estimate
     assert sink.calls == [*_expected(items), ("close", final)]
     assert summary.items == len(items)
     assert summary.frames == sum(i % 3 for i in range(60)) + 1
 
 
-def test_a_dsp_error_reaches_the_caller_after_its_item_and_the_sinks_are_closed() -> None:
+@pytest.mark.parametrize("dsp_thread", [True, False], ids=["dsp thread", "dsp inline"])
+def test_a_dsp_error_reaches_the_caller_after_its_item_and_the_sinks_are_closed(
+    dsp_thread: bool,
+) -> None:
     items = _items(200)
     sink, tracker = Log(), ScriptedTracker(fail_at=37)
     with pytest.raises(ValueError, match="block 37: bad samples"):
-        _run(items, tracker, sink, queue_items=4)  # the reader is blocked on a full queue
+        _run(items, tracker, sink, queue_items=4, dsp_thread=dsp_thread)  # reader blocked
     used = sum(i % 3 for i in range(37))
     assert sink.calls == [*_expected(items, stop_at=37), ("close", used)]
     assert not tracker.finished
 
 
-def test_a_source_error_comes_after_every_item_before_it_and_nothing_is_flushed() -> None:
+@pytest.mark.parametrize("dsp_thread", [True, False], ids=["dsp thread", "dsp inline"])
+def test_a_source_error_comes_after_every_item_before_it_and_nothing_is_flushed(
+    dsp_thread: bool,
+) -> None:
     items = _items(30)
     sink, tracker = Log(), ScriptedTracker()
     with pytest.raises(OSError, match="device gone"):
-        _run(items, tracker, sink, error=OSError("device gone"))
+        _run(items, tracker, sink, error=OSError("device gone"), dsp_thread=dsp_thread)
     expected = _expected(items)[:-2]  # all but what finish() would have flushed
     assert sink.calls == [*expected, ("close", sum(i % 3 for i in range(30)))]
     assert not tracker.finished
@@ -215,7 +225,10 @@ class ProbedSource(ListSource):
         raise ConnectionError("proxy: remote source gone")
 
 
-def test_an_error_reading_the_source_s_attributes_ends_the_run_not_hangs_it() -> None:
+@pytest.mark.parametrize("dsp_thread", [True, False], ids=["dsp thread", "dsp inline"])
+def test_an_error_reading_the_source_s_attributes_ends_the_run_not_hangs_it(
+    dsp_thread: bool,
+) -> None:
     items = _items(5)
     sink, tracker = Log(), ScriptedTracker()
     pipeline = Pipeline(
@@ -225,6 +238,7 @@ def test_an_error_reading_the_source_s_attributes_ends_the_run_not_hangs_it() ->
         [sink],
         SimpleNamespace(),  # type: ignore[arg-type]
         estimate_period_s=0.0,
+        dsp_thread=dsp_thread,
     )
     # (was: the reader thread died before queueing its end, and run() waited for ever)
     with pytest.raises(ConnectionError, match="remote source gone"):
