@@ -173,45 +173,6 @@ def inertia_columns_batch(w: np.ndarray) -> np.ndarray:
     return a
 
 
-@dataclass(frozen=True)
-class _BenchTerms:
-    """What :func:`frame_rows` takes from a setup that no frame changes (built once:
-    at a dozen pairs per call, building them again was a tenth of the call)."""
-
-    p: np.ndarray  # (M, 3) mount positions, m
-    stiff: np.ndarray  # (M, 3, 3) their complex stiffnesses, N/m
-    sk_p: np.ndarray  # (M, 1, 3, 3) skew(p_i)
-    sk_p_t: np.ndarray  # (M, 3, 3) skew(p_i).T
-    skew_s: np.ndarray  # (3, 3) skew(crank axis)
-    c_it: np.ndarray  # (3,) c - i t, t = s x c
-    skew_ref_t: np.ndarray  # (3, 3) skew(reference point).T
-
-
-_TERMS: dict[int, tuple[EstimatorSetup, _BenchTerms]] = {}
-
-
-def _bench_terms(setup: EstimatorSetup) -> _BenchTerms:
-    """The setup's :class:`_BenchTerms`, cached by identity (the setup is frozen)."""
-    hit = _TERMS.get(id(setup))
-    if hit is not None and hit[0] is setup:
-        return hit[1]
-    if len(_TERMS) >= 8:
-        _TERMS.clear()  # a handful of setups per process; the cache must not grow
-    p = np.array([mount.position for mount in setup.mounts]).reshape(-1, 3)
-    sk_p = skew_batch(p)[:, None]
-    terms = _BenchTerms(
-        p=p,
-        stiff=np.array([mount.stiffness for mount in setup.mounts]),
-        sk_p=sk_p,
-        sk_p_t=sk_p[:, 0].transpose(0, 2, 1),
-        skew_s=skew(setup.crank_axis),
-        c_it=setup.cylinder_axis - 1j * cross(setup.crank_axis, setup.cylinder_axis),
-        skew_ref_t=skew(setup.reference_point).T,
-    )
-    _TERMS[id(setup)] = (setup, terms)
-    return terms
-
-
 _EYE3 = np.eye(3)
 _EYE12 = np.eye(12)
 
@@ -264,7 +225,7 @@ def frame_rows(
     o = np.broadcast_to(np.asarray(origin, float), (n_o, 3))
     sk_cog_o = skew_batch(lin.cog - o)  # (n_o, 3, 3)
     corr = setup.corrections
-    bt = _bench_terms(setup)
+    bt = setup.frame_constants
     eye = np.broadcast_to(_EYE3, (n_o, 3, 3))
 
     # Mount reactions f_i = K_i gamma_i / W^2 and their derivatives w.r.t. [gamma_O, Omega'],
@@ -276,7 +237,7 @@ def frame_rows(
     df_dgo, df_dw, dmp_dgo, dmp_dw = zeros, zeros, zeros, zeros
     scale_cols = []  # per estimated mount scale: its reaction f_i at nominal stiffness
     if corr.suspension and setup.mounts:
-        p, stiff, sk_p = bt.p, bt.stiff, bt.sk_p
+        p, stiff, sk_p = bt.mount_positions, bt.mount_stiffness, bt.skew_p
         s_m = np.ones(len(p)) if lin.mount_scale is None else np.asarray(lin.mount_scale, float)
         sk_r = skew_batch(p[:, None, :] - o[None])  # (M, n_o, 3, 3)
         kw = s_m[:, None, None, None] * stiff[:, None] / big_w2[None, :, None, None]
@@ -287,7 +248,7 @@ def frame_rows(
             scale_cols = [(f_i[m] / s_m[m], p[m]) for m in range(len(p))]
         else:
             f_mounts = f_mounts + np.add.reduce(f_i, axis=0)
-            m_mounts_origin = m_mounts_origin + np.add.reduce(f_i @ bt.sk_p_t, axis=0)
+            m_mounts_origin = m_mounts_origin + np.add.reduce(f_i @ bt.skew_p_t, axis=0)
         dfi_dw = -kw @ sk_r
         df_dgo = zeros + np.add.reduce(kw, axis=0)
         df_dw = zeros + np.add.reduce(dfi_dw, axis=0)

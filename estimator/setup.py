@@ -9,11 +9,14 @@ linearised terms and for row weighting).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+
+from estimator.vec import cross, skew
 
 # (rpm, orders) -> (force (n_o, 3) complex N, moment about reference_point (n_o, 3) complex N m)
 ExcitationFn = Callable[[float, np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -106,6 +109,21 @@ class Gates:
 
 
 @dataclass(frozen=True)
+class FrameConstants:
+    """What the rows of every frame take from the setup (:func:`estimator.equations.frame_rows`):
+    built once per setup, as building them per call was a tenth of the call at a dozen
+    (frame, order) pairs."""
+
+    mount_positions: np.ndarray  # (M, 3) m
+    mount_stiffness: np.ndarray  # (M, 3, 3) complex N/m
+    skew_p: np.ndarray  # (M, 1, 3, 3) skew(p_i)
+    skew_p_t: np.ndarray  # (M, 3, 3) skew(p_i).T
+    skew_s: np.ndarray  # (3, 3) skew(crank axis)
+    c_it: np.ndarray  # (3,) c - i t, t = s x c
+    skew_ref_t: np.ndarray  # (3, 3) skew(reference point).T
+
+
+@dataclass(frozen=True)
 class EstimatorSetup:
     """The bench as the estimator sees it (nominal values; SI, bench frame).
 
@@ -157,3 +175,17 @@ class EstimatorSetup:
     @property
     def n_sensors(self) -> int:
         return int(np.max(self.sensor_of_channel)) + 1
+
+    @functools.cached_property  # (frozen: nothing it is built from changes)
+    def frame_constants(self) -> FrameConstants:
+        p = np.array([mount.position for mount in self.mounts], dtype=float).reshape(-1, 3)
+        skew_p = np.array([skew(pi) for pi in p]).reshape(-1, 1, 3, 3)
+        return FrameConstants(
+            mount_positions=p,
+            mount_stiffness=np.array([mount.stiffness for mount in self.mounts]),
+            skew_p=skew_p,
+            skew_p_t=skew_p[:, 0].transpose(0, 2, 1),
+            skew_s=skew(self.crank_axis),
+            c_it=self.cylinder_axis - 1j * cross(self.crank_axis, self.cylinder_axis),
+            skew_ref_t=skew(self.reference_point).T,
+        )
