@@ -11,6 +11,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from support.tracking import frames_and_events
 
 from acquisition.stream import EdgeBlock
 from dsp.config import OrderTrackerConfig
@@ -150,13 +151,7 @@ def _outage_bench() -> SyntheticBench:
 
 
 def _track_all(bench: SyntheticBench, items) -> tuple[list, list]:
-    tracker = OrderTracker.from_layout(bench.layout, _config())
-    frames, events = [], []
-    for item in items:
-        f, e = tracker.process(item)
-        frames += f
-        events += e
-    return frames, events
+    return frames_and_events(bench.layout, items, _config())
 
 
 def _config() -> OrderTrackerConfig:

@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.tracking import frames_and_events
 
 from acquisition.sim.sweep import RpmProfile, hold, ramp
 from acquisition.stream import EdgeBlock, SampleBlock, StreamItem
 from dsp.config import OrderTrackerConfig
 from dsp.frames import noise_std
-from dsp.orders import OrderTracker
 from dsp.synthetic import OrderContent, Ramp, SyntheticBench, random_content
 from dsp.tacho import TachoConfig
 from ptinertia.sources import open_source
@@ -40,13 +40,7 @@ def _config(bench, orders, **kw) -> OrderTrackerConfig:
 
 
 def _track(layout, config, items: Iterable[StreamItem]):
-    tracker = OrderTracker.from_layout(layout, config)
-    frames, events = [], []
-    for item in items:
-        f, e = tracker.process(item)
-        frames += f
-        events += e
-    return frames, events
+    return frames_and_events(layout, items, config)
 
 
 def _errors(frames, exact):

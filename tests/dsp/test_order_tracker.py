@@ -12,6 +12,7 @@ from dataclasses import fields, replace
 
 import numpy as np
 import pytest
+from support.tracking import frames_and_events
 
 from acquisition.stream import EdgeBlock, SampleBlock, SourceEvent
 from dsp.config import OrderTrackerConfig, make_plan
@@ -36,13 +37,7 @@ def _config(**kw) -> OrderTrackerConfig:
 
 
 def _run(bench, items, config=None):
-    tracker = OrderTracker.from_layout(bench.layout, config or _config())
-    frames, events = [], []
-    for item in items:
-        f, e = tracker.process(item)
-        frames += f
-        events += e
-    return frames, events
+    return frames_and_events(bench.layout, items, config or _config())
 
 
 def _one_block(bench: SyntheticBench, duration: float):
