@@ -3,12 +3,14 @@
 Prints:
 1. ``run`` on the simulated i3, 10 channels (9 accelerometers + cylinder pressure) at 25.6 kHz,
    60 s sweep, MCAP recording on, viewer off: real-time factor, MCAP size per hour, and the CPU
-   of each of the pipeline's threads (``RunSummary.thread_cpu_s``: source, dsp, estimator and
-   sinks; the rest is the MCAP writer's and the set-up's);
+   of each of the pipeline's threads (``RunSummary.thread_cpu_s``: the source, and the dsp,
+   estimator and sinks on the processing thread; the rest is the MCAP writer's and the
+   set-up's);
 2. ``replay`` of that log: real-time factor, whether the result is identical, CPU by thread.
    The busiest thread's CPU bounds what threading can give: "Nx with a free core per thread".
    The GIL lowers that bound. perf samples by thread (issue 24, 3 runs each, loaded machine):
-   replay: processing thread (estimator, set-up) python 44 %, numpy 34 % (arrays too small
+   replay, measured with the dsp on a thread of its own (``Pipeline(dsp_thread=True)``):
+   processing thread (estimator, set-up) python 44 %, numpy 34 % (arrays too small
    to release the GIL), libc 10 %; dsp thread numpy 47 %, BLAS 9 %, python 34 %, libc 8 %;
    source python 33 %, libc 22 %, zstd/zlib 8 %. Counting the processing thread whole and
    the others' interpreter, libc and kernel time as held, the GIL is held for about 75 %

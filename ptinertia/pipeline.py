@@ -16,8 +16,9 @@ A dsp thread (issue 24) overlaps the dsp's numpy calls on whole blocks, which
 release the GIL, with the estimator's small-matrix numpy, which holds it; measured,
 the hand-overs cost more than that gains today (:data:`DSP_THREAD`), so it is off by
 default. The tracker depends on nothing the estimator does, so every frame,
-estimate and sink call is the same either way. An error in the dsp stage reaches the processing thread with the
-item that raised it, after that item's ``on_item``, as it did with one thread.
+estimate and sink call is the same either way. An error in the dsp stage reaches
+the processing thread with the item that raised it, after that item's
+``on_item``, as it did with one thread.
 
 Samples are rounded to float32 before anything sees them (on the reader thread,
 beside the processing): that is what the recorder stores, so a replay of the
@@ -62,9 +63,10 @@ DSP_STOP_WAIT_S = 10.0
 
 
 class FrameTracker(Protocol):
-    """The dsp stage as the pipeline drives it, on a thread of its own: it must leave the
-    items it is fed as they are (the sinks get them after it) and not write again into
-    arrays of the frames it returned (the estimator reads them while it goes on)."""
+    """The dsp stage as the pipeline drives it, perhaps on a thread of its own
+    (``Pipeline(dsp_thread=True)``): it must leave the items it is fed as they are (the
+    sinks get them after it) and not write again into arrays of the frames it returned
+    (the estimator reads them while it goes on)."""
 
     def feed(self, item: StreamItem) -> tuple[list[Any], list[SourceEvent]]:
         """Process one item; return the frames and events it completed."""
@@ -94,9 +96,10 @@ class RunSummary:
     orders_rejected: dict[str, int] = field(default_factory=dict)  # (frame, order)s, per reason
     # stretches without crank angle (a tacho or CAN outage): start_s, end_s, message
     gaps: list[dict[str, Any]] = field(default_factory=list)
-    # CPU seconds of each thread: "source" (reading, decoding or simulating), "dsp", and
-    # "estimator and sinks" (the caller's, from start to close); what bounds a run on
-    # two cores is the largest (benchmarks/bench_pipeline.py prints them)
+    # CPU seconds of each thread: "source" (reading, decoding or simulating), and the
+    # caller's from start to close, "dsp, estimator and sinks" (or, with a dsp thread,
+    # "dsp" and "estimator and sinks"); what bounds a run on two cores is the largest
+    # (benchmarks/bench_pipeline.py prints them)
     thread_cpu_s: dict[str, float] = field(default_factory=dict)
 
 
