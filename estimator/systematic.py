@@ -35,6 +35,26 @@ def systematic_stds(setup: EstimatorSetup) -> np.ndarray:
     return np.array([tol.gain_rel] * n_ch + per_sensor * setup.n_sensors + model)
 
 
+def _pose_sensitivity(
+    setup: EstimatorSetup, fit: RigidFit, gamma_o: np.ndarray, omega_dot: np.ndarray
+) -> tuple[np.ndarray, int, np.ndarray, np.ndarray]:
+    """What the two sensitivities below share: the used channels (u,), n_sys, where each
+    used channel's sensor block starts among the systematic parameters (u,), and
+    d reading / d(alignment, position) of its sensor, (P, u, 6) complex."""
+    n_ch = len(setup.channels)
+    assert fit.channels is not None
+    used = np.asarray(fit.channels)
+    # (the model inputs' columns stay zero: they do not touch the readings)
+    n_sys = n_ch + 6 * setup.n_sensors + len(setup.model_inputs)
+    n = setup.directions[used]  # (u, 3)
+    r = setup.positions[used] - fit.origin  # (u, 3)
+    gamma_p = gamma_o[:, None, :] + cross(omega_dot[:, None, :], r[None])  # (P, u, 3)
+    d_pose = np.concatenate(
+        [cross(n[None], gamma_p), cross(n[None], omega_dot[:, None, :])], axis=2
+    )
+    return used, n_sys, n_ch + 6 * setup.sensor_of_channel[used], d_pose
+
+
 def reading_sensitivity(
     setup: EstimatorSetup,
     fit: RigidFit,
@@ -52,22 +72,13 @@ def reading_sensitivity(
     ``e x n``, so the reading by ``e . (n x gamma_P)``; moving it along e
     changes ``gamma_P`` by ``Omega' x e``, so the reading by ``e . (n x Omega')``.
     """
-    n_ch = len(setup.channels)
-    assert fit.channels is not None
-    used = np.asarray(fit.channels)
-    # (the model inputs' columns stay zero: they do not touch the readings)
-    n_sys = n_ch + 6 * setup.n_sensors + len(setup.model_inputs)
+    used, n_sys, bases, d_pose = _pose_sensitivity(setup, fit, gamma_o, omega_dot)
     out = np.zeros((len(gamma_o), len(used), n_sys), complex)
-    n = setup.directions[used]  # (u, 3)
-    r = setup.positions[used] - fit.origin  # (u, 3)
-    gamma_p = gamma_o[:, None, :] + cross(omega_dot[:, None, :], r[None])  # (P, u, 3)
     # every channel at once (the same elementwise products as one channel at a time);
     # row j's alignment columns start at its sensor's block, its position ones 3 later
     rows = np.arange(len(used))[:, None]
-    align = (n_ch + 6 * setup.sensor_of_channel[used])[:, None] + np.arange(3)
     out[:, rows[:, 0], used] = amplitudes
-    out[:, rows, align] = cross(n[None], gamma_p)
-    out[:, rows, align + 3] = cross(n[None], omega_dot[:, None, :])
+    out[:, rows, bases[:, None] + np.arange(6)] = d_pose
     return out
 
 
@@ -86,24 +97,14 @@ def motion_sensitivity(
     without the zeros of that product (a channel's gain error moves its own reading
     only, a sensor's alignment and position the readings of its channels).
     """
-    n_ch = len(setup.channels)
-    assert fit.channels is not None
-    used = np.asarray(fit.channels)
-    n_sys = n_ch + 6 * setup.n_sensors + len(setup.model_inputs)
+    used, n_sys, base_of, d_pose = _pose_sensitivity(setup, fit, gamma_o, omega_dot)
     out = np.zeros((len(gamma_o), 6, n_sys), complex)
-    n = setup.directions[used]  # (u, 3)
-    r = setup.positions[used] - fit.origin  # (u, 3)
-    gamma_p = gamma_o[:, None, :] + cross(omega_dot[:, None, :], r[None])  # (P, u, 3)
-    # d reading j / d(alignment, position) of its sensor, (P, u, 6)
-    d_sensor = np.concatenate(
-        [cross(n[None], gamma_p), cross(n[None], omega_dot[:, None, :])], axis=2
-    )
     out[:, :, used] = fit.gain[None] * amplitudes[:, None, :]
     # The channels of a sensor summed in channel order (elementwise products, a fixed
     # order): the result of a pair does not depend on how many pairs are assembled
     # together, and it is the dense product's sum without its zero terms. Each pass adds
     # every sensor's channel at one place at once (their column blocks are disjoint).
-    bases = (n_ch + 6 * setup.sensor_of_channel[used]).tolist()
+    bases = base_of.tolist()
     seen: dict[int, int] = {}
     rank = []  # each used channel's place among its sensor's channels
     for base in bases:
@@ -112,5 +113,5 @@ def motion_sensitivity(
     for place in range(max(rank, default=-1) + 1):
         js = [j for j, q in enumerate(rank) if q == place]
         cols = np.array([bases[j] for j in js])[:, None] + np.arange(6)  # (k, 6)
-        out[:, :, cols] += fit.gain[None, :, js, None] * d_sensor[:, js][:, None]
+        out[:, :, cols] += fit.gain[None, :, js, None] * d_pose[:, js][:, None]
     return np.concatenate([out.real, out.imag], axis=1)
