@@ -97,8 +97,12 @@ _compiled: dict[Callable[..., None], Callable[..., None]] = {}
 
 
 def piece_sums(*args: Any) -> None:
-    """:func:`_piece_sums` compiled (on the first call; numba's cache keeps the machine code)."""
-    _jit(_piece_sums)(*args)
+    """:func:`dsp.fused_sums.piece_sums`: the segment sums of one piece in one vectorised pass."""
+    # imported here, not at the top: the module imports numba (0.3 s), which the default
+    # path never loads
+    from dsp import fused_sums
+
+    fused_sums.piece_sums(*args)
 
 
 def cubic_values(*args: Any) -> None:
@@ -225,132 +229,3 @@ def _cubic_times(
             tau -= f / fp
         omega[i] = a1 + tau * (a2x2 + 3.0 * tau * a3)
         t[i] = t_lo[j] + tau
-
-
-def _piece_sums(
-    x: np.ndarray,
-    phi: np.ndarray,
-    q: np.ndarray,
-    base_re: np.ndarray,
-    base_im: np.ndarray,
-    c_lo: np.ndarray,
-    starts: np.ndarray,
-    ends: np.ndarray,
-    zone_end: np.ndarray,
-    taper_rad: float,
-    k2: np.ndarray,
-    tracked: bool,
-    power_from: int,
-    power_stride: int,
-    clip_level: float,
-    grid: np.ndarray,
-    table: np.ndarray,
-    slope: np.ndarray,
-    out: tuple[np.ndarray, ...],
-) -> None:
-    """Add the sums of the segments of one piece (one set of channels) to ``out``.
-
-    ``x`` (n_ch, n) the piece's samples, ``phi`` (rad) and ``q = omega dt`` (rad) (n,);
-    ``base_re``, ``base_im`` (n,) the carriers' base ``exp(-i delta / 2)``; per segment
-    (seg,): ``c_lo`` the start of its zone ``c_m - tau / 2`` (rad), ``starts``, ``ends``,
-    ``zone_end`` sample indices within the piece. ``taper_rad`` the zone's width,
-    ``k2`` (no,) ascending (0 the mean). ``tracked``: the zone weight multiplies the
-    carrier, and the mean square (samples ``power_from + power_stride * i``) and the
-    clip flags (``|x| >= clip_level``; NaN for none) are summed; else it multiplies the
-    sample (the spectrum channel's layout, as :func:`dsp.sums.add_sample_sets` does).
-    ``grid``, ``table``, ``slope``: :func:`dsp.frames.rise_table`'s, whose arithmetic is
-    repeated here. ``out`` = (a, d (seg, n_ch, 2 no), s2 (seg, n_ch), n2 (seg,), clip
-    (seg, n_ch), wa, wd (seg,)): row ``j`` of a and d's last axis holds the real part of
-    order ``k2[j]``, row ``no + j`` its imaginary part.
-    """
-    a, d, s2, n2, clip, wa, wd = out
-    no = k2.size
-    n_ch = x.shape[0]
-    k_max = k2[no - 1]
-    n_grid = grid.size - 1
-    longest = 0
-    for i in range(starts.size):
-        if ends[i] - starts[i] > longest:
-            longest = ends[i] - starts[i]
-    # the carriers of one segment, a sample per row (Re rows, then Im rows), and its zone's
-    # weights; then its sums channel by channel, the accumulators in registers
-    e = np.empty((longest, 2 * no))
-    fall = np.empty(longest)
-    acc_a = np.empty((n_ch, 2 * no))
-    acc_d = np.empty((n_ch, 2 * no))
-    for i in range(starts.size):
-        s0 = starts[i]
-        n = ends[i] - s0
-        nz = zone_end[i] - s0
-        total = 0.0
-        for s in range(n):
-            br = base_re[s0 + s]
-            bi = base_im[s0 + s]
-            qs = q[s0 + s]
-            total += qs
-            j = 0
-            if k2[0] == 0:
-                e[s, 0] = qs
-                e[s, no] = 0.0
-                j = 1
-            pr = br * qs
-            pi = bi * qs
-            for k in range(1, k_max + 1):
-                if k > 1:
-                    t = pr * br - pi * bi
-                    pi = pr * bi + pi * br
-                    pr = t
-                if j < no and k == k2[j]:
-                    e[s, j] = pr
-                    e[s, no + j] = pi
-                    j += 1
-        wa[i] = total
-        total = 0.0
-        for s in range(nz):
-            u = (phi[s0 + s] - c_lo[i]) / taper_rad
-            if u >= 1.0:
-                rise = table[n_grid]
-            elif u < 0.0:
-                rise = table[0]
-            else:
-                g = min(math.floor(u * n_grid), n_grid - 1)
-                rise = slope[g] * (u - grid[g]) + table[g]
-            fall[s] = 1.0 - rise
-            total += q[s0 + s] * fall[s]
-        wd[i] = total
-        # sample by sample, each channel's sums in turn (one pass over the carriers; each
-        # sum still adds its terms in time order)
-        acc_a[:] = 0.0
-        acc_d[:] = 0.0
-        for s in range(n):
-            for ch in range(n_ch):
-                xv = x[ch, s0 + s]
-                for r in range(2 * no):
-                    acc_a[ch, r] += xv * e[s, r]
-                if s < nz:
-                    if tracked:
-                        f = fall[s]
-                        for r in range(2 * no):
-                            acc_d[ch, r] += xv * (e[s, r] * f)
-                    else:
-                        xf = xv * fall[s]
-                        for r in range(2 * no):
-                            acc_d[ch, r] += xf * e[s, r]
-        for ch in range(n_ch):
-            for r in range(2 * no):
-                a[i, ch, r] += acc_a[ch, r]
-                d[i, ch, r] += acc_d[ch, r]
-        if tracked:
-            p0 = s0 + (power_from - s0) % power_stride
-            for ch in range(n_ch):
-                total = 0.0
-                count = 0
-                for s in range(p0, s0 + n, power_stride):
-                    total += x[ch, s] * x[ch, s]
-                    count += 1
-                s2[i, ch] = total
-                n2[i] = count
-                hit = False
-                for s in range(s0, s0 + n):
-                    hit |= abs(x[ch, s]) >= clip_level
-                clip[i, ch] = hit
