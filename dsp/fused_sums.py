@@ -49,7 +49,7 @@ from dsp.vec8 import vadd, vfma, vload, vmul, vsplat, vstore, vsub, vtranspose8,
 @njit(cache=True, nogil=True)
 def piece_sums(
     x, phi, q, base_re, base_im, c_lo, starts, ends, zone_end, taper_rad, k2, tracked,
-    power_from, power_stride, clip_level, grid, table, slope, out,
+    power_from, power_stride, clip_level, grid, table, slope, mu, turn_re, turn_im, w,
 ):  # fmt: skip
     """Add the sums of the segments of one piece (one set of channels) to ``out``.
 
@@ -62,11 +62,13 @@ def piece_sums(
     clip flags (``|x| >= clip_level``; NaN for none) are summed; else it multiplies the
     sample (the spectrum channel's layout, as :func:`dsp.sum_sets.numpy_sums` does).
     ``grid``, ``table``, ``slope``: :func:`dsp.frames.rise_table`'s, whose arithmetic is
-    repeated here. ``out`` = (a, d (seg, n_ch, 2 no), s2 (seg, n_ch), n2 (seg,), clip
-    (seg, n_ch), wa, wd (seg,)): row ``j`` of a and d's last axis holds the real part of
-    order ``k2[j]``, row ``no + j`` its imaginary part.
+    repeated here. ``mu`` (seg,) the segments' numbers, ``turn_re``, ``turn_im``
+    (period,) ``exp(-2 pi i m / period)``, ``period = 2 frames_per_rev``: the rotation to
+    the frame angle, ``exp(-i h c_m)`` for ``h = k2 / 2``, reduced exactly with integers.
+    Writes each segment's :data:`dsp.sum_rows.Row` into ``w`` (seg, row_size): the sums
+    rotated, their weights, mean square, count and clip flags, as
+    :func:`dsp.sums.add_sample_sets` packs the numpy path's.
     """
-    a, d, s2, n2, clip, wa, wd = out
     no = k2.size
     n_ch = x.shape[0]
     longest = 0
@@ -90,6 +92,11 @@ def piece_sums(
     pq = np.zeros(longest8)
     sums = np.empty(64)
     top = np.empty(4)
+    acc_a = np.empty((n_ch, 2 * no))
+    acc_d = np.empty((n_ch, 2 * no))
+    clip = np.zeros(n_ch)
+    s2 = np.zeros(n_ch)
+    period = turn_re.size
     for i in range(starts.size):
         s0 = starts[i]
         n = ends[i] - s0
@@ -102,12 +109,12 @@ def piece_sums(
             total += q[s0 + s]
         for s in range(n, (n + 7) // 8 * 8):
             pb_re[s] = pb_im[s] = pq[s] = 0.0
-        wa[i] = total
+        wa = total
         for s in range(0, n, 8):
             _carriers(pb_re, pb_im, pq, s, k2, rh, blk)
             for g in range(0, rp, 8):
                 vtranspose8(blk, 8 * g, e, s * rp + g, rp)
-        wd[i] = _falling_taper(phi, q, s0, nz, c_lo[i], taper_rad, grid, table, slope, fall)
+        wd = _falling_taper(phi, q, s0, nz, c_lo[i], taper_rad, grid, table, slope, fall)
         if tracked:
             for s in range(nz):
                 f = vsplat(fall[s])
@@ -122,21 +129,23 @@ def piece_sums(
                     _sums4(x, ch, s0, n, e, rp, r0, sums, top, first)
                 else:
                     _sums1(x, ch, s0, n, e, rp, r0, fall, False, sums, top, first)
-                _add_rows(a, i, ch, nb, r0, out_row, sums)
+                _put_rows(acc_a, ch, nb, r0, out_row, sums)
                 if first:
                     for c in range(nb):
-                        clip[i, ch + c] = top[c] >= clip_level
+                        clip[ch + c] = 1.0 if top[c] >= clip_level else 0.0
                 if not tracked:
                     _sums1(x, ch, s0, nz, e, rp, r0, fall, True, sums, top, False)
                 elif nb == 4:
                     _sums4(x, ch, s0, nz, ez, rp, r0, sums, top, False)
                 else:
                     _sums1(x, ch, s0, nz, ez, rp, r0, fall, False, sums, top, False)
-                _add_rows(d, i, ch, nb, r0, out_row, sums)
+                _put_rows(acc_d, ch, nb, r0, out_row, sums)
             ch += nb
+        n2 = 0
         if tracked:
-            _power(x, s0, n, power_from, power_stride, s2[i])
-            n2[i] = len(range(s0 + (power_from - s0) % power_stride, s0 + n, power_stride))
+            _power(x, s0, n, power_from, power_stride, s2)
+            n2 = len(range(s0 + (power_from - s0) % power_stride, s0 + n, power_stride))
+        _pack(w[i], mu[i], k2, turn_re, turn_im, period, acc_a, acc_d, wa, wd, s2, n2, clip)
 
 
 @njit(cache=True, nogil=True)
@@ -185,12 +194,38 @@ def _falling_taper(phi, q, s0, nz, c_lo, taper_rad, grid, table, slope, fall):
 
 
 @njit(cache=True, nogil=True)
-def _add_rows(a, i, ch, nb, r0, out_row, sums):
-    """Add the chunk's sums of ``nb`` channels (16 each) to their rows of segment ``i``."""
+def _put_rows(acc, ch, nb, r0, out_row, sums):
+    """The chunk's sums of ``nb`` channels (16 each) into their rows of ``acc`` (n_ch, 2 no)."""
     for c in range(nb):
         for r in range(r0, r0 + 16):
             if out_row[r] >= 0:
-                a[i, ch + c, out_row[r]] += sums[16 * c + r - r0]
+                acc[ch + c, out_row[r]] = sums[16 * c + r - r0]
+
+
+@njit(cache=True, nogil=True)
+def _pack(row, m, k2, turn_re, turn_im, period, acc_a, acc_d, wa, wd, s2, n2, clip):
+    """Segment ``m``'s sums into its :data:`dsp.sum_rows.Row`: ``a`` and ``d`` as complex
+    (Re, Im pairs), rotated by ``exp(-i h c_m)``, each product as numpy's complex one."""
+    n_ch, no = acc_a.shape[0], k2.size
+    k = 2 * n_ch * no
+    h = k + n_ch + 2
+    for j in range(no):
+        turn = (m * k2[j]) % period
+        tr, ti = turn_re[turn], turn_im[turn]
+        for ch in range(n_ch):
+            at = 2 * (ch * no + j)
+            ar, ai = acc_a[ch, j], acc_a[ch, no + j]
+            row[at] = ar * tr - ai * ti
+            row[at + 1] = ar * ti + ai * tr
+            dr, di = acc_d[ch, j], acc_d[ch, no + j]
+            row[h + at] = dr * tr - di * ti
+            row[h + at + 1] = dr * ti + di * tr
+    row[k] = wa
+    row[h + k] = wd
+    row[k + 1 + n_ch] = n2
+    for ch in range(n_ch):
+        row[k + 1 + ch] = s2[ch]
+        row[2 * h + ch] = clip[ch]
 
 
 @njit(cache=True, nogil=True)

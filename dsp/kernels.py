@@ -85,7 +85,8 @@ import numpy as np
 
 from dsp.frames import RISE_GRID, RISE_SLOPE, RISE_TABLE
 from dsp.ramp_slopes import ramp_slopes as slopes_loops
-from dsp.sum_sets import POWER_STRIDE, Segments, SetSums, SumSet, base_parts
+from dsp.sum_rows import row_size
+from dsp.sum_sets import POWER_STRIDE, Segments, SumSet, base_parts
 
 # numba is optional and imported on first use only: its import and the cached machine
 # code cost about 0.5 s of CPU per process, more than the kernel saves on a short run
@@ -160,27 +161,25 @@ def _cubic_values(
             i += 1
 
 
-def compiled_sums(
+def compiled_rows(
     sets: Sequence[SumSet],
     seg: Segments,
     phi: np.ndarray,
     q: np.ndarray,
     delta: np.ndarray,
     first_index: int,
-) -> tuple[list[SetSums], np.ndarray, np.ndarray]:
-    """Every set's sums and the weights ``wa``, ``wd`` by :func:`piece_sums`."""
+    frames_per_rev: int,
+) -> list[np.ndarray]:
+    """Every set's rows (seg, :func:`dsp.sum_rows.row_size`), packed by :func:`piece_sums`."""
     base_re, base_im = base_parts(delta)
     c_lo = seg.c - seg.half
-    n_seg = seg.mu.size
-    wa, wd = np.zeros(n_seg), np.zeros(n_seg)
-    out: list[SetSums] = []
+    period = 2 * frames_per_rev
+    # the rotations exp(-i h c_m) as dsp.sums computes them, one per integer turn
+    turn = np.exp(-2j * np.pi * np.arange(period) / period)
+    turn_re, turn_im = turn.real.copy(), turn.imag.copy()
+    out = []
     for st in sets:
-        no, n_ch = st.k2.size, st.x[0].shape[0]
-        a = np.zeros((n_seg, n_ch, 2 * no))
-        d = np.zeros_like(a)
-        s2 = np.zeros((n_seg, n_ch))
-        n2 = np.zeros(n_seg, dtype=np.int64)
-        clip = np.zeros((n_seg, n_ch), bool)
+        w = np.zeros((seg.mu.size, row_size(st.x[0].shape[0], st.k2.size)))
         level = math.nan if st.clip_level is None else st.clip_level
         i = 0
         pieces = zip(st.x, seg.cuts[:-1], seg.cuts[1:], seg.per_piece, strict=True)
@@ -190,11 +189,11 @@ def compiled_sums(
                 xp, phi[p0:p1], q[p0:p1], base_re[p0:p1], base_im[p0:p1], c_lo[s],
                 seg.starts[s] - p0, seg.ends[s] - p0, seg.zone_end[s] - p0, 2.0 * seg.half,
                 st.k2, st.tracked, (-(first_index + p0)) % POWER_STRIDE, POWER_STRIDE, level,
-                RISE_GRID, RISE_TABLE, RISE_SLOPE, (a[s], d[s], s2[s], n2[s], clip[s], wa[s], wd[s]),
+                RISE_GRID, RISE_TABLE, RISE_SLOPE, seg.mu[s], turn_re, turn_im, w[s],
             )  # fmt: skip
             i += count
-        out.append((a, d, s2, n2, clip, list(range(no)), list(range(no, 2 * no))))
-    return out, wa, wd
+        out.append(w)
+    return out
 
 
 def _cubic_times(

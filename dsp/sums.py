@@ -27,7 +27,7 @@ import numpy as np
 
 from dsp import kernels
 from dsp.sum_rows import Row, row_size, unpack
-from dsp.sum_sets import Segments, SumSet, numpy_sums
+from dsp.sum_sets import Segments, SetSums, SumSet, numpy_sums
 
 
 def add_samples(
@@ -108,38 +108,48 @@ def add_sample_sets(
     delta = phi - np.repeat(c, ends - starts)
     seg = Segments(mu, starts, ends, zone_end, cuts, per_piece, c, half)
     if compiled:
-        sums, wa, wd = kernels.compiled_sums(sets, seg, phi, q, delta, first_index)
+        rows = kernels.compiled_rows(sets, seg, phi, q, delta, first_index, frames_per_rev)
     else:
         sums, wa, wd = numpy_sums(sets, seg, phi, q, delta, first_index)
-    period = 2 * frames_per_rev
+        rows = [
+            _packed(st.k2, mu, set_sums, wa, wd, 2 * frames_per_rev)
+            for st, set_sums in zip(sets, sums, strict=True)
+        ]
     outs = []
-    for st, (a, d, s2, n2, clip, re, im) in zip(sets, sums, strict=True):
-        k2 = st.k2
-        no = k2.size
-        n_ch = a.shape[1]
-        # back to complex, rotated by the frame angle: exp(-i h c_m), reduced exactly with
-        # integers (the carriers hold exp(-i h (phi - c_m)))
-        rot = np.exp(-2j * np.pi * ((mu[:, None] * k2[None, :]) % period) / period)[:, None, :]
-        if re == list(range(no)):  # Re rows then Im rows
-            ac = (a[..., :no] + 1j * a[..., no:]) * rot
-            dc = (d[..., :no] + 1j * d[..., no:]) * rot
-        else:  # the rows of the orders in the carriers shared with the tracked channels
-            ac = (a[..., re] + 1j * a[..., im]) * rot
-            dc = (d[..., re] + 1j * d[..., im]) * rot
-        w = np.zeros((mu.size, row_size(n_ch, no)))
-        w_a, w_d, w_s2, w_n2, w_wa, w_wd, w_clip = unpack(w, n_ch, no)
-        w_a[:] = ac
-        w_d[:] = dc
-        w_s2[:] = s2
-        w_n2[:] = n2
-        w_wa[:] = wa
-        w_wd[:] = wd
-        w_clip[:] = clip
+    for st, w in zip(sets, rows, strict=True):
         out = dict(st.rows)
         for mm, row in zip(mu.tolist(), w, strict=True):
             out[mm] = out[mm] + row if mm in out else row
         outs.append(out)
     return outs
+
+
+def _packed(
+    k2: np.ndarray, mu: np.ndarray, sums: SetSums, wa: np.ndarray, wd: np.ndarray, period: int
+) -> np.ndarray:
+    """One set's sums (:func:`dsp.sum_sets.numpy_sums`) as rows (seg, row_size)."""
+    a, d, s2, n2, clip, re, im = sums
+    no = k2.size
+    n_ch = a.shape[1]
+    # back to complex, rotated by the frame angle: exp(-i h c_m), reduced exactly with
+    # integers (the carriers hold exp(-i h (phi - c_m)))
+    rot = np.exp(-2j * np.pi * ((mu[:, None] * k2[None, :]) % period) / period)[:, None, :]
+    if re == list(range(no)):  # Re rows then Im rows
+        ac = (a[..., :no] + 1j * a[..., no:]) * rot
+        dc = (d[..., :no] + 1j * d[..., no:]) * rot
+    else:  # the rows of the orders in the carriers shared with the tracked channels
+        ac = (a[..., re] + 1j * a[..., im]) * rot
+        dc = (d[..., re] + 1j * d[..., im]) * rot
+    w = np.zeros((mu.size, row_size(n_ch, no)))
+    w_a, w_d, w_s2, w_n2, w_wa, w_wd, w_clip = unpack(w, n_ch, no)
+    w_a[:] = ac
+    w_d[:] = dc
+    w_s2[:] = s2
+    w_n2[:] = n2
+    w_wa[:] = wa
+    w_wd[:] = wd
+    w_clip[:] = clip
+    return w
 
 
 def _segments(
