@@ -42,135 +42,102 @@ import math
 
 import numpy as np
 from numba import njit
+from numba import types as nt
 
 from dsp.vec8 import vadd, vfma, vload, vmul, vsplat, vstore, vsub, vtranspose8, vzero
 
 
 @njit(cache=True, nogil=True)
-def piece_sums(
-    x, phi, q, base_re, base_im, c_lo, starts, ends, zone_end, taper_rad, k2, tracked,
-    power_from, power_stride, clip_level, grid, table, slope, mu, turn_re, turn_im, w,
-):  # fmt: skip
-    """Add the sums of the segments of one piece (one set of channels) to ``out``.
-
-    ``x`` (n_ch, n) the piece's samples, ``phi`` (rad) and ``q = omega dt`` (rad) (n,);
-    ``base_re``, ``base_im`` (n,) the carriers' base ``exp(-i delta / 2)``; per segment
-    (seg,): ``c_lo`` the start of its zone ``c_m - tau / 2`` (rad), ``starts``, ``ends``,
-    ``zone_end`` sample indices within the piece. ``taper_rad`` the zone's width,
-    ``k2`` (no,) ascending (0 the mean). ``tracked``: the zone weight multiplies the
-    carrier, and the mean square (samples ``power_from + power_stride * i``) and the
-    clip flags (``|x| >= clip_level``; NaN for none) are summed; else it multiplies the
-    sample (the spectrum channel's layout, as :func:`dsp.sum_sets.numpy_sums` does).
-    ``grid``, ``table``, ``slope``: :func:`dsp.frames.rise_table`'s, whose arithmetic is
-    repeated here. ``mu`` (seg,) the segments' numbers, ``turn_re``, ``turn_im``
-    (period,) ``exp(-2 pi i m / period)``, ``period = 2 frames_per_rev``: the rotation to
-    the frame angle, ``exp(-i h c_m)`` for ``h = k2 / 2``, reduced exactly with integers.
-    Writes each segment's :data:`dsp.sum_rows.Row` into ``w`` (seg, row_size): the sums
-    rotated, their weights, mean square, count and clip flags, as
-    :func:`dsp.sums.add_sample_sets` packs the numpy path's.
-    """
-    no = k2.size
-    n_ch = x.shape[0]
-    longest = 0
-    for i in range(starts.size):
-        longest = max(longest, ends[i] - starts[i])
-    longest8 = (longest + 7) // 8 * 8
-    # the carriers of a segment, a sample per row: Re of order j in column j, Im in rh + j,
-    # in chunks of 16 columns (two vectors); ez: the same times the zone's falling taper
-    rh = (no + 7) // 8 * 8
-    rp = (2 * rh + 15) // 16 * 16
-    e = np.zeros(longest8 * rp)
-    ez = np.zeros(longest8 * rp)
-    out_row = np.full(rp, -1)
-    for j in range(no):
-        out_row[j] = j
-        out_row[rh + j] = no + j
-    fall = np.empty(longest)
-    blk = np.zeros(8 * rp)  # one block of 8 samples, a row per column of e
-    pb_re = np.zeros(longest8)
-    pb_im = np.zeros(longest8)
-    pq = np.zeros(longest8)
-    sums = np.empty(64)
-    top = np.empty(4)
-    acc_a = np.empty((n_ch, 2 * no))
-    acc_d = np.empty((n_ch, 2 * no))
-    clip = np.zeros(n_ch)
-    s2 = np.zeros(n_ch)
-    period = turn_re.size
-    for i in range(starts.size):
-        s0 = starts[i]
-        n = ends[i] - s0
-        nz = zone_end[i] - s0
-        total = 0.0
-        for s in range(n):
-            pb_re[s] = base_re[s0 + s]
-            pb_im[s] = base_im[s0 + s]
-            pq[s] = q[s0 + s]
-            total += q[s0 + s]
-        for s in range(n, (n + 7) // 8 * 8):
-            pb_re[s] = pb_im[s] = pq[s] = 0.0
-        wa = total
-        for s in range(0, n, 8):
-            _carriers(pb_re, pb_im, pq, s, k2, rh, blk)
-            for g in range(0, rp, 8):
-                vtranspose8(blk, 8 * g, e, s * rp + g, rp)
-        wd = _falling_taper(phi, q, s0, nz, c_lo[i], taper_rad, grid, table, slope, fall)
-        if tracked:
-            for s in range(nz):
-                f = vsplat(fall[s])
-                for g in range(0, rp, 8):
-                    vstore(ez, s * rp + g, vmul(vload(e, s * rp + g), f))
-        ch = 0
-        while ch < n_ch:
-            nb = 4 if n_ch - ch >= 4 else 1
-            for r0 in range(0, rp, 16):
-                first = tracked and r0 == 0  # the clip flags ride on the first chunk's pass
-                if nb == 4:
-                    _sums4(x, ch, s0, n, e, rp, r0, sums, top, first)
-                else:
-                    _sums1(x, ch, s0, n, e, rp, r0, fall, False, sums, top, first)
-                _put_rows(acc_a, ch, nb, r0, out_row, sums)
-                if first:
-                    for c in range(nb):
-                        clip[ch + c] = 1.0 if top[c] >= clip_level else 0.0
-                if not tracked:
-                    _sums1(x, ch, s0, nz, e, rp, r0, fall, True, sums, top, False)
-                elif nb == 4:
-                    _sums4(x, ch, s0, nz, ez, rp, r0, sums, top, False)
-                else:
-                    _sums1(x, ch, s0, nz, ez, rp, r0, fall, False, sums, top, False)
-                _put_rows(acc_d, ch, nb, r0, out_row, sums)
-            ch += nb
-        n2 = 0
-        if tracked:
-            _power(x, s0, n, power_from, power_stride, s2)
-            n2 = len(range(s0 + (power_from - s0) % power_stride, s0 + n, power_stride))
-        _pack(w[i], mu[i], k2, turn_re, turn_im, period, acc_a, acc_d, wa, wd, s2, n2, clip)
-
-
-@njit(cache=True, nogil=True)
-def _carriers(pb_re, pb_im, pq, s, k2, rh, blk):
+def _carriers(pb_re, pb_im, pq, s, k2, blk):
     """Carriers of samples ``s .. s+7``: ``blk[8 r : 8 r + 8]`` row r (Re of order j in row
-    j, Im in row rh + j), by the running product of :func:`dsp.sum_sets.carriers`."""
+    j, Im in row no + j), by the running product of :func:`dsp.sum_sets.carriers`."""
+    no = k2.size
     br = vload(pb_re, s)
     bi = vload(pb_im, s)
     qv = vload(pq, s)
     j = 0
     if k2[0] == 0:
         vstore(blk, 0, qv)
-        vstore(blk, 8 * rh, vzero())
+        vstore(blk, 8 * no, vzero())
         j = 1
     pr = vmul(br, qv)
     pi = vmul(bi, qv)
-    for k in range(1, k2[k2.size - 1] + 1):
+    for k in range(1, k2[no - 1] + 1):
         if k > 1:
             t = vsub(vmul(pr, br), vmul(pi, bi))
             pi = vadd(vmul(pr, bi), vmul(pi, br))
             pr = t
-        if j < k2.size and k == k2[j]:
+        if j < no and k == k2[j]:
             vstore(blk, 8 * j, pr)
-            vstore(blk, 8 * (rh + j), pi)
+            vstore(blk, 8 * (no + j), pi)
             j += 1
+
+
+@njit(cache=True, nogil=True)
+def _lane_sums(x, c, s0, n, nz, pb_re, pb_im, pq, fall, k2, px, lanes, acc_a, acc_d):
+    """Channel ``c``'s sums of one segment with lanes over samples: eight partial sums per
+    row (sample ``s`` in lane ``s mod 8``, counted from the segment's first sample in the
+    piece, so the same piece gives the same bits), added lane by lane at the end. For a
+    set of one channel and many orders (the spectrum channel's 17 carry 34 rows): no
+    transposes, and each carrier is used as it is made. The zone's samples are weighted
+    by the falling taper (``x * fall``, as :func:`dsp.sum_sets.numpy_sums`)."""
+    no = k2.size
+    n_rows = 2 * no
+    n8 = (n + 7) // 8 * 8
+    nz8 = (nz + 7) // 8 * 8
+    zx = n8  # where the zone's weighted samples begin in px
+    for s in range(n):
+        px[s] = x[c, s0 + s]
+    for s in range(n, n8):
+        px[s] = 0.0
+    for s in range(nz):
+        px[zx + s] = px[s] * fall[s]
+    for s in range(nz, nz8):
+        px[zx + s] = 0.0
+    lanes[:] = 0.0
+    zd = 8 * n_rows  # where the zone's sums begin in lanes
+    for s in range(0, n, 8):
+        xv = vload(px, s)
+        zone = s < nz
+        xf = vload(px, zx + s) if zone else vzero()
+        br = vload(pb_re, s)
+        bi = vload(pb_im, s)
+        qv = vload(pq, s)
+        j = 0
+        if k2[0] == 0:
+            _lane_add(lanes, 0, 8 * no, xv, qv, vzero())
+            if zone:
+                _lane_add(lanes, zd, zd + 8 * no, xf, qv, vzero())
+            j = 1
+        pr = vmul(br, qv)
+        pi = vmul(bi, qv)
+        for k in range(1, k2[no - 1] + 1):
+            if k > 1:
+                t = vsub(vmul(pr, br), vmul(pi, bi))
+                pi = vadd(vmul(pr, bi), vmul(pi, br))
+                pr = t
+            if j < no and k == k2[j]:
+                _lane_add(lanes, 8 * j, 8 * (no + j), xv, pr, pi)
+                if zone:
+                    _lane_add(lanes, zd + 8 * j, zd + 8 * (no + j), xf, pr, pi)
+                j += 1
+    for r in range(n_rows):
+        acc_a[c, r] = _lane_total(lanes, 8 * r)
+        acc_d[c, r] = _lane_total(lanes, zd + 8 * r)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _lane_add(lanes, at_re, at_im, xv, pr, pi):
+    """Add ``xv pr`` and ``xv pi`` to the eight partial sums at ``at_re`` and ``at_im``."""
+    vstore(lanes, at_re, vfma(xv, pr, vload(lanes, at_re)))
+    vstore(lanes, at_im, vfma(xv, pi, vload(lanes, at_im)))
+
+
+@njit(cache=True, nogil=True)
+def _lane_total(lanes, at):
+    """The eight partial sums at ``at`` added in a fixed order (pairs, then pairs of pairs)."""
+    a = (lanes[at] + lanes[at + 1]) + (lanes[at + 2] + lanes[at + 3])
+    return a + ((lanes[at + 4] + lanes[at + 5]) + (lanes[at + 6] + lanes[at + 7]))
 
 
 @njit(cache=True, nogil=True)
@@ -194,12 +161,12 @@ def _falling_taper(phi, q, s0, nz, c_lo, taper_rad, grid, table, slope, fall):
 
 
 @njit(cache=True, nogil=True)
-def _put_rows(acc, ch, nb, r0, out_row, sums):
-    """The chunk's sums of ``nb`` channels (16 each) into their rows of ``acc`` (n_ch, 2 no)."""
+def _put_rows(acc, ch, nb, r0, width, sums):
+    """The sums of ``nb`` channels, ``width`` columns each from column ``r0``, into their
+    rows of ``acc`` (n_ch, 2 no); columns past ``2 no`` are padding."""
     for c in range(nb):
-        for r in range(r0, r0 + 16):
-            if out_row[r] >= 0:
-                acc[ch + c, out_row[r]] = sums[16 * c + r - r0]
+        for r in range(r0, min(r0 + width, acc.shape[1])):
+            acc[ch + c, r] = sums[width * c + r - r0]
 
 
 @njit(cache=True, nogil=True)
@@ -288,17 +255,147 @@ def _sums4(x, c, s0, n, e, rp, r0, sums, top, clipping):
 
 
 @njit(cache=True, nogil=True)
-def _sums1(x, c, s0, n, e, rp, r0, w, weighted, sums, top, clipping):
-    """:func:`_sums4` for one channel; ``weighted``: each sample times ``w[s]`` first."""
-    a0, a1 = vzero(), vzero()
+def _sums1(x, c, s0, n, e, rp, r0, sums, top, clipping):
+    """:func:`_sums4` for one channel and 48 columns (six vectors: the sums of one
+    channel on their own would wait on each other)."""
+    a0, a1, a2, a3, a4, a5 = vzero(), vzero(), vzero(), vzero(), vzero(), vzero()
     m0 = -np.inf
     for s in range(n):
         b = s * rp + r0
-        y = x[c, s0 + s] * w[s] if weighted else x[c, s0 + s]
+        y = x[c, s0 + s]
         if clipping:
             m0 = abs(y) if abs(y) > m0 else m0
         v = vsplat(y)
         a0, a1 = vfma(v, vload(e, b), a0), vfma(v, vload(e, b + 8), a1)
+        a2, a3 = vfma(v, vload(e, b + 16), a2), vfma(v, vload(e, b + 24), a3)
+        a4, a5 = vfma(v, vload(e, b + 32), a4), vfma(v, vload(e, b + 40), a5)
     vstore(sums, 0, a0)
     vstore(sums, 8, a1)
+    vstore(sums, 16, a2)
+    vstore(sums, 24, a3)
+    vstore(sums, 32, a4)
+    vstore(sums, 40, a5)
     top[0] = m0
+
+
+# one signature, compiled (or loaded from numba's cache) when this module is imported, so
+# after the helpers above: the samples as any 2-d layout (blocks come channel-fastest,
+# sample-fastest or sliced), so that a run compiles one version, not one per layout (some
+# 3 s of CPU each on an empty cache)
+_F1, _I1 = nt.float64[::1], nt.int64[::1]
+_SIGNATURE = nt.void(
+    nt.float64[:, :], _F1, _F1, _F1, _F1, _F1, _I1, _I1, _I1, nt.float64, _I1, nt.boolean,
+    nt.int64, nt.int64, nt.float64, _F1, _F1, _F1, _I1, _F1, _F1, nt.float64[:, ::1],
+)  # fmt: skip
+
+
+@njit(_SIGNATURE, cache=True, nogil=True)
+def piece_sums(
+    x, phi, q, base_re, base_im, c_lo, starts, ends, zone_end, taper_rad, k2, tracked,
+    power_from, power_stride, clip_level, grid, table, slope, mu, turn_re, turn_im, w,
+):  # fmt: skip
+    """Add the sums of the segments of one piece (one set of channels) to ``out``.
+
+    ``x`` (n_ch, n) the piece's samples, ``phi`` (rad) and ``q = omega dt`` (rad) (n,);
+    ``base_re``, ``base_im`` (n,) the carriers' base ``exp(-i delta / 2)``; per segment
+    (seg,): ``c_lo`` the start of its zone ``c_m - tau / 2`` (rad), ``starts``, ``ends``,
+    ``zone_end`` sample indices within the piece. ``taper_rad`` the zone's width,
+    ``k2`` (no,) ascending (0 the mean). ``tracked``: the zone weight multiplies the
+    carrier, and the mean square (samples ``power_from + power_stride * i``) and the
+    clip flags (``|x| >= clip_level``; NaN for none) are summed; else it multiplies the
+    sample (the spectrum channel's layout, as :func:`dsp.sum_sets.numpy_sums` does).
+    ``grid``, ``table``, ``slope``: :func:`dsp.frames.rise_table`'s, whose arithmetic is
+    repeated here. ``mu`` (seg,) the segments' numbers, ``turn_re``, ``turn_im``
+    (period,) ``exp(-2 pi i m / period)``, ``period = 2 frames_per_rev``: the rotation to
+    the frame angle, ``exp(-i h c_m)`` for ``h = k2 / 2``, reduced exactly with integers.
+    Writes each segment's :data:`dsp.sum_rows.Row` into ``w`` (seg, row_size): the sums
+    rotated, their weights, mean square, count and clip flags, as
+    :func:`dsp.sums.add_sample_sets` packs the numpy path's.
+    """
+    no = k2.size
+    n_ch = x.shape[0]
+    longest = 0
+    for i in range(starts.size):
+        longest = max(longest, ends[i] - starts[i])
+    longest8 = (longest + 7) // 8 * 8
+    # the carriers of a segment, a sample per row of e: Re of order j in column j, Im in
+    # column no + j (the layout of the sums), padded with zeros to a multiple of 16
+    # columns; three rows more, which the one-channel sums read past the last sample (48
+    # columns at a time) and ignore; ez: the same times the zone's falling taper
+    n_rows = 2 * no
+    n_cols8 = (n_rows + 7) // 8 * 8  # the columns the carriers fill, 8 at a time
+    rp = (n_rows + 15) // 16 * 16
+    size = (longest8 + 3) * rp if tracked else 0
+    e = np.zeros(size)
+    ez = np.zeros(size)
+    fall = np.empty(longest)
+    blk = np.zeros(8 * rp)  # one block of 8 samples, a row per column of e
+    pb_re = np.zeros(longest8)
+    pb_im = np.zeros(longest8)
+    pq = np.zeros(longest8)
+    sums = np.empty(64)
+    top = np.empty(4)
+    acc_a = np.empty((n_ch, n_rows))
+    acc_d = np.empty((n_ch, n_rows))
+    clip = np.zeros(n_ch)
+    s2 = np.zeros(n_ch)
+    period = turn_re.size
+    px = np.zeros(2 * longest8)  # a channel's samples, then their zone's, padded with zeros
+    lanes = np.zeros(16 * n_rows)
+    # four channels at a time while there are four: a last block of fewer starts earlier
+    # and sums some channels again, the same terms in the same order (the same bits)
+    quads = (n_ch + 3) // 4 if tracked and n_ch >= 4 else 0
+    for i in range(starts.size):
+        s0 = starts[i]
+        n = ends[i] - s0
+        nz = zone_end[i] - s0
+        total = 0.0
+        for s in range(n):
+            pb_re[s] = base_re[s0 + s]
+            pb_im[s] = base_im[s0 + s]
+            pq[s] = q[s0 + s]
+            total += q[s0 + s]
+        for s in range(n, (n + 7) // 8 * 8):
+            pb_re[s] = pb_im[s] = pq[s] = 0.0
+        wa = total
+        wd = _falling_taper(phi, q, s0, nz, c_lo[i], taper_rad, grid, table, slope, fall)
+        if not tracked:
+            # the spectrum channel: one channel, many orders; lanes are samples throughout
+            for ch in range(n_ch):
+                _lane_sums(x, ch, s0, n, nz, pb_re, pb_im, pq, fall, k2, px, lanes, acc_a, acc_d)
+            _pack(w[i], mu[i], k2, turn_re, turn_im, period, acc_a, acc_d, wa, wd, s2, 0, clip)
+            continue
+        for s in range(0, n, 8):
+            _carriers(pb_re, pb_im, pq, s, k2, blk)
+            for g in range(0, n_cols8, 8):
+                vtranspose8(blk, 8 * g, e, s * rp + g, rp)
+        if tracked:
+            for s in range(nz):
+                f = vsplat(fall[s])
+                for g in range(0, n_cols8, 8):
+                    vstore(ez, s * rp + g, vmul(vload(e, s * rp + g), f))
+        for quad in range(quads):
+            ch = min(4 * quad, n_ch - 4)
+            for r0 in range(0, rp, 16):
+                # the clip flags ride on the first chunk's pass
+                _sums4(x, ch, s0, n, e, rp, r0, sums, top, r0 == 0)
+                _put_rows(acc_a, ch, 4, r0, 16, sums)
+                if r0 == 0:
+                    for c in range(4):
+                        clip[ch + c] = 1.0 if top[c] >= clip_level else 0.0
+                _sums4(x, ch, s0, nz, ez, rp, r0, sums, top, False)
+                _put_rows(acc_d, ch, 4, r0, 16, sums)
+        for ch in range(n_ch if quads else 0, n_ch):
+            for r0 in range(0, rp, 48):
+                first = r0 == 0
+                _sums1(x, ch, s0, n, e, rp, r0, sums, top, first)
+                _put_rows(acc_a, ch, 1, r0, 48, sums)
+                if first:
+                    clip[ch] = 1.0 if top[0] >= clip_level else 0.0
+                _sums1(x, ch, s0, nz, ez, rp, r0, sums, top, False)
+                _put_rows(acc_d, ch, 1, r0, 48, sums)
+        n2 = 0
+        if tracked:
+            _power(x, s0, n, power_from, power_stride, s2)
+            n2 = len(range(s0 + (power_from - s0) % power_stride, s0 + n, power_stride))
+        _pack(w[i], mu[i], k2, turn_re, turn_im, period, acc_a, acc_d, wa, wd, s2, n2, clip)
