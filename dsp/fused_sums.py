@@ -74,6 +74,44 @@ def _carriers(pb_re, pb_im, pq, s, k2, blk):
 
 
 @njit(cache=True, nogil=True)
+def segment_cuts(phi, cuts, spacing, half):
+    """:func:`dsp.sums._segments` of every piece ``cuts[p] .. cuts[p+1]-1`` of ``phi``
+    (rad), concatenated, and ``delta = phi - c_m`` (rad) of each sample from its segment's
+    frame angle: the same operations (``searchsorted``, ``floor``), so the same numbers.
+    Returns ``mu``, ``starts``, ``ends``, ``zone_end`` (seg,), the segments per piece and
+    ``delta`` (n,)."""
+    n_pieces = cuts.size - 1
+    per_piece = np.empty(n_pieces, dtype=np.int64)
+    for p in range(n_pieces):
+        m0 = math.floor((phi[cuts[p]] + half) / spacing)
+        per_piece[p] = math.floor((phi[cuts[p + 1] - 1] + half) / spacing) - m0 + 1
+    total = per_piece.sum()
+    mu = np.empty(total, dtype=np.int64)
+    starts = np.empty(total, dtype=np.int64)
+    ends = np.empty(total, dtype=np.int64)
+    zone_end = np.empty(total, dtype=np.int64)
+    delta = np.empty(phi.size)
+    i = 0
+    for p in range(n_pieces):
+        p0, p1 = cuts[p], cuts[p + 1]
+        piece = phi[p0:p1]
+        m0 = math.floor((piece[0] + half) / spacing)
+        for k in range(per_piece[p]):
+            c = (m0 + k) * spacing
+            mu[i + k] = m0 + k
+            starts[i + k] = p0 + (0 if k == 0 else np.searchsorted(piece, c - half))
+            zone_end[i + k] = p0 + np.searchsorted(piece, c + half)
+        for k in range(per_piece[p]):
+            ends[i + k] = starts[i + k + 1] if k + 1 < per_piece[p] else p1
+            zone_end[i + k] = min(max(zone_end[i + k], starts[i + k]), ends[i + k])
+            c = mu[i + k] * spacing
+            for s in range(starts[i + k], ends[i + k]):
+                delta[s] = phi[s] - c
+        i += per_piece[p]
+    return mu, starts, ends, zone_end, per_piece, delta
+
+
+@njit(cache=True, nogil=True)
 def _lane_sums(x, c, s0, n, nz, pb_re, pb_im, pq, fall, k2, px, lanes, acc_a, acc_d):
     """Channel ``c``'s sums of one segment with lanes over samples: eight partial sums per
     row (sample ``s`` in lane ``s mod 8``, counted from the segment's first sample in the

@@ -106,6 +106,17 @@ def piece_sums(*args: Any) -> None:
     fused_sums.piece_sums(*args)
 
 
+def segment_cuts(
+    phi: np.ndarray, cuts: np.ndarray, spacing: float, half: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int], np.ndarray]:
+    """:func:`dsp.fused_sums.segment_cuts`: the segments of each piece and the samples'
+    angles from their segment's frame angle, as :func:`dsp.sums.add_sample_sets` cuts them."""
+    from dsp import fused_sums  # imports numba: see piece_sums
+
+    mu, starts, ends, zone_end, per_piece, delta = fused_sums.segment_cuts(phi, cuts, spacing, half)
+    return mu, starts, ends, zone_end, per_piece.tolist(), delta
+
+
 def cubic_values(*args: Any) -> None:
     """:func:`_cubic_values` compiled (on the first call, as :func:`piece_sums`)."""
     _jit(_cubic_values)(*args)

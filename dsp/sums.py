@@ -95,17 +95,24 @@ def add_sample_sets(
     cuts = np.cumsum([0] + [xi.shape[1] for xi in sets[0].x]).tolist()  # where each piece begins
     # each piece cut into segments as a call of its own would: a segment split between
     # two pieces appears twice, and its parts are added in order at the end
-    parts = [_segments(phi, p0, p1, spacing, half) for p0, p1 in itertools.pairwise(cuts)]
-    if len(parts) == 1:
-        mu, starts, ends, zone_end = parts[0]
+    if compiled:
+        # the same segments and angles from one compiled pass (dsp.kernels.segment_cuts)
+        mu, starts, ends, zone_end, per_piece, delta = kernels.segment_cuts(
+            phi, np.array(cuts, dtype=np.int64), spacing, half
+        )
+        c = mu * spacing
     else:
-        mu, starts, ends, zone_end = (np.concatenate(col) for col in zip(*parts, strict=True))
-    per_piece = [part[0].size for part in parts]  # segments of each piece
-    c = mu * spacing  # frame angles c_m
+        parts = [_segments(phi, p0, p1, spacing, half) for p0, p1 in itertools.pairwise(cuts)]
+        if len(parts) == 1:
+            mu, starts, ends, zone_end = parts[0]
+        else:
+            mu, starts, ends, zone_end = (np.concatenate(col) for col in zip(*parts, strict=True))
+        per_piece = [part[0].size for part in parts]  # segments of each piece
+        c = mu * spacing  # frame angles c_m
+        # carriers about each segment's own frame angle c_m (exact rotation applied below):
+        # the same sample gets the same carrier whatever the block cut, and the angle stays small
+        delta = phi - np.repeat(c, ends - starts)
     q = omega * (1.0 / rate_hz)
-    # carriers about each segment's own frame angle c_m (exact rotation applied below): the
-    # same sample gets the same carrier whatever the block cut, and the angle stays small
-    delta = phi - np.repeat(c, ends - starts)
     seg = Segments(mu, starts, ends, zone_end, cuts, per_piece, c, half)
     if compiled:
         rows = kernels.compiled_rows(sets, seg, phi, q, delta, first_index, frames_per_rev)

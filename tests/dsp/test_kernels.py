@@ -189,3 +189,23 @@ def test_vector_transpose_puts_rows_in_columns():
     for lane in range(8):
         want[3 + 11 * lane : 3 + 11 * lane + 8] = src[8 + lane : 72 : 8]
     np.testing.assert_array_equal(dst, want)
+
+
+@pytest.mark.parametrize("fpr", [1, 2, 4])
+def test_compiled_segment_cuts_are_the_numpy_ones(fpr):
+    """dsp.kernels.segment_cuts (the compiled path's segments) against dsp.sums._segments
+    piece by piece and the numpy path's angles from the frame angle: the same integers and
+    the same bits, with segments split between pieces and pieces inside one segment."""
+    from dsp.sums import _segments
+
+    phi, _, _, _ = _signal(fpr, 5000)
+    cuts = [0, 3, 40, 41, 2600, 5000]
+    spacing, half = 2 * np.pi / fpr, 0.5 * np.radians(45.0)
+    got = kernels.segment_cuts(phi, np.array(cuts, dtype=np.int64), spacing, half)
+    parts = [_segments(phi, p0, p1, spacing, half) for p0, p1 in itertools.pairwise(cuts)]
+    for have, want in zip(got[:4], zip(*parts, strict=True), strict=True):
+        np.testing.assert_array_equal(have, np.concatenate(want))
+    assert got[4] == [part[0].size for part in parts]
+    mu, starts, ends = got[0], got[1], got[2]
+    np.testing.assert_array_equal(got[5], phi - np.repeat(mu * spacing, ends - starts))
+    assert len(set(mu.tolist())) < mu.size  # a segment split between pieces
