@@ -1,49 +1,57 @@
 """The compiled segment sums in one pass, with eight float64 lanes per instruction.
 
-Imported only where the compiled path runs (:func:`dsp.kernels.piece_sums`): it imports
-numba and llvmlite. :func:`piece_sums` does for one piece what the numpy reference
-(:func:`dsp.sum_sets.numpy_sums`) does: carriers, taper weights, the sums ``a``, ``d``,
-``wa``, ``wd``, the mean square and the clip flags of each segment.
+Imported only where the compiled path runs (:func:`dsp.kernels.compiled_rows`): it
+imports numba and llvmlite. :func:`piece_sums` does for one piece what the numpy
+reference (:func:`dsp.sum_sets.numpy_sums`, then :func:`dsp.sums._packed`) does:
+carriers, taper weights, the sums ``a``, ``d``, ``wa``, ``wd``, the mean square and the
+clip flags of each segment, rotated to the frame angle and packed into the segment's
+:data:`dsp.sum_rows.Row`.
 
 numba vectorises none of the loops that matter here by itself: the sums are reductions it
 may not reorder without ``fastmath`` (and with it the order would follow the arrays'
 alignment, so the bits would depend on where the allocator put them), and numba's
 negative-index checks keep LLVM's SLP vectoriser from joining the rows' scalar
-accumulators. So the kernel says what it means with LLVM's own vector type: a
-:data:`vec8` value is ``<8 x double>``, and the intrinsics below load, store, add,
-multiply, fuse multiply-add and transpose eight lanes (one AVX-512 register, two AVX2
-ones on a machine without it). Where the lanes go:
+accumulators (measured: a 16-row inner loop per sample and channel, AVX-512 barely
+used). So the kernel says what it means with LLVM's own vector type, ``<8 x double>``
+(:mod:`dsp.vec8`: one AVX-512 register, two AVX2 ones on a machine without it). Where
+the lanes go:
 
 * carriers: lanes are eight consecutive samples; the running product
   ``p_k = p_(k-1) exp(-i delta / 2)`` is the numpy path's, operation for operation (no
   contraction), so the carriers are its bits; each block of 8 samples x 8 rows is then
-  transposed (:func:`vtranspose8`) to a sample per row, rows in lanes;
-* sums: lanes are rows (orders' real and imaginary parts, 16 per chunk); four channels
-  share each load of the carriers, so eight vector accumulators stay in registers, and
-  each accumulator still adds its terms in time order, one sample after the other, so a
-  piece's sums never depend on memory layout nor on the other pieces of a call (replay
-  = live). Each term is ``fma(x, e, acc)``: one rounding per term instead of two, the
-  difference from the numpy path (BLAS, which fuses its own way) stays under 1e-15 of a
-  segment's largest sum (tests: within 1e-12);
+  transposed (:func:`dsp.vec8.vtranspose8`) to a sample per row, rows in lanes;
+* sums of the tracked channels: lanes are rows (the orders' real and imaginary parts,
+  16 per chunk); four channels share each load of the carriers, so eight vector
+  accumulators stay in registers, and each accumulator adds its terms in time order,
+  one sample after the other, so a piece's sums depend neither on memory layout nor on
+  the other pieces of a call (replay = live). Each term is ``fma(x, e, acc)``: one
+  rounding per term instead of two; against the numpy path (BLAS, which groups and
+  fuses its own way) the rows stay within 1e-15 of a segment's largest sum (tests:
+  within 1e-12). Channels beyond a multiple of four are summed by a last block of four
+  that starts earlier (the same terms in the same order: the same bits); fewer than four
+  channels, 48 columns a pass;
+* the spectrum channel (one channel, 17 orders): lanes over samples throughout
+  (:mod:`dsp.spectrum_lanes`);
 * the clip flags ride on the sums' pass (the largest ``|x|`` of each channel), the mean
-  square sums four channels' chains at once.
+  square sums four channels' chains at once; the segments and taper weights come from
+  :mod:`dsp.fused_segments`.
 
 Measured (issue 24, 30 s of 10 channels at 25.6 kHz in 0.5 s blocks, orders 1, 1.5, 2
 and the correction's: 8 half orders, 119 calls; CPU, best of 7, load 3-9 on 2 cores): the
-kernel's calls 36-38 ms before (scalar sums, a 16-row inner loop per sample and channel),
-23 ms with vector sums one channel at a time, 19 ms with four channels and fused
-multiply-add, 14.6 ms with the clip flags on the sums' pass. ``nogil``: every function
-here releases the GIL.
+kernel's calls 36-38 ms before (scalar sums), 23 ms with vector sums one channel at a
+time, 19 ms with four channels and fused multiply-add, 14.6 ms with the clip flags on the
+sums' pass, 12-13 ms with the rows packed here (which also spares the numpy packing of
+every block). ``nogil``: every function here releases the GIL.
 """
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 from numba import njit
 from numba import types as nt
 
+from dsp.fused_segments import falling_taper
+from dsp.spectrum_lanes import lane_sums
 from dsp.vec8 import vadd, vfma, vload, vmul, vsplat, vstore, vsub, vtranspose8, vzero
 
 
@@ -71,131 +79,6 @@ def _carriers(pb_re, pb_im, pq, s, k2, blk):
             vstore(blk, 8 * j, pr)
             vstore(blk, 8 * (no + j), pi)
             j += 1
-
-
-@njit(cache=True, nogil=True)
-def segment_cuts(phi, cuts, spacing, half):
-    """:func:`dsp.sums._segments` of every piece ``cuts[p] .. cuts[p+1]-1`` of ``phi``
-    (rad), concatenated, and ``delta = phi - c_m`` (rad) of each sample from its segment's
-    frame angle: the same operations (``searchsorted``, ``floor``), so the same numbers.
-    Returns ``mu``, ``starts``, ``ends``, ``zone_end`` (seg,), the segments per piece and
-    ``delta`` (n,)."""
-    n_pieces = cuts.size - 1
-    per_piece = np.empty(n_pieces, dtype=np.int64)
-    for p in range(n_pieces):
-        m0 = math.floor((phi[cuts[p]] + half) / spacing)
-        per_piece[p] = math.floor((phi[cuts[p + 1] - 1] + half) / spacing) - m0 + 1
-    total = per_piece.sum()
-    mu = np.empty(total, dtype=np.int64)
-    starts = np.empty(total, dtype=np.int64)
-    ends = np.empty(total, dtype=np.int64)
-    zone_end = np.empty(total, dtype=np.int64)
-    delta = np.empty(phi.size)
-    i = 0
-    for p in range(n_pieces):
-        p0, p1 = cuts[p], cuts[p + 1]
-        piece = phi[p0:p1]
-        m0 = math.floor((piece[0] + half) / spacing)
-        for k in range(per_piece[p]):
-            c = (m0 + k) * spacing
-            mu[i + k] = m0 + k
-            starts[i + k] = p0 + (0 if k == 0 else np.searchsorted(piece, c - half))
-            zone_end[i + k] = p0 + np.searchsorted(piece, c + half)
-        for k in range(per_piece[p]):
-            ends[i + k] = starts[i + k + 1] if k + 1 < per_piece[p] else p1
-            zone_end[i + k] = min(max(zone_end[i + k], starts[i + k]), ends[i + k])
-            c = mu[i + k] * spacing
-            for s in range(starts[i + k], ends[i + k]):
-                delta[s] = phi[s] - c
-        i += per_piece[p]
-    return mu, starts, ends, zone_end, per_piece, delta
-
-
-@njit(cache=True, nogil=True)
-def _lane_sums(x, c, s0, n, nz, pb_re, pb_im, pq, fall, k2, px, lanes, acc_a, acc_d):
-    """Channel ``c``'s sums of one segment with lanes over samples: eight partial sums per
-    row (sample ``s`` in lane ``s mod 8``, counted from the segment's first sample in the
-    piece, so the same piece gives the same bits), added lane by lane at the end. For a
-    set of one channel and many orders (the spectrum channel's 17 carry 34 rows): no
-    transposes, and each carrier is used as it is made. The zone's samples are weighted
-    by the falling taper (``x * fall``, as :func:`dsp.sum_sets.numpy_sums`)."""
-    no = k2.size
-    n_rows = 2 * no
-    n8 = (n + 7) // 8 * 8
-    nz8 = (nz + 7) // 8 * 8
-    zx = n8  # where the zone's weighted samples begin in px
-    for s in range(n):
-        px[s] = x[c, s0 + s]
-    for s in range(n, n8):
-        px[s] = 0.0
-    for s in range(nz):
-        px[zx + s] = px[s] * fall[s]
-    for s in range(nz, nz8):
-        px[zx + s] = 0.0
-    lanes[:] = 0.0
-    zd = 8 * n_rows  # where the zone's sums begin in lanes
-    for s in range(0, n, 8):
-        xv = vload(px, s)
-        zone = s < nz
-        xf = vload(px, zx + s) if zone else vzero()
-        br = vload(pb_re, s)
-        bi = vload(pb_im, s)
-        qv = vload(pq, s)
-        j = 0
-        if k2[0] == 0:
-            _lane_add(lanes, 0, 8 * no, xv, qv, vzero())
-            if zone:
-                _lane_add(lanes, zd, zd + 8 * no, xf, qv, vzero())
-            j = 1
-        pr = vmul(br, qv)
-        pi = vmul(bi, qv)
-        for k in range(1, k2[no - 1] + 1):
-            if k > 1:
-                t = vsub(vmul(pr, br), vmul(pi, bi))
-                pi = vadd(vmul(pr, bi), vmul(pi, br))
-                pr = t
-            if j < no and k == k2[j]:
-                _lane_add(lanes, 8 * j, 8 * (no + j), xv, pr, pi)
-                if zone:
-                    _lane_add(lanes, zd + 8 * j, zd + 8 * (no + j), xf, pr, pi)
-                j += 1
-    for r in range(n_rows):
-        acc_a[c, r] = _lane_total(lanes, 8 * r)
-        acc_d[c, r] = _lane_total(lanes, zd + 8 * r)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _lane_add(lanes, at_re, at_im, xv, pr, pi):
-    """Add ``xv pr`` and ``xv pi`` to the eight partial sums at ``at_re`` and ``at_im``."""
-    vstore(lanes, at_re, vfma(xv, pr, vload(lanes, at_re)))
-    vstore(lanes, at_im, vfma(xv, pi, vload(lanes, at_im)))
-
-
-@njit(cache=True, nogil=True)
-def _lane_total(lanes, at):
-    """The eight partial sums at ``at`` added in a fixed order (pairs, then pairs of pairs)."""
-    a = (lanes[at] + lanes[at + 1]) + (lanes[at + 2] + lanes[at + 3])
-    return a + ((lanes[at + 4] + lanes[at + 5]) + (lanes[at + 6] + lanes[at + 7]))
-
-
-@njit(cache=True, nogil=True)
-def _falling_taper(phi, q, s0, nz, c_lo, taper_rad, grid, table, slope, fall):
-    """``1 - rise`` over the zone's samples into ``fall``; returns ``sum q (1 - rise)``
-    (:func:`dsp.frames.rise_table`'s arithmetic, the same bits)."""
-    n_grid = grid.size - 1
-    total = 0.0
-    for s in range(nz):
-        u = (phi[s0 + s] - c_lo) / taper_rad
-        if u >= 1.0:
-            rise = table[n_grid]
-        elif u < 0.0:
-            rise = table[0]
-        else:
-            g = min(math.floor(u * n_grid), n_grid - 1)
-            rise = slope[g] * (u - grid[g]) + table[g]
-        fall[s] = 1.0 - rise
-        total += q[s0 + s] * fall[s]
-    return total
 
 
 @njit(cache=True, nogil=True)
@@ -396,11 +279,11 @@ def piece_sums(
         for s in range(n, (n + 7) // 8 * 8):
             pb_re[s] = pb_im[s] = pq[s] = 0.0
         wa = total
-        wd = _falling_taper(phi, q, s0, nz, c_lo[i], taper_rad, grid, table, slope, fall)
+        wd = falling_taper(phi, q, s0, nz, c_lo[i], taper_rad, grid, table, slope, fall)
         if not tracked:
             # the spectrum channel: one channel, many orders; lanes are samples throughout
             for ch in range(n_ch):
-                _lane_sums(x, ch, s0, n, nz, pb_re, pb_im, pq, fall, k2, px, lanes, acc_a, acc_d)
+                lane_sums(x, ch, s0, n, nz, pb_re, pb_im, pq, fall, k2, px, lanes, acc_a, acc_d)
             _pack(w[i], mu[i], k2, turn_re, turn_im, period, acc_a, acc_d, wa, wd, s2, 0, clip)
             continue
         for s in range(0, n, 8):

@@ -1,76 +1,50 @@
-"""Compiled per-sample work of the order tracker: carriers and segment sums in one pass.
+"""Compiled per-sample work of the order tracker, and the switch that turns it on.
 
-:func:`dsp.sums.add_sample_sets` needs, for each segment, ``sum x e`` over its samples
-and ``sum x e (1 - rise)`` over its taper zone, ``e`` the carriers ``q exp(-i k delta / 2)``
-of the orders summed, and the weights, mean squares and clip flags beside them. In numpy
-that is a carrier array for every order up to the highest (written once, read by a BLAS
-product per segment) and a dozen passes over the samples. :func:`piece_sums` makes each
-carrier in registers from the sample's base ``exp(-i delta / 2)`` by the same running
-product, keeps only the orders of the set, and adds them, the taper weights, the mean
-square and the clip flags to the segment's sums as it goes: one pass, no temporaries.
+The numpy code is the default and the reference; :data:`USE` (``PTINERTIA_NUMBA=1``)
+sends the tracker through numba instead, for: the segment sums (:func:`compiled_rows`:
+:mod:`dsp.fused_sums`, one vectorised pass per piece that makes the carriers of the
+orders of each set, sums them, and packs each segment's row), the cutting of the pieces
+into segments (:func:`segment_cuts`), the angle lookup of the samples
+(:func:`cubic_values`), the times of the frames' window ends (:func:`cubic_times`) and
+the leakage correction's ramps (:func:`ramp_slopes`, :mod:`dsp.ramp_slopes`). Every
+compiled function releases the GIL (``nogil=True``).
 
-Measured (issue 24; 2-core machine shared with other work, best of several runs, 10
-channels at 25.6 kHz, orders 1, 1.5, 2 and the leakage correction's: 8 half-orders): the
-kernel alone runs at about 1200x real time on one core; the sums in numpy take 53 ms per
-30 s of data, compiled 42 ms, and the whole tracker goes from about 290x to 320x real
-time: the rest of the tracker (frame assembly, leakage correction, angle lookup, the
-per-block Python) is now most of its time. numba (well kept, NumPy's release cadence)
-over hand-written C: no build step, and ``cache=True`` keeps the machine code beside
-this module (or in numba's user cache when the package is read-only), so only the
-first use after an install compiles (about 3 s of CPU). But importing numba and loading
-the cached code cost about 0.5 s of CPU per process, while the kernel saves about 0.4 ms
-per second of 10-channel data: it pays for itself after some 20 minutes of data. So the
-tracker uses it only when asked (``PTINERTIA_NUMBA=1``: hour-long runs, campaigns and
-studies, whose worker processes pay the import once), and numba is imported on first
-use; a short ``ptinertia run`` never loads it. ``nogil=True``: the kernel releases the
-GIL, so a tracker on its own thread leaves the others running.
+Why numba, and why off by default. numba (well kept, NumPy's release cadence) over
+hand-written C: no build step, and ``cache=True`` keeps the machine code beside the
+modules (or in numba's user cache when the package is read-only), so only the first use
+after an install compiles. Importing numba and loading the cached code cost about 0.5 s
+of CPU per process, which a short ``ptinertia run`` does not earn back; hour-long runs,
+campaigns and studies (whose worker processes pay the import once) do. So the kernels
+are used only when asked, numba is imported on first use (:mod:`dsp.fused_sums` and
+:mod:`dsp.vec8` import it; nothing on the default path imports them), and the default
+install works without it.
 
-Measured again (issue 24, later session; load average 3 to 19 on the 2 cores, so CPU
-figures, best of 5 to 30; ``benchmarks/bench_pipeline.py``): the kernel's calls for a 10 s
-sweep of that load (0.5 s blocks) take 11-12 ms, the numpy sums 13-15 ms; the whole
-tracker runs 224x -> 281x on that load with the kernel, 146x -> 184x on the live
-pipeline's 9 accelerometers + pressure spectrum (load 10), 291x -> 319x in 0.5 s blocks and
-350x -> 368x in 1 s blocks (load 15). ``ptinertia run --duration 5`` takes 1.01 s of CPU
-with the numpy sums, 1.51 s with the kernel from a filled numba cache and 3.6 s with an
-empty one (load 10; 0.92 s and 1.37 s at load 3). The kernel saves 0.05-0.08 s per minute
-of 10 channels at 25.6 kHz against 0.5 s for numba's import: it pays after some 6-10
-minutes of such data (the figures move by 10 % between runs on this shared machine). So numba stays optional and off by default. Tried and
-left out: the sums as vectorised dot products over the samples (numba ``fastmath``
-reassociation; 10-20 % off the kernel, but a row's weight sum then differed at 1e-16
-between one call and one call per piece, and a sum that depends on the block cut breaks
-replay = live), four fixed partial sums per dot product (2.5x slower), a BLAS product
-per segment from inside the kernel, the carrier-times-taper product taken once per
-sample instead of per channel (no gain each). The samples come channel-fastest (the
-synthetic bench) or sample-fastest (the simulator): neither layout changes the figures.
-What the tracker spends beyond the sums is Python per block and per frame (frame
-assembly, leakage correction, angle lookup), which a kernel for the sums cannot remove.
+Measured (issue 24, four passes; 2 cores shared with other work, CPU time, best of 3 or
+more; 10 channels at 25.6 kHz, orders 1, 1.5, 2 and the leakage correction's, 8 half
+orders, 0.5 s blocks): first pass, a scalar kernel for the sums, 290x -> 320x real time;
+second, 224x -> 281x at load 10; third, the lookup, window times and ramps compiled and
+the held-back samples of :mod:`dsp.segments`, 306x -> 380x (numpy 274x -> 296x, load 11).
+Fourth pass (:mod:`dsp.fused_sums`): the sums in eight-lane vectors, packed rows, the
+segments compiled: the kernel's calls 36-38 ms -> 12-13 ms per 30 s, the whole tracker
+380-400x -> 550-590x, the run's dsp stage (9 accelerometers + the pressure's spectrum)
+270x -> 390-400x (numpy unchanged: 320-330x and 215-235x; load 2-4). The compiled
+path's time is now about a fifth sums, a third frame assembly (window sums, correction,
+frame objects, :mod:`dsp.assemble`), the rest the per-block Python of segments, lookup
+and tacho decoding. ``ptinertia run --duration 5``: 0.9 s of CPU with numpy, 1.35-1.4 s
+compiled from a filled numba cache (as before), 7.8 s from an empty one (the first run
+after an install; 6.1 s before this pass: the vectorised kernel compiles in about 3 s).
 
-Third pass (issue 24): beyond the sums, the compiled path runs through numba the angle
-lookup of the samples (:func:`cubic_values`) and the times of the frames' window ends
-(:func:`cubic_times`), both the numpy path's operations in its order (numba contracts
-no multiply-add without ``fastmath``: the same bits, tested), and the leakage
-correction's ramps (:mod:`dsp.ramp_slopes`, within 1e-12). Tried and left out, none
-faster: the kernel's sums channel by channel with blocks of 4 to 16 rows x 1 to 4
-channels as accumulators in registers, its carriers order by order across the samples,
-fused multiply-add (``fastmath={"contract"}``); the lookup as one merge of samples and
-knots (a branch per sample: 37 us a block against 28 us for the knots' ``searchsorted``
-and a vectorised loop per piece). Measured side by side with main (issue-24 load: 10
-channels at 25.6 kHz, orders 1, 1.5, 2, 30 s sweep in 0.5 s blocks; CPU, best of 3 runs
-of best of 3, load average 11 on the 2 cores): the whole tracker 306x -> 380x real time
-compiled (274x -> 296x numpy; with the held-back samples of :mod:`dsp.segments` and the
-frame objects of :mod:`dsp.assemble`, which serve both paths); ramp_correction 8.7 ->
-2.9 ms and the lookup 7.1 -> 4.4 ms per 30 s. The kernel is now some 40 % of the
-compiled path's time, the frames' assembly (window sums, correction, frame objects) a
-quarter, the tacho's decoding and angle table a tenth.
-
-What stays identical and what does not: the base ``exp(-i delta / 2)`` is still made by
-numpy in single precision (its SIMD ``cos``/``sin`` round differently from libm's), the
-taper weights repeat :func:`dsp.frames.rise_table`'s arithmetic, so the carriers are
-those of the numpy path to the last bit of the complex product; the sums are taken
-sample by sample in time order, where BLAS and ``reduceat`` group them their own way.
-The rows agree with the numpy reference (:func:`dsp.sums.add_sample_sets` with
-``compiled=False``) within 1e-12 relative to the segment's largest sum (measured: under
-1e-15; ``tests/dsp/test_kernels.py``).
+What stays identical and what does not: the base ``exp(-i delta / 2)`` is made by numpy
+in single precision in both paths (its SIMD ``cos``/``sin`` round differently from
+libm's); segments, angles, taper weights, carriers, lookups and window times are the
+numpy path's bits (the same operations in the same order; numba contracts no
+multiply-add without ``fastmath``; tested). The sums round differently: BLAS groups
+them its own way, the kernel adds each term with one fused multiply-add in time order
+(the spectrum channel: eight partial sums per row, see :mod:`dsp.fused_sums`). The rows
+agree with the numpy reference (:func:`dsp.sums.add_sample_sets` with ``compiled=False``)
+within 1e-12 relative to the segment's largest sum (measured: under 1e-15;
+``tests/dsp/test_kernels.py``), and never depend on how the samples were cut into
+blocks beyond the pieces themselves (replay = live).
 """
 
 from __future__ import annotations
@@ -109,11 +83,13 @@ def piece_sums(*args: Any) -> None:
 def segment_cuts(
     phi: np.ndarray, cuts: np.ndarray, spacing: float, half: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int], np.ndarray]:
-    """:func:`dsp.fused_sums.segment_cuts`: the segments of each piece and the samples'
+    """:func:`dsp.fused_segments.segment_cuts`: the segments of each piece and the samples'
     angles from their segment's frame angle, as :func:`dsp.sums.add_sample_sets` cuts them."""
-    from dsp import fused_sums  # imports numba: see piece_sums
+    from dsp import fused_segments  # imports numba: see piece_sums
 
-    mu, starts, ends, zone_end, per_piece, delta = fused_sums.segment_cuts(phi, cuts, spacing, half)
+    mu, starts, ends, zone_end, per_piece, delta = fused_segments.segment_cuts(
+        phi, cuts, spacing, half
+    )
     return mu, starts, ends, zone_end, per_piece.tolist(), delta
 
 
