@@ -12,9 +12,12 @@ from __future__ import annotations
 
 from typing import Any
 
-from llvmlite import ir
 from numba.core import cgutils, types
 from numba.extending import intrinsic, models, register_model
+
+# llvmlite's IR builder as numba itself imports it: llvmlite comes with numba, pinned by
+# it, and the fast extra stays one package (numba)
+ir = cgutils.ir
 
 _V8 = ir.VectorType(ir.DoubleType(), 8)
 _MASK = ir.VectorType(ir.IntType(32), 8)
