@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import os
 
 import numpy as np
 import pytest
@@ -209,3 +210,35 @@ def test_compiled_segment_cuts_are_the_numpy_ones(fpr):
     mu, starts, ends = got[0], got[1], got[2]
     np.testing.assert_array_equal(got[5], phi - np.repeat(mu * spacing, ends - starts))
     assert len(set(mu.tolist())) < mu.size  # a segment split between pieces
+
+
+def test_the_default_path_never_imports_numba():
+    """A tracker run without PTINERTIA_NUMBA (a subprocess: this one has numba loaded)
+    leaves numba, llvmlite and the compiled modules unimported: their import alone costs
+    a short run more than the kernels save."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "import numpy as np\n"
+        "from dsp.config import OrderTrackerConfig\n"
+        "from dsp.orders import OrderTracker\n"
+        "from dsp.synthetic import Ramp, SyntheticBench, random_content\n"
+        "from dsp.tacho import TachoConfig\n"
+        "rng = np.random.default_rng(0)\n"
+        "bench = SyntheticBench(Ramp(2000.0, 3000.0, 1.0), [random_content(rng) for _ in range(3)], "
+        "tdc_after_gap_deg=84.0)\n"
+        "config = OrderTrackerConfig(tacho=TachoConfig(tdc_after_gap_deg=84.0), orders=(1.0, 2.0))\n"
+        "tracker = OrderTracker.from_layout(bench.layout, config)\n"
+        "frames = [f for item in bench.items(1.0, block_s=0.1) for f in tracker.process(item)[0]]\n"
+        "assert frames\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('numba', 'llvmlite') "
+        "or m in ('dsp.fused_sums', 'dsp.vec8', 'dsp.fused_segments', 'dsp.spectrum_lanes')))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "PTINERTIA_NUMBA"}
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
