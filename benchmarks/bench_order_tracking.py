@@ -27,14 +27,18 @@ the figures much (wall-clock is printed beside them).
    blocks; :func:`issue_load`, which bench_pipeline.py also prints) on the numpy and the
    compiled path, and rota-order's best figure from 4., with the load average.
 
-Measured (issue 24, third pass; 2 cores shared with other work, load average 10-11, CPU):
-issue 24's load (5.), main and this pass run alternately, best of 3 runs of best of 3:
-numpy path 274x -> 296x, compiled path 306x -> 380x (goal 500x: not met); in this script's
-one run at load 10, 258x and 353x, and in 1. tacho edges 0.1 / 0.5 / 1 s blocks 97 / 223 /
-242x numpy, 121 / 274 / 317x compiled; 9 accel + pressure 214x / 269x, with its spectrum
-147x / 223x. Memory flat over the hour (+0.0 MB), latency unchanged (2.179 / 1.179 rev);
-rota-order at best 295x (tracked harmonics) on the i3 sweep where this tracker does 622x
-in 1 s blocks. The figures move by 10-20 % between runs on this machine.
+Measured (issue 24, fourth pass: the compiled sums in eight-lane vectors, dsp.fused_sums;
+2 cores shared with other work, load average 10, CPU, best of 3, main and this pass run
+alternately twice): issue 24's load (5.) numpy path 334x (unchanged code: 338-348x here),
+compiled path 407-409x -> 584-597x (target 500x met, goal 600x at the edge); the run's
+dsp stage (9 accel + pressure spectrum, 60 s, benchmarks/pipeline_stages.py) compiled
+276-279x -> 425-431x, numpy 228-233x unchanged. Frames of the compiled path within 3e-15
+of the numpy path's largest amplitude (spectrum likewise; the leakage figure 4e-12, as
+before this pass). Third pass, for the record (load 10-11): issue load numpy 274x ->
+296x, compiled 306x -> 380x; tacho edges 0.1 / 0.5 / 1 s blocks 97 / 223 / 242x numpy,
+121 / 274 / 317x compiled; memory flat over the hour (+0.0 MB), latency 2.179 / 1.179
+rev; rota-order at best 295x (tracked harmonics) on the i3 sweep where this tracker does
+622x in 1 s blocks. The figures move by 10-20 % between runs on this machine.
 """
 
 from __future__ import annotations

@@ -262,6 +262,17 @@ def time_at(table: AngleTable, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return np.where(ok, t_lo + tau, np.nan), np.where(ok, omega, np.nan)
 
 
+def angle_at_one(table: AngleTable, t: float) -> float:
+    """:func:`lookup`'s angle at one time (rad), NaN where it gives ``ok`` False: the same
+    arithmetic in Python floats (the same bits), without its array operations."""
+    j = int(np.searchsorted(table.t_lo, t, side="right")) - 1
+    if j < 0 or not t < float(table.t_hi[j]):
+        return math.nan
+    tau = t - float(table.t_lo[j])
+    c1, c2, c3 = float(table.c1[j]), float(table.c2[j]), float(table.c3[j])
+    return ((tau * c3 + c2) * tau + c1) * tau + float(table.phi_lo[j])
+
+
 def time_at_one(table: AngleTable, phi: float) -> float:
     """:func:`time_at` of one angle (s), NaN outside the table: the same arithmetic in
     Python floats, without the fixed cost of some thirty array operations."""

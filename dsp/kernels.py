@@ -1,76 +1,50 @@
-"""Compiled per-sample work of the order tracker: carriers and segment sums in one pass.
+"""Compiled per-sample work of the order tracker, and the switch that turns it on.
 
-:func:`dsp.sums.add_sample_sets` needs, for each segment, ``sum x e`` over its samples
-and ``sum x e (1 - rise)`` over its taper zone, ``e`` the carriers ``q exp(-i k delta / 2)``
-of the orders summed, and the weights, mean squares and clip flags beside them. In numpy
-that is a carrier array for every order up to the highest (written once, read by a BLAS
-product per segment) and a dozen passes over the samples. :func:`piece_sums` makes each
-carrier in registers from the sample's base ``exp(-i delta / 2)`` by the same running
-product, keeps only the orders of the set, and adds them, the taper weights, the mean
-square and the clip flags to the segment's sums as it goes: one pass, no temporaries.
+The numpy code is the default and the reference; :data:`USE` (``PTINERTIA_NUMBA=1``)
+sends the tracker through numba instead, for: the segment sums (:func:`compiled_rows`:
+:mod:`dsp.fused_sums`, one vectorised pass per piece that makes the carriers of the
+orders of each set, sums them, and packs each segment's row), the cutting of the pieces
+into segments (:func:`segment_cuts`), the angle lookup of the samples
+(:func:`cubic_values`), the times of the frames' window ends (:func:`cubic_times`) and
+the leakage correction's ramps (:func:`ramp_slopes`, :mod:`dsp.ramp_slopes`). Every
+compiled function releases the GIL (``nogil=True``).
 
-Measured (issue 24; 2-core machine shared with other work, best of several runs, 10
-channels at 25.6 kHz, orders 1, 1.5, 2 and the leakage correction's: 8 half-orders): the
-kernel alone runs at about 1200x real time on one core; the sums in numpy take 53 ms per
-30 s of data, compiled 42 ms, and the whole tracker goes from about 290x to 320x real
-time: the rest of the tracker (frame assembly, leakage correction, angle lookup, the
-per-block Python) is now most of its time. numba (well kept, NumPy's release cadence)
-over hand-written C: no build step, and ``cache=True`` keeps the machine code beside
-this module (or in numba's user cache when the package is read-only), so only the
-first use after an install compiles (about 3 s of CPU). But importing numba and loading
-the cached code cost about 0.5 s of CPU per process, while the kernel saves about 0.4 ms
-per second of 10-channel data: it pays for itself after some 20 minutes of data. So the
-tracker uses it only when asked (``PTINERTIA_NUMBA=1``: hour-long runs, campaigns and
-studies, whose worker processes pay the import once), and numba is imported on first
-use; a short ``ptinertia run`` never loads it. ``nogil=True``: the kernel releases the
-GIL, so a tracker on its own thread leaves the others running.
+Why numba, and why off by default. numba (well kept, NumPy's release cadence) over
+hand-written C: no build step, and ``cache=True`` keeps the machine code beside the
+modules (or in numba's user cache when the package is read-only), so only the first use
+after an install compiles. Importing numba and loading the cached code cost about 0.5 s
+of CPU per process, which a short ``ptinertia run`` does not earn back; hour-long runs,
+campaigns and studies (whose worker processes pay the import once) do. So the kernels
+are used only when asked, numba is imported on first use (:mod:`dsp.fused_sums` and
+:mod:`dsp.vec8` import it; nothing on the default path imports them), and the default
+install works without it.
 
-Measured again (issue 24, later session; load average 3 to 19 on the 2 cores, so CPU
-figures, best of 5 to 30; ``benchmarks/bench_pipeline.py``): the kernel's calls for a 10 s
-sweep of that load (0.5 s blocks) take 11-12 ms, the numpy sums 13-15 ms; the whole
-tracker runs 224x -> 281x on that load with the kernel, 146x -> 184x on the live
-pipeline's 9 accelerometers + pressure spectrum (load 10), 291x -> 319x in 0.5 s blocks and
-350x -> 368x in 1 s blocks (load 15). ``ptinertia run --duration 5`` takes 1.01 s of CPU
-with the numpy sums, 1.51 s with the kernel from a filled numba cache and 3.6 s with an
-empty one (load 10; 0.92 s and 1.37 s at load 3). The kernel saves 0.05-0.08 s per minute
-of 10 channels at 25.6 kHz against 0.5 s for numba's import: it pays after some 6-10
-minutes of such data (the figures move by 10 % between runs on this shared machine). So numba stays optional and off by default. Tried and
-left out: the sums as vectorised dot products over the samples (numba ``fastmath``
-reassociation; 10-20 % off the kernel, but a row's weight sum then differed at 1e-16
-between one call and one call per piece, and a sum that depends on the block cut breaks
-replay = live), four fixed partial sums per dot product (2.5x slower), a BLAS product
-per segment from inside the kernel, the carrier-times-taper product taken once per
-sample instead of per channel (no gain each). The samples come channel-fastest (the
-synthetic bench) or sample-fastest (the simulator): neither layout changes the figures.
-What the tracker spends beyond the sums is Python per block and per frame (frame
-assembly, leakage correction, angle lookup), which a kernel for the sums cannot remove.
+Measured (issue 24, four passes; 2 cores shared with other work, CPU time, best of 3 or
+more; 10 channels at 25.6 kHz, orders 1, 1.5, 2 and the leakage correction's, 8 half
+orders, 0.5 s blocks): first pass, a scalar kernel for the sums, 290x -> 320x real time;
+second, 224x -> 281x at load 10; third, the lookup, window times and ramps compiled and
+the held-back samples of :mod:`dsp.segments`, 306x -> 380x (numpy 274x -> 296x, load 11).
+Fourth pass (:mod:`dsp.fused_sums`): the sums in eight-lane vectors, packed rows, the
+segments compiled: the kernel's calls 36-38 ms -> 12-13 ms per 30 s, the whole tracker
+380-400x -> 550-590x, the run's dsp stage (9 accelerometers + the pressure's spectrum)
+270x -> 390-400x (numpy unchanged: 320-330x and 215-235x; load 2-4). The compiled
+path's time is now about a fifth sums, a third frame assembly (window sums, correction,
+frame objects, :mod:`dsp.assemble`), the rest the per-block Python of segments, lookup
+and tacho decoding. ``ptinertia run --duration 5``: 0.9 s of CPU with numpy, 1.35-1.4 s
+compiled from a filled numba cache (as before), 7.8 s from an empty one (the first run
+after an install; 6.1 s before this pass: the vectorised kernel compiles in about 3 s).
 
-Third pass (issue 24): beyond the sums, the compiled path runs through numba the angle
-lookup of the samples (:func:`cubic_values`) and the times of the frames' window ends
-(:func:`cubic_times`), both the numpy path's operations in its order (numba contracts
-no multiply-add without ``fastmath``: the same bits, tested), and the leakage
-correction's ramps (:mod:`dsp.ramp_slopes`, within 1e-12). Tried and left out, none
-faster: the kernel's sums channel by channel with blocks of 4 to 16 rows x 1 to 4
-channels as accumulators in registers, its carriers order by order across the samples,
-fused multiply-add (``fastmath={"contract"}``); the lookup as one merge of samples and
-knots (a branch per sample: 37 us a block against 28 us for the knots' ``searchsorted``
-and a vectorised loop per piece). Measured side by side with main (issue-24 load: 10
-channels at 25.6 kHz, orders 1, 1.5, 2, 30 s sweep in 0.5 s blocks; CPU, best of 3 runs
-of best of 3, load average 11 on the 2 cores): the whole tracker 306x -> 380x real time
-compiled (274x -> 296x numpy; with the held-back samples of :mod:`dsp.segments` and the
-frame objects of :mod:`dsp.assemble`, which serve both paths); ramp_correction 8.7 ->
-2.9 ms and the lookup 7.1 -> 4.4 ms per 30 s. The kernel is now some 40 % of the
-compiled path's time, the frames' assembly (window sums, correction, frame objects) a
-quarter, the tacho's decoding and angle table a tenth.
-
-What stays identical and what does not: the base ``exp(-i delta / 2)`` is still made by
-numpy in single precision (its SIMD ``cos``/``sin`` round differently from libm's), the
-taper weights repeat :func:`dsp.frames.rise_table`'s arithmetic, so the carriers are
-those of the numpy path to the last bit of the complex product; the sums are taken
-sample by sample in time order, where BLAS and ``reduceat`` group them their own way.
-The rows agree with the numpy reference (:func:`dsp.sums.add_sample_sets` with
-``compiled=False``) within 1e-12 relative to the segment's largest sum (measured: under
-1e-15; ``tests/dsp/test_kernels.py``).
+What stays identical and what does not: the base ``exp(-i delta / 2)`` is made by numpy
+in single precision in both paths (its SIMD ``cos``/``sin`` round differently from
+libm's); segments, angles, taper weights, carriers, lookups and window times are the
+numpy path's bits (the same operations in the same order; numba contracts no
+multiply-add without ``fastmath``; tested). The sums round differently: BLAS groups
+them its own way, the kernel adds each term with one fused multiply-add in time order
+(the spectrum channel: eight partial sums per row, see :mod:`dsp.fused_sums`). The rows
+agree with the numpy reference (:func:`dsp.sums.add_sample_sets` with ``compiled=False``)
+within 1e-12 relative to the segment's largest sum (measured: under 1e-15;
+``tests/dsp/test_kernels.py``), and never depend on how the samples were cut into
+blocks beyond the pieces themselves (replay = live).
 """
 
 from __future__ import annotations
@@ -85,7 +59,8 @@ import numpy as np
 
 from dsp.frames import RISE_GRID, RISE_SLOPE, RISE_TABLE
 from dsp.ramp_slopes import ramp_slopes as slopes_loops
-from dsp.sum_sets import POWER_STRIDE, Segments, SetSums, SumSet, base_parts
+from dsp.sum_rows import row_size
+from dsp.sum_sets import POWER_STRIDE, Segments, SumSet, base_parts
 
 # numba is optional and imported on first use only: its import and the cached machine
 # code cost about 0.5 s of CPU per process, more than the kernel saves on a short run
@@ -97,8 +72,25 @@ _compiled: dict[Callable[..., None], Callable[..., None]] = {}
 
 
 def piece_sums(*args: Any) -> None:
-    """:func:`_piece_sums` compiled (on the first call; numba's cache keeps the machine code)."""
-    _jit(_piece_sums)(*args)
+    """:func:`dsp.fused_sums.piece_sums`: the segment sums of one piece in one vectorised pass."""
+    # imported here, not at the top: the module imports numba (0.3 s), which the default
+    # path never loads
+    from dsp import fused_sums
+
+    fused_sums.piece_sums(*args)
+
+
+def segment_cuts(
+    phi: np.ndarray, cuts: np.ndarray, spacing: float, half: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int], np.ndarray]:
+    """:func:`dsp.fused_segments.segment_cuts`: the segments of each piece and the samples'
+    angles from their segment's frame angle, as :func:`dsp.sums.add_sample_sets` cuts them."""
+    from dsp import fused_segments  # imports numba: see piece_sums
+
+    mu, starts, ends, zone_end, per_piece, delta = fused_segments.segment_cuts(
+        phi, cuts, spacing, half
+    )
+    return mu, starts, ends, zone_end, per_piece.tolist(), delta
 
 
 def cubic_values(*args: Any) -> None:
@@ -156,27 +148,25 @@ def _cubic_values(
             i += 1
 
 
-def compiled_sums(
+def compiled_rows(
     sets: Sequence[SumSet],
     seg: Segments,
     phi: np.ndarray,
     q: np.ndarray,
     delta: np.ndarray,
     first_index: int,
-) -> tuple[list[SetSums], np.ndarray, np.ndarray]:
-    """Every set's sums and the weights ``wa``, ``wd`` by :func:`piece_sums`."""
+    frames_per_rev: int,
+) -> list[np.ndarray]:
+    """Every set's rows (seg, :func:`dsp.sum_rows.row_size`), packed by :func:`piece_sums`."""
     base_re, base_im = base_parts(delta)
     c_lo = seg.c - seg.half
-    n_seg = seg.mu.size
-    wa, wd = np.zeros(n_seg), np.zeros(n_seg)
-    out: list[SetSums] = []
+    period = 2 * frames_per_rev
+    # the rotations exp(-i h c_m) as dsp.sums computes them, one per integer turn
+    turn = np.exp(-2j * np.pi * np.arange(period) / period)
+    turn_re, turn_im = turn.real.copy(), turn.imag.copy()
+    out = []
     for st in sets:
-        no, n_ch = st.k2.size, st.x[0].shape[0]
-        a = np.zeros((n_seg, n_ch, 2 * no))
-        d = np.zeros_like(a)
-        s2 = np.zeros((n_seg, n_ch))
-        n2 = np.zeros(n_seg, dtype=np.int64)
-        clip = np.zeros((n_seg, n_ch), bool)
+        w = np.zeros((seg.mu.size, row_size(st.x[0].shape[0], st.k2.size)))
         level = math.nan if st.clip_level is None else st.clip_level
         i = 0
         pieces = zip(st.x, seg.cuts[:-1], seg.cuts[1:], seg.per_piece, strict=True)
@@ -186,11 +176,11 @@ def compiled_sums(
                 xp, phi[p0:p1], q[p0:p1], base_re[p0:p1], base_im[p0:p1], c_lo[s],
                 seg.starts[s] - p0, seg.ends[s] - p0, seg.zone_end[s] - p0, 2.0 * seg.half,
                 st.k2, st.tracked, (-(first_index + p0)) % POWER_STRIDE, POWER_STRIDE, level,
-                RISE_GRID, RISE_TABLE, RISE_SLOPE, (a[s], d[s], s2[s], n2[s], clip[s], wa[s], wd[s]),
+                RISE_GRID, RISE_TABLE, RISE_SLOPE, seg.mu[s], turn_re, turn_im, w[s],
             )  # fmt: skip
             i += count
-        out.append((a, d, s2, n2, clip, list(range(no)), list(range(no, 2 * no))))
-    return out, wa, wd
+        out.append(w)
+    return out
 
 
 def _cubic_times(
@@ -225,132 +215,3 @@ def _cubic_times(
             tau -= f / fp
         omega[i] = a1 + tau * (a2x2 + 3.0 * tau * a3)
         t[i] = t_lo[j] + tau
-
-
-def _piece_sums(
-    x: np.ndarray,
-    phi: np.ndarray,
-    q: np.ndarray,
-    base_re: np.ndarray,
-    base_im: np.ndarray,
-    c_lo: np.ndarray,
-    starts: np.ndarray,
-    ends: np.ndarray,
-    zone_end: np.ndarray,
-    taper_rad: float,
-    k2: np.ndarray,
-    tracked: bool,
-    power_from: int,
-    power_stride: int,
-    clip_level: float,
-    grid: np.ndarray,
-    table: np.ndarray,
-    slope: np.ndarray,
-    out: tuple[np.ndarray, ...],
-) -> None:
-    """Add the sums of the segments of one piece (one set of channels) to ``out``.
-
-    ``x`` (n_ch, n) the piece's samples, ``phi`` (rad) and ``q = omega dt`` (rad) (n,);
-    ``base_re``, ``base_im`` (n,) the carriers' base ``exp(-i delta / 2)``; per segment
-    (seg,): ``c_lo`` the start of its zone ``c_m - tau / 2`` (rad), ``starts``, ``ends``,
-    ``zone_end`` sample indices within the piece. ``taper_rad`` the zone's width,
-    ``k2`` (no,) ascending (0 the mean). ``tracked``: the zone weight multiplies the
-    carrier, and the mean square (samples ``power_from + power_stride * i``) and the
-    clip flags (``|x| >= clip_level``; NaN for none) are summed; else it multiplies the
-    sample (the spectrum channel's layout, as :func:`dsp.sums.add_sample_sets` does).
-    ``grid``, ``table``, ``slope``: :func:`dsp.frames.rise_table`'s, whose arithmetic is
-    repeated here. ``out`` = (a, d (seg, n_ch, 2 no), s2 (seg, n_ch), n2 (seg,), clip
-    (seg, n_ch), wa, wd (seg,)): row ``j`` of a and d's last axis holds the real part of
-    order ``k2[j]``, row ``no + j`` its imaginary part.
-    """
-    a, d, s2, n2, clip, wa, wd = out
-    no = k2.size
-    n_ch = x.shape[0]
-    k_max = k2[no - 1]
-    n_grid = grid.size - 1
-    longest = 0
-    for i in range(starts.size):
-        if ends[i] - starts[i] > longest:
-            longest = ends[i] - starts[i]
-    # the carriers of one segment, a sample per row (Re rows, then Im rows), and its zone's
-    # weights; then its sums channel by channel, the accumulators in registers
-    e = np.empty((longest, 2 * no))
-    fall = np.empty(longest)
-    acc_a = np.empty((n_ch, 2 * no))
-    acc_d = np.empty((n_ch, 2 * no))
-    for i in range(starts.size):
-        s0 = starts[i]
-        n = ends[i] - s0
-        nz = zone_end[i] - s0
-        total = 0.0
-        for s in range(n):
-            br = base_re[s0 + s]
-            bi = base_im[s0 + s]
-            qs = q[s0 + s]
-            total += qs
-            j = 0
-            if k2[0] == 0:
-                e[s, 0] = qs
-                e[s, no] = 0.0
-                j = 1
-            pr = br * qs
-            pi = bi * qs
-            for k in range(1, k_max + 1):
-                if k > 1:
-                    t = pr * br - pi * bi
-                    pi = pr * bi + pi * br
-                    pr = t
-                if j < no and k == k2[j]:
-                    e[s, j] = pr
-                    e[s, no + j] = pi
-                    j += 1
-        wa[i] = total
-        total = 0.0
-        for s in range(nz):
-            u = (phi[s0 + s] - c_lo[i]) / taper_rad
-            if u >= 1.0:
-                rise = table[n_grid]
-            elif u < 0.0:
-                rise = table[0]
-            else:
-                g = min(math.floor(u * n_grid), n_grid - 1)
-                rise = slope[g] * (u - grid[g]) + table[g]
-            fall[s] = 1.0 - rise
-            total += q[s0 + s] * fall[s]
-        wd[i] = total
-        # sample by sample, each channel's sums in turn (one pass over the carriers; each
-        # sum still adds its terms in time order)
-        acc_a[:] = 0.0
-        acc_d[:] = 0.0
-        for s in range(n):
-            for ch in range(n_ch):
-                xv = x[ch, s0 + s]
-                for r in range(2 * no):
-                    acc_a[ch, r] += xv * e[s, r]
-                if s < nz:
-                    if tracked:
-                        f = fall[s]
-                        for r in range(2 * no):
-                            acc_d[ch, r] += xv * (e[s, r] * f)
-                    else:
-                        xf = xv * fall[s]
-                        for r in range(2 * no):
-                            acc_d[ch, r] += xf * e[s, r]
-        for ch in range(n_ch):
-            for r in range(2 * no):
-                a[i, ch, r] += acc_a[ch, r]
-                d[i, ch, r] += acc_d[ch, r]
-        if tracked:
-            p0 = s0 + (power_from - s0) % power_stride
-            for ch in range(n_ch):
-                total = 0.0
-                count = 0
-                for s in range(p0, s0 + n, power_stride):
-                    total += x[ch, s] * x[ch, s]
-                    count += 1
-                s2[i, ch] = total
-                n2[i] = count
-                hit = False
-                for s in range(s0, s0 + n):
-                    hit |= abs(x[ch, s]) >= clip_level
-                clip[i, ch] = hit

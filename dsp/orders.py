@@ -51,10 +51,11 @@ measured by ``benchmarks/bench_order_tracking.py`` and ``tests/dsp/test_order_ac
 * Cost. Per sample: one single-precision cos/sin pair, a running complex
   product per order, and a (channels x samples) @ (samples x 2 orders) product
   per segment; 10 channels at 25.6 kHz, orders 1, 1.5, 2 (plus the internal
-  orders of the correction) run about 300x faster than real time on one core
-  in 0.5 s blocks (380x with the compiled kernels of :mod:`dsp.kernels`,
+  orders of the correction) run about 330x faster than real time on one core
+  in 0.5 s blocks (about 590x with the compiled kernels of :mod:`dsp.kernels`,
   ``PTINERTIA_NUMBA=1``), 9 channels with the cylinder pressure as the cycle
-  reference 215x (270x) (BLAS on one thread), with flat memory. The rest is fixed
+  reference and its spectrum 230x (430x) (BLAS on one thread), with flat memory.
+  Compiled, the sums are about a fifth of the time; the rest is fixed
   cost per block and per frame, kept down by doing each step once for all samples
   or frames of a block (a pressure vote, a group's angles, a window) and by
   holding back samples that cannot complete a frame until the next block

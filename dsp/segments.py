@@ -131,10 +131,8 @@ def _can_wait(st: TrackerState, g: GroupPlan, gs: GroupState, last: tuple[int, n
         and table.run[0] == table.run[-1] == gs.last_run
     ):
         return False
-    ok, phi, _, _ = ang.lookup(
-        table, np.array([g.t0_s + (last[0] + last[1].shape[1] - 1) / g.rate_hz])
-    )
-    return bool(ok[0]) and last_complete_frame(st, float(phi[0])) < st.next_frame
+    phi = ang.angle_at_one(table, g.t0_s + (last[0] + last[1].shape[1] - 1) / g.rate_hz)
+    return math.isfinite(phi) and last_complete_frame(st, phi) < st.next_frame
 
 
 def _batches(spans: list[tuple[int, np.ndarray]]) -> list[list[tuple[int, np.ndarray]]]:

@@ -27,7 +27,7 @@ import numpy as np
 
 from dsp import kernels
 from dsp.sum_rows import Row, row_size, unpack
-from dsp.sum_sets import Segments, SumSet, numpy_sums
+from dsp.sum_sets import Segments, SetSums, SumSet, numpy_sums
 
 
 def add_samples(
@@ -95,51 +95,68 @@ def add_sample_sets(
     cuts = np.cumsum([0] + [xi.shape[1] for xi in sets[0].x]).tolist()  # where each piece begins
     # each piece cut into segments as a call of its own would: a segment split between
     # two pieces appears twice, and its parts are added in order at the end
-    parts = [_segments(phi, p0, p1, spacing, half) for p0, p1 in itertools.pairwise(cuts)]
-    if len(parts) == 1:
-        mu, starts, ends, zone_end = parts[0]
+    if compiled:
+        # the same segments and angles from one compiled pass (dsp.kernels.segment_cuts)
+        mu, starts, ends, zone_end, per_piece, delta = kernels.segment_cuts(
+            phi, np.array(cuts, dtype=np.int64), spacing, half
+        )
+        c = mu * spacing
     else:
-        mu, starts, ends, zone_end = (np.concatenate(col) for col in zip(*parts, strict=True))
-    per_piece = [part[0].size for part in parts]  # segments of each piece
-    c = mu * spacing  # frame angles c_m
+        parts = [_segments(phi, p0, p1, spacing, half) for p0, p1 in itertools.pairwise(cuts)]
+        if len(parts) == 1:
+            mu, starts, ends, zone_end = parts[0]
+        else:
+            mu, starts, ends, zone_end = (np.concatenate(col) for col in zip(*parts, strict=True))
+        per_piece = [part[0].size for part in parts]  # segments of each piece
+        c = mu * spacing  # frame angles c_m
+        # carriers about each segment's own frame angle c_m (exact rotation applied below):
+        # the same sample gets the same carrier whatever the block cut, and the angle stays small
+        delta = phi - np.repeat(c, ends - starts)
     q = omega * (1.0 / rate_hz)
-    # carriers about each segment's own frame angle c_m (exact rotation applied below): the
-    # same sample gets the same carrier whatever the block cut, and the angle stays small
-    delta = phi - np.repeat(c, ends - starts)
     seg = Segments(mu, starts, ends, zone_end, cuts, per_piece, c, half)
     if compiled:
-        sums, wa, wd = kernels.compiled_sums(sets, seg, phi, q, delta, first_index)
+        rows = kernels.compiled_rows(sets, seg, phi, q, delta, first_index, frames_per_rev)
     else:
         sums, wa, wd = numpy_sums(sets, seg, phi, q, delta, first_index)
-    period = 2 * frames_per_rev
+        rows = [
+            _packed(st.k2, mu, set_sums, wa, wd, 2 * frames_per_rev)
+            for st, set_sums in zip(sets, sums, strict=True)
+        ]
     outs = []
-    for st, (a, d, s2, n2, clip, re, im) in zip(sets, sums, strict=True):
-        k2 = st.k2
-        no = k2.size
-        n_ch = a.shape[1]
-        # back to complex, rotated by the frame angle: exp(-i h c_m), reduced exactly with
-        # integers (the carriers hold exp(-i h (phi - c_m)))
-        rot = np.exp(-2j * np.pi * ((mu[:, None] * k2[None, :]) % period) / period)[:, None, :]
-        if re == list(range(no)):  # Re rows then Im rows
-            ac = (a[..., :no] + 1j * a[..., no:]) * rot
-            dc = (d[..., :no] + 1j * d[..., no:]) * rot
-        else:  # the rows of the orders in the carriers shared with the tracked channels
-            ac = (a[..., re] + 1j * a[..., im]) * rot
-            dc = (d[..., re] + 1j * d[..., im]) * rot
-        w = np.zeros((mu.size, row_size(n_ch, no)))
-        w_a, w_d, w_s2, w_n2, w_wa, w_wd, w_clip = unpack(w, n_ch, no)
-        w_a[:] = ac
-        w_d[:] = dc
-        w_s2[:] = s2
-        w_n2[:] = n2
-        w_wa[:] = wa
-        w_wd[:] = wd
-        w_clip[:] = clip
+    for st, w in zip(sets, rows, strict=True):
         out = dict(st.rows)
         for mm, row in zip(mu.tolist(), w, strict=True):
             out[mm] = out[mm] + row if mm in out else row
         outs.append(out)
     return outs
+
+
+def _packed(
+    k2: np.ndarray, mu: np.ndarray, sums: SetSums, wa: np.ndarray, wd: np.ndarray, period: int
+) -> np.ndarray:
+    """One set's sums (:func:`dsp.sum_sets.numpy_sums`) as rows (seg, row_size)."""
+    a, d, s2, n2, clip, re, im = sums
+    no = k2.size
+    n_ch = a.shape[1]
+    # back to complex, rotated by the frame angle: exp(-i h c_m), reduced exactly with
+    # integers (the carriers hold exp(-i h (phi - c_m)))
+    rot = np.exp(-2j * np.pi * ((mu[:, None] * k2[None, :]) % period) / period)[:, None, :]
+    if re == list(range(no)):  # Re rows then Im rows
+        ac = (a[..., :no] + 1j * a[..., no:]) * rot
+        dc = (d[..., :no] + 1j * d[..., no:]) * rot
+    else:  # the rows of the orders in the carriers shared with the tracked channels
+        ac = (a[..., re] + 1j * a[..., im]) * rot
+        dc = (d[..., re] + 1j * d[..., im]) * rot
+    w = np.zeros((mu.size, row_size(n_ch, no)))
+    w_a, w_d, w_s2, w_n2, w_wa, w_wd, w_clip = unpack(w, n_ch, no)
+    w_a[:] = ac
+    w_d[:] = dc
+    w_s2[:] = s2
+    w_n2[:] = n2
+    w_wa[:] = wa
+    w_wd[:] = wd
+    w_clip[:] = clip
+    return w
 
 
 def _segments(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import os
 
 import numpy as np
 import pytest
@@ -139,3 +140,105 @@ def test_compiled_ramps_agree_with_numpy(seed):
         fn(all_j, all_c, all_x, js, chains, tacho_bad, period, SLOPE_PERIODS, b, good)
         np.testing.assert_array_equal(good, want_good)
         np.testing.assert_allclose(b, want_b, rtol=1e-12, atol=0)
+
+
+@pytest.mark.parametrize(
+    ("n_ch", "k2"), [(1, [2]), (3, [0, 1, 2, 3]), (5, list(range(1, 10))), (10, list(range(0, 17)))]
+)
+def test_compiled_rows_agree_with_numpy_for_any_channel_count_and_order_set(n_ch, k2):
+    """The vectorised pass sums four channels at a time and the rest one by one, rows in
+    chunks of 16 (Re and Im of up to 8 orders each): channel counts off those multiples,
+    one order, the mean and 17 orders (three chunks) all give the numpy rows within 1e-12
+    and its clip flags exactly."""
+    rng = np.random.default_rng(n_ch)
+    n = 2500
+    phi, omega, _, spectrum = _signal(n_ch, n)
+    x = rng.standard_normal((n_ch, n)) * 2.0
+    x[rng.integers(0, n_ch, 4), rng.integers(0, n, 4)] = -9.0
+    x[0, rng.integers(0, n, 3)] = np.nan  # a NaN sample: NaN sums, never a clip by itself
+    cuts = [0, 700, 701, n]
+    k2a = np.array(k2)
+    ref = _sums(False, phi, omega, x, spectrum, cuts, 8.5, k2a, k2a, 2)
+    got = _sums(True, phi, omega, x, spectrum, cuts, 8.5, k2a, k2a, 2)
+    for want, have in zip(ref, got, strict=True):
+        assert want.keys() == have.keys()
+        for m, row in want.items():
+            fine = np.isfinite(row)
+            np.testing.assert_array_equal(np.isfinite(have[m]), fine)
+            scale = np.abs(row[fine]).max()
+            np.testing.assert_allclose(have[m][fine], row[fine], rtol=0, atol=1e-12 * scale)
+    counts = np.array([row[-n_ch:] for row in ref[0].values()])
+    assert np.array_equal(counts, np.array([row[-n_ch:] for row in got[0].values()]))
+    assert counts.sum() > 0
+
+
+def test_vector_transpose_puts_rows_in_columns():
+    """dsp.fused_sums.vtranspose8: eight rows of eight lanes land as eight columns of a
+    wider array, at an offset, and nothing else is written."""
+    from numba import njit
+
+    from dsp.fused_sums import vtranspose8
+
+    @njit
+    def transpose(src, dst):
+        vtranspose8(src, 8, dst, 3, 11)
+
+    src = np.arange(72.0)
+    dst = np.full(3 + 7 * 11 + 8 + 5, -1.0)
+    transpose(src, dst)
+    want = np.full_like(dst, -1.0)
+    for lane in range(8):
+        want[3 + 11 * lane : 3 + 11 * lane + 8] = src[8 + lane : 72 : 8]
+    np.testing.assert_array_equal(dst, want)
+
+
+@pytest.mark.parametrize("fpr", [1, 2, 4])
+def test_compiled_segment_cuts_are_the_numpy_ones(fpr):
+    """dsp.kernels.segment_cuts (the compiled path's segments) against dsp.sums._segments
+    piece by piece and the numpy path's angles from the frame angle: the same integers and
+    the same bits, with segments split between pieces and pieces inside one segment."""
+    from dsp.sums import _segments
+
+    phi, _, _, _ = _signal(fpr, 5000)
+    cuts = [0, 3, 40, 41, 2600, 5000]
+    spacing, half = 2 * np.pi / fpr, 0.5 * np.radians(45.0)
+    got = kernels.segment_cuts(phi, np.array(cuts, dtype=np.int64), spacing, half)
+    parts = [_segments(phi, p0, p1, spacing, half) for p0, p1 in itertools.pairwise(cuts)]
+    for have, want in zip(got[:4], zip(*parts, strict=True), strict=True):
+        np.testing.assert_array_equal(have, np.concatenate(want))
+    assert got[4] == [part[0].size for part in parts]
+    mu, starts, ends = got[0], got[1], got[2]
+    np.testing.assert_array_equal(got[5], phi - np.repeat(mu * spacing, ends - starts))
+    assert len(set(mu.tolist())) < mu.size  # a segment split between pieces
+
+
+def test_the_default_path_never_imports_numba():
+    """A tracker run without PTINERTIA_NUMBA (a subprocess: this one has numba loaded)
+    leaves numba, llvmlite and the compiled modules unimported: their import alone costs
+    a short run more than the kernels save."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "import numpy as np\n"
+        "from dsp.config import OrderTrackerConfig\n"
+        "from dsp.orders import OrderTracker\n"
+        "from dsp.synthetic import Ramp, SyntheticBench, random_content\n"
+        "from dsp.tacho import TachoConfig\n"
+        "rng = np.random.default_rng(0)\n"
+        "bench = SyntheticBench(Ramp(2000.0, 3000.0, 1.0), [random_content(rng) for _ in range(3)], "
+        "tdc_after_gap_deg=84.0)\n"
+        "config = OrderTrackerConfig(tacho=TachoConfig(tdc_after_gap_deg=84.0), orders=(1.0, 2.0))\n"
+        "tracker = OrderTracker.from_layout(bench.layout, config)\n"
+        "frames = [f for item in bench.items(1.0, block_s=0.1) for f in tracker.process(item)[0]]\n"
+        "assert frames\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('numba', 'llvmlite') "
+        "or m in ('dsp.fused_sums', 'dsp.vec8', 'dsp.fused_segments', 'dsp.spectrum_lanes')))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "PTINERTIA_NUMBA"}
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=env, check=False
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"

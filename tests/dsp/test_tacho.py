@@ -265,3 +265,23 @@ def test_pulses_without_gap_track_orders_and_flag_the_angle():
         exact = bench.contents[0].at(f.rpm)[0]
         # magnitudes are right; phases only up to the unknown pulse (k * 6 deg)
         assert abs(abs(f.amplitude(2.0, "a0")) / abs(exact[3]) - 1) < 1e-4
+
+
+def test_angle_at_one_time_gives_the_lookup_bits():
+    """dsp.angle.angle_at_one (the tracker's check whether samples can wait) against
+    dsp.angle.lookup, time by time: the same angle where lookup has one, NaN where not
+    (before the first knot, between two wheel runs)."""
+    rng = np.random.default_rng(5)
+    table = ang.AngleTable()
+    t0 = 0.0
+    for run in range(2):
+        t = t0 + np.cumsum(rng.uniform(0.9, 1.1, 300) * 60.0 / 3000.0 / 58)
+        phi = 100.0 * run + np.arange(t.size) * (2 * np.pi / 60)
+        table = ang.add_knots(table, t, phi, np.full(t.size, run, dtype=np.int64))
+        t0 = t[-1] + 0.01
+    times = np.sort(rng.uniform(-0.01, table.t_end - 1e-9, 400))
+    for t in times:
+        ok, phi, _, _ = ang.lookup(table, np.array([t]))
+        got = ang.angle_at_one(table, float(t))
+        assert (got == phi[0]) if ok[0] else np.isnan(got)
+    assert sum(np.isnan(ang.angle_at_one(table, float(t))) for t in times) > 5

@@ -1,0 +1,73 @@
+"""Where the compiled path's segments begin and end, and the taper over their zones.
+
+Compiled helpers of :mod:`dsp.fused_sums` (imported only with it: numba). Both repeat
+the numpy path's operations in its order, so they give its numbers bit for bit:
+:func:`segment_cuts` those of :func:`dsp.sums._segments` and the angles from the frame
+angle, :func:`falling_taper` those of :func:`dsp.frames.rise_table`. numba's cache does
+not watch this file for :mod:`dsp.fused_sums`: after changing it, touch that module.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def segment_cuts(phi, cuts, spacing, half):
+    """:func:`dsp.sums._segments` of every piece ``cuts[p] .. cuts[p+1]-1`` of ``phi``
+    (rad), concatenated, and ``delta = phi - c_m`` (rad) of each sample from its segment's
+    frame angle: the same operations (``searchsorted``, ``floor``), so the same numbers.
+    Returns ``mu``, ``starts``, ``ends``, ``zone_end`` (seg,), the segments per piece and
+    ``delta`` (n,)."""
+    n_pieces = cuts.size - 1
+    per_piece = np.empty(n_pieces, dtype=np.int64)
+    for p in range(n_pieces):
+        m0 = math.floor((phi[cuts[p]] + half) / spacing)
+        per_piece[p] = math.floor((phi[cuts[p + 1] - 1] + half) / spacing) - m0 + 1
+    total = per_piece.sum()
+    mu = np.empty(total, dtype=np.int64)
+    starts = np.empty(total, dtype=np.int64)
+    ends = np.empty(total, dtype=np.int64)
+    zone_end = np.empty(total, dtype=np.int64)
+    delta = np.empty(phi.size)
+    i = 0
+    for p in range(n_pieces):
+        p0, p1 = cuts[p], cuts[p + 1]
+        piece = phi[p0:p1]
+        m0 = math.floor((piece[0] + half) / spacing)
+        for k in range(per_piece[p]):
+            c = (m0 + k) * spacing
+            mu[i + k] = m0 + k
+            starts[i + k] = p0 + (0 if k == 0 else np.searchsorted(piece, c - half))
+            zone_end[i + k] = p0 + np.searchsorted(piece, c + half)
+        for k in range(per_piece[p]):
+            ends[i + k] = starts[i + k + 1] if k + 1 < per_piece[p] else p1
+            zone_end[i + k] = min(max(zone_end[i + k], starts[i + k]), ends[i + k])
+            c = mu[i + k] * spacing
+            for s in range(starts[i + k], ends[i + k]):
+                delta[s] = phi[s] - c
+        i += per_piece[p]
+    return mu, starts, ends, zone_end, per_piece, delta
+
+
+@njit(cache=True, nogil=True)
+def falling_taper(phi, q, s0, nz, c_lo, taper_rad, grid, table, slope, fall):
+    """``1 - rise`` over the zone's samples into ``fall``; returns ``sum q (1 - rise)``
+    (:func:`dsp.frames.rise_table`'s arithmetic, the same bits)."""
+    n_grid = grid.size - 1
+    total = 0.0
+    for s in range(nz):
+        u = (phi[s0 + s] - c_lo) / taper_rad
+        if u >= 1.0:
+            rise = table[n_grid]
+        elif u < 0.0:
+            rise = table[0]
+        else:
+            g = min(math.floor(u * n_grid), n_grid - 1)
+            rise = slope[g] * (u - grid[g]) + table[g]
+        fall[s] = 1.0 - rise
+        total += q[s0 + s] * fall[s]
+    return total
