@@ -23,7 +23,7 @@ from estimator.kinematics import RigidFit, RigidMotion
 from estimator.model_inputs import model_input_rows
 from estimator.redundancy import redundancy_rows
 from estimator.setup import EstimatorSetup
-from estimator.systematic import motion_sensitivity
+from estimator.systematic import SensorBlocks, motion_sensitivity, sensor_blocks
 
 
 @dataclass(frozen=True)
@@ -186,6 +186,13 @@ class RowAssembler:
         self.layout = layout
         self.cal = list(cal)
         self.cal_cols = list(cal_cols)
+        # the last fit's channels grouped by sensor (a bench keeps its fit frame after frame)
+        self._blocks: tuple[RigidFit, SensorBlocks] | None = None
+
+    def _sensor_blocks(self, fit: RigidFit) -> SensorBlocks:
+        if self._blocks is None or self._blocks[0] is not fit:
+            self._blocks = (fit, sensor_blocks(self.setup, fit))
+        return self._blocks[1]
 
     def sensitivity(
         self, batch: list[PendingFrame], motion: tuple[np.ndarray, np.ndarray] | None = None
@@ -211,6 +218,7 @@ class RowAssembler:
                         np.concatenate([p.amplitudes for p in run]),
                         motion[0][a:b],
                         motion[1][a:b],
+                        self._sensor_blocks(run[0].fit),
                     )
                 )
                 start = end
