@@ -17,11 +17,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from estimator import row_kernels
 from estimator.elastic_tail import ELASTIC_TERMS
 from estimator.equations import Linearisation, ParameterLayout, frame_rows
 from estimator.kinematics import RigidFit, RigidMotion
 from estimator.model_inputs import model_input_rows
 from estimator.redundancy import redundancy_rows
+from estimator.row_kernels import kernel_rows
 from estimator.setup import EstimatorSetup
 from estimator.systematic import SensorBlocks, motion_sensitivity, sensor_blocks
 
@@ -188,6 +190,8 @@ class RowAssembler:
         self.cal_cols = list(cal_cols)
         # the last fit's channels grouped by sensor (a bench keeps its fit frame after frame)
         self._blocks: tuple[RigidFit, SensorBlocks] | None = None
+        # the compiled rows (PTINERTIA_NUMBA=1; tests and benchmarks switch it per assembler)
+        self.compiled = row_kernels.USE
 
     def _sensor_blocks(self, fit: RigidFit) -> SensorBlocks:
         if self._blocks is None or self._blocks[0] is not fit:
@@ -250,10 +254,7 @@ class RowAssembler:
 
         sg = sign[sel]
         origin, orders, rpm = rep("origin"), cat("orders"), rep("rpm")
-        r = frame_rows(
-            self.setup,
-            self.layout,
-            lin,
+        args = (
             sg[:, None] * gamma_o,
             sg[:, None] * omega_dot,
             origin,
@@ -263,15 +264,14 @@ class RowAssembler:
             cat("force"),
             cat("moment"),
             cat("var"),
-            measured_moment=None if batch[0].measured_moment is None else cat("measured_moment"),
         )
-        dr = r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[sel])
+        measured = None if batch[0].measured_moment is None else cat("measured_moment")
+        model = None
         if self.setup.model_inputs:
             # the model inputs' columns (zero in dm_real: they do not touch the readings)
-            n_model = len(self.setup.model_inputs)
             if model_motion is not None:
                 gamma_o, omega_dot = model_motion
-            dr[:, :, -n_model:] += r.whiten @ model_input_rows(
+            model = model_input_rows(
                 self.setup,
                 lin,
                 not self.layout.mass,
@@ -281,11 +281,23 @@ class RowAssembler:
                 orders,
                 rpm,
             )
+        if self.compiled and not self.layout.mount_scales:
+            no_model = np.zeros((len(sg), 12, 0))
+            H, y, dr = kernel_rows(
+                self.setup, self.layout, lin, *args, measured, dm_real[sel], sg,
+                no_model if model is None else model,
+            )  # fmt: skip
+        else:
+            r = frame_rows(self.setup, self.layout, lin, *args, measured_moment=measured)
+            H, y = r.H, r.y
+            dr = r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[sel])
+            if model is not None:
+                dr[:, :, -model.shape[2] :] += r.whiten @ model
         if self.cal and calibrate:
             # self-calibration: what was a systematic error becomes an unknown
-            r.H[:, :, self.cal_cols] = dr[:, :, self.cal]
+            H[:, :, self.cal_cols] = dr[:, :, self.cal]
             dr[:, :, self.cal] = 0.0
-        return r.H, r.y, dr
+        return H, y, dr
 
     def redundancy(self, batch: list[PendingFrame]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Self-calibration rows from the rigid fits' redundancy (:mod:`estimator.redundancy`)

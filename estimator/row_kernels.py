@@ -1,0 +1,482 @@
+"""Compiled row assembly: the whitened rows of (frame, order) pairs, one pair at a time.
+
+:func:`estimator.equations.frame_rows` builds the rows of a flush with a few hundred numpy
+calls on (pairs, 3..12, 3..12) arrays; at a dozen frames a flush the calls, not the
+arithmetic, are its cost (about 35 us per used frame of the 171 the estimator took on the
+60 s log, the whitening's ``inv(cholesky)`` a quarter of it). :func:`pair_rows` does the
+same arithmetic pair by pair in loops (mount reactions, gyroscopic term, translation and
+rotation rows, unbalance and crank-offset columns, d residual / d measurement, the row
+covariance, its Cholesky factor and inverse, the whitened rows and the whitened
+sensitivities ``W D dm`` plus the model inputs' ``W M``, :class:`RowAssembler`'s ``dr``),
+compiled by numba (``nogil=True``: it releases the GIL). Layouts with estimated mount
+stiffness scales stay on the numpy path.
+
+Used only with ``PTINERTIA_NUMBA=1`` (as :mod:`dsp.kernels`: importing numba and loading
+the cached machine code costs about 0.5 s of CPU per process, more than a short run
+saves); numba is imported on first use, and the default path never imports it. The numpy
+code stays the reference: sums run in another order here (explicit loops against BLAS,
+einsum and LAPACK, a Cholesky factor inverted by forward substitution against LAPACK's
+``gesv``), so the rows agree within rounding, not bit for bit
+(``tests/estimator/test_row_kernels.py``: within 1e-12 relative on the rows and on every
+estimate and interval of a run). One frame at a time and in blocks still give the same
+bits: the kernel's result of a pair does not depend on the other pairs.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from estimator.equations import Linearisation, ParameterLayout
+from estimator.setup import EstimatorSetup
+
+AVAILABLE = importlib.util.find_spec("numba") is not None
+# PTINERTIA_NUMBA=1: the row assembly uses the kernel (long runs, campaigns and studies)
+USE = AVAILABLE and os.environ.get("PTINERTIA_NUMBA", "0") == "1"
+_compiled: dict[Callable[..., None], Callable[..., None]] = {}
+
+
+# the helpers pair_rows calls: compiled with it (a compiled function calls compiled ones)
+_HELPERS = (
+    "_matmul3",
+    "_skew",
+    "_skew_entry",
+    "_skew_into",
+    "_cross_at",
+    "_cross_unb",
+    "_cholesky_inverse",
+)
+
+
+def compiled_pair_rows(*args: Any) -> None:
+    """:func:`pair_rows` compiled (on the first call; numba's cache keeps the machine code)."""
+    fn = _compiled.get(pair_rows)
+    if fn is None:
+        from numba import njit  # heavy (0.3 s): only where the kernel is used
+
+        # the module's helpers become their compiled selves (callable from Python alike),
+        # which pair_rows' compilation then finds as its globals
+        names = globals()
+        for name in _HELPERS:
+            names[name] = njit(cache=True, nogil=True)(names[name])
+        fn = _compiled[pair_rows] = njit(cache=True, nogil=True)(pair_rows)
+    fn(*args)
+
+
+def _matmul3(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j]
+
+
+def pair_rows(
+    h: np.ndarray,
+    w: np.ndarray,
+    origin: np.ndarray,
+    gamma_o: np.ndarray,
+    omega_dot: np.ndarray,
+    force: np.ndarray,
+    moment: np.ndarray,
+    measured: np.ndarray,
+    var: np.ndarray,
+    cov_unit: np.ndarray,
+    lin: np.ndarray,
+    inertia: np.ndarray,
+    mount_pos: np.ndarray,
+    mount_stiff: np.ndarray,
+    consts: np.ndarray,
+    c_it: np.ndarray,
+    cols: np.ndarray,
+    sens: np.ndarray,
+    sign: np.ndarray,
+    model: np.ndarray,
+    H: np.ndarray,
+    y: np.ndarray,
+    whiten: np.ndarray,
+    d_meas: np.ndarray,
+    dr: np.ndarray,
+) -> None:
+    """The rows of P (frame, order) pairs, written into ``H`` (P, 12, n), ``y`` (P, 12),
+    ``whiten`` and ``d_meas`` (P, 12, 12) and ``dr`` (P, 12, n_sys): what
+    :func:`estimator.equations.frame_rows` returns and :meth:`RowAssembler.rows`' ``dr``.
+
+    Per pair: order ``h``, crank speed ``w`` rad/s, ``origin`` (3,) m, the motion
+    ``gamma_o``, ``omega_dot``, the excitation ``force``, ``moment`` and its measured part
+    ``measured`` (3,) complex (zeros when none), the channel noise ``var``, ``cov_unit``
+    (6, 6); ``sens`` (P, 12, n_sys) d motion / d systematic parameters, ``sign`` (P,)
+    the half-order sign the motion was multiplied by, ``model`` (P, 12, n_model) the
+    model inputs' raw rows (the last n_model columns of ``dr``). ``lin``: cog (3), mass,
+    whether the mass is unknown (1.0) ; ``inertia`` (3, 3) the linearisation's;
+    ``mount_pos`` (M, 3), ``mount_stiff`` (M, 3, 3) complex (M = 0 without the
+    suspension); ``consts``: crank axis (3), spin inertia (0 without the gyroscopic
+    term), reference point (3), unbalance point (3); ``c_it`` (3,) complex; ``cols``:
+    the columns of 1/m, unb_re, unb_im, unb_couple_re, unb_couple_im, crank_offset, and
+    whether ``measured`` is given (-1 / 0: absent).
+    """
+    n_p = h.shape[0]
+    n = H.shape[2]
+    n_sys = sens.shape[2]
+    n_model = model.shape[2]
+    n_mounts = mount_pos.shape[0]
+    i_inv, i_a, i_b, i_qa, i_qb, i_off, has_measured = (
+        cols[0],
+        cols[1],
+        cols[2],
+        cols[3],
+        cols[4],
+        cols[5],
+        cols[6],
+    )
+    mass = lin[3]
+    mass_unknown = lin[4] != 0.0
+    spin_j = consts[3]
+    skew_s = np.zeros((3, 3))
+    skew_g = np.zeros((3, 3))
+    _skew(consts[0:3], skew_s)
+    _skew(lin[0:3], skew_g)
+    skew_p = np.zeros((3, 3))
+    skew_r = np.zeros((3, 3))
+    kw = np.empty((3, 3), np.complex128)
+    tmp = np.empty((3, 3), np.complex128)
+    df_dgo = np.empty((3, 3), np.complex128)
+    df_dw = np.empty((3, 3), np.complex128)
+    dmp_dgo = np.empty((3, 3), np.complex128)
+    dmp_dw = np.empty((3, 3), np.complex128)
+    dfi_dw = np.empty((3, 3), np.complex128)
+    d_c = np.empty((6, 6), np.complex128)
+    rows = np.empty((6, n), np.complex128)  # translation rows, then rotation rows
+    yc = np.empty(6, np.complex128)
+    f_mounts = np.empty(3, np.complex128)
+    m_mounts = np.empty(3, np.complex128)
+    f_i = np.empty(3, np.complex128)
+    gamma_i = np.empty(3, np.complex128)
+    cov = np.empty((12, 12))
+    dcu = np.empty((12, 6))
+    low = np.empty((12, 12))
+    wd = np.empty((12, 12))
+    raw = np.empty((12, n))
+    yraw = np.empty(12)
+    for p in range(n_p):
+        big_w2 = (h[p] * w[p]) ** 2
+        o = origin[p]
+        g = gamma_o[p]
+        om = omega_dot[p]
+        df_dgo[:, :] = 0.0
+        df_dw[:, :] = 0.0
+        dmp_dgo[:, :] = 0.0
+        dmp_dw[:, :] = 0.0
+        f_mounts[:] = 0.0
+        m_mounts[:] = 0.0
+        for i in range(n_mounts):
+            # f_i = K_i gamma_i / W^2 and its derivatives, summed in mount order
+            pos = mount_pos[i]
+            r = pos - o
+            _skew(r, skew_r)
+            _skew(pos, skew_p)
+            for a in range(3):
+                for b in range(3):
+                    kw[a, b] = mount_stiff[i, a, b] / big_w2
+            for a in range(3):
+                gamma_i[a] = g[a] + _cross_at(om, r, a)
+            for a in range(3):
+                f_i[a] = kw[a, 0] * gamma_i[0] + kw[a, 1] * gamma_i[1] + kw[a, 2] * gamma_i[2]
+            for a in range(3):
+                f_mounts[a] += f_i[a]
+                m_mounts[a] += _cross_at(pos, f_i, a)
+            _matmul3(kw, skew_r, dfi_dw)
+            dfi_dw[:, :] = -dfi_dw
+            df_dgo += kw
+            df_dw += dfi_dw
+            _matmul3(skew_p, kw, tmp)
+            dmp_dgo += tmp
+            _matmul3(skew_p, dfi_dw, tmp)
+            dmp_dw += tmp
+        spin = spin_j / (1j * h[p])
+        rows[:, :] = 0.0
+        f_known = force[p] + f_mounts
+        cog_o = lin[0:3] - o
+        scale = mass  # the rows' mass factor (1 with the mass unknown), and F_unb's
+        unb_scale = 1.0
+        if mass_unknown:
+            scale = 1.0
+            unb_scale = mass
+            for a in range(3):
+                rows[a, i_inv] = -f_known[a]
+        for a in range(3):
+            # translation: scale (gamma_O + Omega' x (G - O)) (- F / m)
+            yc[a] = (
+                -g[a] + _cross_at(om, o, a)
+                if mass_unknown
+                else f_known[a] - mass * g[a] + mass * _cross_at(om, o, a)
+            )
+            # rotation: I Omega' + G x F_known = M_R + R x F + sum p_i x f_i - gyro
+            yc[3 + a] = (
+                moment[p, a]
+                + _cross_at(consts[4:7], force[p], a)
+                + m_mounts[a]
+                - spin * _cross_at(om, consts[0:3], a)
+            )
+        _skew_into(om, rows, 0, 6, scale)
+        _skew_into(f_known, rows, 3, 6, -1.0)
+        rows[3, 0], rows[3, 3], rows[3, 4] = om[0], -om[1], -om[2]
+        rows[4, 1], rows[4, 3], rows[4, 5] = om[1], -om[0], -om[2]
+        rows[5, 2], rows[5, 4], rows[5, 5] = om[2], -om[0], -om[1]
+        for a in range(3):
+            for b in range(3):
+                eye = 1.0 if a == b else 0.0
+                sk_cog_o = _skew_entry(cog_o, a, b)
+                if mass_unknown:
+                    d_c[a, b] = eye - df_dgo[a, b] / mass
+                    d_c[a, 3 + b] = -sk_cog_o - df_dw[a, b] / mass
+                else:
+                    d_c[a, b] = mass * eye - df_dgo[a, b]
+                    d_c[a, 3 + b] = -mass * sk_cog_o - df_dw[a, b]
+                sg_go = skew_g[a, 0] * df_dgo[0, b] + skew_g[a, 1] * df_dgo[1, b]
+                sg_go += skew_g[a, 2] * df_dgo[2, b]
+                sg_w = skew_g[a, 0] * df_dw[0, b] + skew_g[a, 1] * df_dw[1, b]
+                sg_w += skew_g[a, 2] * df_dw[2, b]
+                d_c[3 + a, b] = sg_go - dmp_dgo[a, b]
+                d_c[3 + a, 3 + b] = inertia[a, b] - spin * skew_s[a, b] + sg_w - dmp_dw[a, b]
+        if i_a >= 0 and h[p] == 1.0:
+            # the residual unbalance: F_unb = a col_a + b col_b, z = a + i b
+            for a in range(3):
+                col_a = w[p] ** 2 * c_it[a]
+                col_b = 1j * col_a
+                rows[a, i_a] = -col_a
+                rows[a, i_b] = -col_b
+                if i_qa >= 0:
+                    rows[3 + a, i_qa] = -col_b
+                    rows[3 + a, i_qb] = col_a
+            for a in range(3):
+                arm_a = _cross_unb(consts[7:10], lin[0:3], c_it, w[p] ** 2, a)
+                rows[3 + a, i_a] = -unb_scale * arm_a
+                rows[3 + a, i_b] = -unb_scale * (1j * arm_a)
+        if i_off >= 0:
+            # d residual / d offset = D (-i h m)
+            for a in range(6):
+                acc = 0j
+                for b in range(3):
+                    acc += d_c[a, b] * (-1j * h[p] * g[b]) + d_c[a, 3 + b] * (-1j * h[p] * om[b])
+                rows[a, i_off] = acc
+            if has_measured > 0:
+                for a in range(3):
+                    rows[3 + a, i_off] += 1j * h[p] * measured[p, a]
+        # real form: Re rows, then Im rows; D acts on [Re m, Im m]
+        dm = d_meas[p]
+        for a in range(6):
+            yraw[a] = yc[a].real
+            yraw[6 + a] = yc[a].imag
+            for j in range(n):
+                raw[a, j] = rows[a, j].real
+                raw[6 + a, j] = rows[a, j].imag
+            for b in range(6):
+                dm[a, b] = d_c[a, b].real
+                dm[a, 6 + b] = -d_c[a, b].imag
+                dm[6 + a, b] = d_c[a, b].imag
+                dm[6 + a, 6 + b] = d_c[a, b].real
+        # row covariance D diag(C, C) D^T, C = var cov_unit
+        dmp = dm
+        cu = cov_unit[p] * var[p]
+        cov[:, :] = 0.0
+        for half in range(2):
+            for a in range(12):
+                for b in range(6):
+                    acc_r = 0.0
+                    for k in range(6):
+                        acc_r += dmp[a, 6 * half + k] * cu[k, b]
+                    dcu[a, b] = acc_r
+            for a in range(12):
+                for b in range(12):
+                    acc_r = 0.0
+                    for k in range(6):
+                        acc_r += dcu[a, k] * dmp[b, 6 * half + k]
+                    cov[a, b] += acc_r
+        trace = 0.0
+        for a in range(12):
+            trace += cov[a, a]
+        jitter = 1e-12 * trace / 12 + 1e-300
+        for a in range(12):
+            cov[a, a] += jitter
+        _cholesky_inverse(cov, low, whiten[p])
+        wp = whiten[p]
+        for a in range(12):
+            acc_r = 0.0
+            for k in range(a + 1):
+                acc_r += wp[a, k] * yraw[k]
+            y[p, a] = acc_r
+            for j in range(n):
+                acc_r = 0.0
+                for k in range(a + 1):
+                    acc_r += wp[a, k] * raw[k, j]
+                H[p, a, j] = acc_r
+            for b in range(12):
+                acc_r = 0.0
+                for k in range(a + 1):
+                    acc_r += wp[a, k] * dmp[k, b]
+                wd[a, b] = acc_r
+        for a in range(12):
+            for j in range(n_sys):
+                acc_r = 0.0
+                for k in range(12):
+                    acc_r += wd[a, k] * (sign[p] * sens[p, k, j])
+                dr[p, a, j] = acc_r
+            for j in range(n_model):
+                acc_r = 0.0
+                for k in range(a + 1):
+                    acc_r += wp[a, k] * model[p, k, j]
+                dr[p, a, n_sys - n_model + j] += acc_r
+
+
+def _skew(v: np.ndarray, out: np.ndarray) -> None:
+    out[0, 0], out[0, 1], out[0, 2] = 0.0, -v[2], v[1]
+    out[1, 0], out[1, 1], out[1, 2] = v[2], 0.0, -v[0]
+    out[2, 0], out[2, 1], out[2, 2] = -v[1], v[0], 0.0
+
+
+def _skew_entry(v: np.ndarray, a: int, b: int) -> float:
+    if a == b:
+        return 0.0
+    if a == 0:
+        return -v[2] if b == 1 else v[1]
+    if a == 1:
+        return v[2] if b == 0 else -v[0]
+    return -v[1] if b == 0 else v[0]
+
+
+def _skew_into(v: np.ndarray, rows: np.ndarray, r0: int, c0: int, scale: float) -> None:
+    for a in range(3):
+        for b in range(3):
+            rows[r0 + a, c0 + b] = scale * _skew_entry(v, a, b)
+
+
+def _cross_at(a: np.ndarray, b: np.ndarray, i: int) -> Any:
+    """Component ``i`` of ``a x b``."""
+    if i == 0:
+        return a[1] * b[2] - a[2] * b[1]
+    if i == 1:
+        return a[2] * b[0] - a[0] * b[2]
+    return a[0] * b[1] - a[1] * b[0]
+
+
+def _cross_unb(point: np.ndarray, cog: np.ndarray, c_it: np.ndarray, w2: float, i: int) -> Any:
+    """Component ``i`` of ``(point - cog) x (w2 c_it)``."""
+    j, k = (i + 1) % 3, (i + 2) % 3
+    return (point[j] - cog[j]) * (w2 * c_it[k]) - (point[k] - cog[k]) * (w2 * c_it[j])
+
+
+def _cholesky_inverse(cov: np.ndarray, low: np.ndarray, inv: np.ndarray) -> None:
+    """``inv = L^-1``, ``L L^T = cov`` (12, 12) lower triangular; ``low`` is work space."""
+    m = cov.shape[0]
+    for j in range(m):
+        acc = cov[j, j]
+        for k in range(j):
+            acc -= low[j, k] * low[j, k]
+        d = np.sqrt(acc)
+        low[j, j] = d
+        for i in range(j + 1, m):
+            acc = cov[i, j]
+            for k in range(j):
+                acc -= low[i, k] * low[j, k]
+            low[i, j] = acc / d
+    for j in range(m):
+        for i in range(m):
+            inv[i, j] = 0.0
+        inv[j, j] = 1.0 / low[j, j]
+        for i in range(j + 1, m):
+            acc = 0.0
+            for k in range(j, i):
+                acc -= low[i, k] * inv[k, j]
+            inv[i, j] = acc / low[i, i]
+
+
+def kernel_rows(
+    setup: EstimatorSetup,
+    layout: ParameterLayout,
+    lin: Linearisation,
+    gamma_o: np.ndarray,
+    omega_dot: np.ndarray,
+    origin: np.ndarray,
+    cov_unit: np.ndarray,
+    orders: np.ndarray,
+    rpm: np.ndarray,
+    force: np.ndarray,
+    moment_r: np.ndarray,
+    noise_var: np.ndarray,
+    measured_moment: np.ndarray | None,
+    sens: np.ndarray,
+    sign: np.ndarray,
+    model: np.ndarray,
+    compiled: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Whitened rows H (P, 12, n), y (P, 12) and sensitivities ``dr`` (P, 12, n_sys) of
+    :meth:`estimator.pending_rows.RowAssembler.rows` (before self-calibration) by the
+    compiled :func:`pair_rows`; the arguments are :func:`estimator.equations.frame_rows`'
+    (per pair), ``sens`` the pairs' d motion / d systematic parameters, ``sign`` the
+    sign their motion was multiplied by, ``model`` the model inputs' raw rows.
+    Not for layouts with estimated mount scales. ``compiled=False``: :func:`pair_rows`
+    run by the interpreter (slow: for tests without numba)."""
+    assert not layout.mount_scales
+    n_p = len(orders)
+    corr = setup.corrections
+    bt = setup.frame_constants
+    mounts = corr.suspension and len(setup.mounts) > 0
+    names = set(layout.names)
+
+    def col(name: str) -> int:
+        return layout.index(name) if name in names else -1
+
+    cols = np.array(
+        [
+            col("inv_mass"),
+            col("unb_re"),
+            col("unb_im"),
+            col("unb_couple_re"),
+            col("unb_couple_im"),
+            col("crank_offset"),
+            0 if measured_moment is None else 1,
+        ]
+    )
+    consts = np.concatenate(
+        [
+            setup.crank_axis,
+            [setup.spin_inertia if corr.gyroscopic else 0.0],
+            setup.reference_point,
+            setup.unbalance_point,
+        ]
+    ).astype(float)
+    h = np.asarray(orders, float)
+    H = np.empty((n_p, 12, layout.size))
+    y = np.empty((n_p, 12))
+    dr = np.empty((n_p, 12, sens.shape[2]))
+    (compiled_pair_rows if compiled else pair_rows)(
+        h,
+        np.asarray(rpm, float) * 2 * np.pi / 60.0,
+        np.ascontiguousarray(origin, float),
+        np.ascontiguousarray(gamma_o, complex),
+        np.ascontiguousarray(omega_dot, complex),
+        np.ascontiguousarray(force, complex),
+        np.ascontiguousarray(moment_r, complex),
+        np.zeros((n_p, 3), complex) if measured_moment is None else measured_moment,
+        np.asarray(noise_var, float),
+        np.ascontiguousarray(cov_unit, float),
+        np.array([*lin.cog, lin.mass, 1.0 if layout.mass else 0.0], float),
+        np.ascontiguousarray(lin.inertia, float),
+        bt.mount_positions if mounts else np.zeros((0, 3)),
+        bt.mount_stiffness.astype(complex) if mounts else np.zeros((0, 3, 3), complex),
+        consts,
+        np.asarray(bt.c_it, complex),
+        cols,
+        np.ascontiguousarray(sens, float),
+        np.asarray(sign, float),
+        np.ascontiguousarray(model, float),
+        H,
+        y,
+        np.empty((n_p, 12, 12)),
+        np.empty((n_p, 12, 12)),
+        dr,
+    )
+    return H, y, dr
