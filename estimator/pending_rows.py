@@ -18,12 +18,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimator import row_kernels
+from estimator.compiled_rows import (
+    kernel_model_input_rows,
+    kernel_motion_sensitivity,
+    kernel_rows,
+)
 from estimator.elastic_tail import ELASTIC_TERMS
 from estimator.equations import Linearisation, ParameterLayout, frame_rows
 from estimator.kinematics import RigidFit, RigidMotion
 from estimator.model_inputs import model_input_rows
 from estimator.redundancy import redundancy_rows
-from estimator.row_kernels import kernel_rows
 from estimator.setup import EstimatorSetup
 from estimator.systematic import SensorBlocks, motion_sensitivity, sensor_blocks
 
@@ -215,16 +219,25 @@ class RowAssembler:
             if end == len(batch) or batch[end].fit is not batch[start].fit:
                 run = batch[start:end]
                 a, b = bounds[start], bounds[end]
-                out.append(
-                    motion_sensitivity(
-                        self.setup,
-                        run[0].fit,
-                        np.concatenate([p.amplitudes for p in run]),
-                        motion[0][a:b],
-                        motion[1][a:b],
-                        self._sensor_blocks(run[0].fit),
+                amplitudes = np.concatenate([p.amplitudes for p in run])
+                blocks = self._sensor_blocks(run[0].fit)
+                if self.compiled:
+                    out.append(
+                        kernel_motion_sensitivity(
+                            blocks, amplitudes, motion[0][a:b], motion[1][a:b]
+                        )
                     )
-                )
+                else:
+                    out.append(
+                        motion_sensitivity(
+                            self.setup,
+                            run[0].fit,
+                            amplitudes,
+                            motion[0][a:b],
+                            motion[1][a:b],
+                            blocks,
+                        )
+                    )
                 start = end
         return np.concatenate(out)
 
@@ -271,7 +284,7 @@ class RowAssembler:
             # the model inputs' columns (zero in dm_real: they do not touch the readings)
             if model_motion is not None:
                 gamma_o, omega_dot = model_motion
-            model = model_input_rows(
+            model = (kernel_model_input_rows if self.compiled else model_input_rows)(
                 self.setup,
                 lin,
                 not self.layout.mass,

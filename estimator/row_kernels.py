@@ -31,9 +31,6 @@ from typing import Any
 
 import numpy as np
 
-from estimator.equations import Linearisation, ParameterLayout
-from estimator.setup import EstimatorSetup
-
 AVAILABLE = importlib.util.find_spec("numba") is not None
 # PTINERTIA_NUMBA=1: the row assembly uses the kernel (long runs, campaigns and studies)
 USE = AVAILABLE and os.environ.get("PTINERTIA_NUMBA", "0") == "1"
@@ -52,19 +49,20 @@ _HELPERS = (
 )
 
 
-def compiled_pair_rows(*args: Any) -> None:
-    """:func:`pair_rows` compiled (on the first call; numba's cache keeps the machine code)."""
-    fn = _compiled.get(pair_rows)
-    if fn is None:
-        from numba import njit  # heavy (0.3 s): only where the kernel is used
+def jit(fn: Callable[..., None]) -> Callable[..., None]:
+    """``fn`` compiled by numba (``cache=True, nogil=True``), once per process."""
+    names = globals()
+    compiled = _compiled.get(fn)
+    if compiled is None:
+        from numba import njit  # heavy (0.3 s): only where a kernel is used
 
         # the module's helpers become their compiled selves (callable from Python alike),
-        # which pair_rows' compilation then finds as its globals
-        names = globals()
-        for name in _HELPERS:
-            names[name] = njit(cache=True, nogil=True)(names[name])
-        fn = _compiled[pair_rows] = njit(cache=True, nogil=True)(pair_rows)
-    fn(*args)
+        # which the kernels' compilation then finds as their globals
+        for helper in _HELPERS:
+            if not hasattr(names[helper], "py_func"):
+                names[helper] = njit(cache=True, nogil=True)(names[helper])
+        compiled = _compiled[fn] = njit(cache=True, nogil=True)(fn)
+    return compiled
 
 
 def _matmul3(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
@@ -391,92 +389,3 @@ def _cholesky_inverse(cov: np.ndarray, low: np.ndarray, inv: np.ndarray) -> None
             for k in range(j, i):
                 acc -= low[i, k] * inv[k, j]
             inv[i, j] = acc / low[i, i]
-
-
-def kernel_rows(
-    setup: EstimatorSetup,
-    layout: ParameterLayout,
-    lin: Linearisation,
-    gamma_o: np.ndarray,
-    omega_dot: np.ndarray,
-    origin: np.ndarray,
-    cov_unit: np.ndarray,
-    orders: np.ndarray,
-    rpm: np.ndarray,
-    force: np.ndarray,
-    moment_r: np.ndarray,
-    noise_var: np.ndarray,
-    measured_moment: np.ndarray | None,
-    sens: np.ndarray,
-    sign: np.ndarray,
-    model: np.ndarray,
-    compiled: bool = True,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Whitened rows H (P, 12, n), y (P, 12) and sensitivities ``dr`` (P, 12, n_sys) of
-    :meth:`estimator.pending_rows.RowAssembler.rows` (before self-calibration) by the
-    compiled :func:`pair_rows`; the arguments are :func:`estimator.equations.frame_rows`'
-    (per pair), ``sens`` the pairs' d motion / d systematic parameters, ``sign`` the
-    sign their motion was multiplied by, ``model`` the model inputs' raw rows.
-    Not for layouts with estimated mount scales. ``compiled=False``: :func:`pair_rows`
-    run by the interpreter (slow: for tests without numba)."""
-    assert not layout.mount_scales
-    n_p = len(orders)
-    corr = setup.corrections
-    bt = setup.frame_constants
-    mounts = corr.suspension and len(setup.mounts) > 0
-    names = set(layout.names)
-
-    def col(name: str) -> int:
-        return layout.index(name) if name in names else -1
-
-    cols = np.array(
-        [
-            col("inv_mass"),
-            col("unb_re"),
-            col("unb_im"),
-            col("unb_couple_re"),
-            col("unb_couple_im"),
-            col("crank_offset"),
-            0 if measured_moment is None else 1,
-        ]
-    )
-    consts = np.concatenate(
-        [
-            setup.crank_axis,
-            [setup.spin_inertia if corr.gyroscopic else 0.0],
-            setup.reference_point,
-            setup.unbalance_point,
-        ]
-    ).astype(float)
-    h = np.asarray(orders, float)
-    H = np.empty((n_p, 12, layout.size))
-    y = np.empty((n_p, 12))
-    dr = np.empty((n_p, 12, sens.shape[2]))
-    (compiled_pair_rows if compiled else pair_rows)(
-        h,
-        np.asarray(rpm, float) * 2 * np.pi / 60.0,
-        np.ascontiguousarray(origin, float),
-        np.ascontiguousarray(gamma_o, complex),
-        np.ascontiguousarray(omega_dot, complex),
-        np.ascontiguousarray(force, complex),
-        np.ascontiguousarray(moment_r, complex),
-        np.zeros((n_p, 3), complex) if measured_moment is None else measured_moment,
-        np.asarray(noise_var, float),
-        np.ascontiguousarray(cov_unit, float),
-        np.array([*lin.cog, lin.mass, 1.0 if layout.mass else 0.0], float),
-        np.ascontiguousarray(lin.inertia, float),
-        bt.mount_positions if mounts else np.zeros((0, 3)),
-        bt.mount_stiffness.astype(complex) if mounts else np.zeros((0, 3, 3), complex),
-        consts,
-        np.asarray(bt.c_it, complex),
-        cols,
-        np.ascontiguousarray(sens, float),
-        np.asarray(sign, float),
-        np.ascontiguousarray(model, float),
-        H,
-        y,
-        np.empty((n_p, 12, 12)),
-        np.empty((n_p, 12, 12)),
-        dr,
-    )
-    return H, y, dr

@@ -110,6 +110,7 @@ def sensor_blocks(setup: EstimatorSetup, fit: RigidFit) -> SensorBlocks:
         idx=idx,
         gain_by_place=[gain[:, idx[:, q]][:, :, None] for q in range(width)],  # (6, S, 1)
         cols=cols,
+        bases=np.array(bases),
     )
 
 
@@ -125,6 +126,7 @@ class SensorBlocks:
     idx: np.ndarray  # (S, width) each sensor's used channels in channel order (u: padding)
     gain_by_place: list[np.ndarray]  # per place in a sensor: the gain columns (6, S, 1)
     cols: np.ndarray  # (6 S,) the sensors' alignment and position columns
+    bases: np.ndarray  # (u,) each used channel's sensor's first column
 
 
 def motion_sensitivity(

@@ -12,16 +12,19 @@ The loops are checked run by the interpreter (no numba needed) and compiled.
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import pytest
 from support.estimator_harness import Body, frames, make_setup
 
-from estimator import row_kernels
+from estimator import compiled_rows, row_kernels
 from estimator.equations import Linearisation, ParameterLayout, frame_rows
-from estimator.setup import Corrections
+from estimator.model_inputs import model_input_rows
+from estimator.setup import Corrections, ModelInput
 from estimator.streaming import InertiaEstimator
+from estimator.systematic import motion_sensitivity, sensor_blocks
 
 NUMBA = pytest.mark.skipif(not row_kernels.AVAILABLE, reason="numba not installed")
 RNG = np.random.default_rng(5)
@@ -95,7 +98,7 @@ def _close(got: tuple, want: tuple) -> None:
 @pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])
 def test_kernel_loops_give_the_numpy_rows(case) -> None:
     setup, layout, lin, args, measured, sens, sign, model = _inputs(case)
-    got = row_kernels.kernel_rows(
+    got = compiled_rows.kernel_rows(
         setup, layout, lin, **args, measured_moment=measured, sens=sens, sign=sign, model=model,
         compiled=False,
     )  # fmt: skip
@@ -106,12 +109,12 @@ def test_kernel_loops_give_the_numpy_rows(case) -> None:
 @pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])
 def test_compiled_kernel_gives_the_numpy_rows(case) -> None:
     setup, layout, lin, args, measured, sens, sign, model = _inputs(case)
-    got = row_kernels.kernel_rows(
+    got = compiled_rows.kernel_rows(
         setup, layout, lin, **args, measured_moment=measured, sens=sens, sign=sign, model=model
     )
     _close(got, _reference(setup, layout, lin, args, measured, sens, sign, model))
     # a pair's rows do not depend on the pairs assembled with it
-    one = row_kernels.kernel_rows(
+    one = compiled_rows.kernel_rows(
         setup,
         layout,
         lin,
@@ -125,10 +128,75 @@ def test_compiled_kernel_gives_the_numpy_rows(case) -> None:
         assert np.array_equal(a[0], b[2])
 
 
+def _sensor_setups(count: int):
+    """Random channel layouts: sensors with one to three channels, used in any order."""
+    rng = np.random.default_rng(8)
+    for _ in range(count):
+        n_sens = int(rng.integers(2, 6))
+        of_channel = np.repeat(np.arange(n_sens), rng.integers(1, 4, n_sens))
+        n_ch = len(of_channel)
+        setup = SimpleNamespace(
+            channels=[f"c{i}" for i in range(n_ch)],
+            n_sensors=n_sens,
+            model_inputs=[None] * int(rng.integers(0, 4)),
+            sensor_of_channel=of_channel,
+            positions=rng.normal(size=(n_ch, 3)),
+            directions=rng.normal(size=(n_ch, 3)),
+        )
+        used = rng.permutation(n_ch)[: int(rng.integers(min(3, n_ch), n_ch + 1))]
+        fit = SimpleNamespace(
+            channels=used, origin=rng.normal(size=3), gain=rng.normal(size=(6, len(used)))
+        )
+        n_p = int(rng.integers(1, 30))
+        motion = [rng.normal(size=(n_p, k)) + 1j * rng.normal(size=(n_p, k)) for k in (3, 3)]
+        amplitudes = rng.normal(size=(n_p, len(used))) + 1j * rng.normal(size=(n_p, len(used)))
+        yield setup, fit, amplitudes, *motion
+
+
+@pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=NUMBA)])
+def test_motion_sensitivity_kernel_gives_the_numpy_values(compiled: bool) -> None:
+    """The same products and sums in channel order: the same values."""
+    for setup, fit, amplitudes, gamma_o, omega_dot in _sensor_setups(40):
+        want = motion_sensitivity(setup, fit, amplitudes, gamma_o, omega_dot)
+        blocks = sensor_blocks(setup, fit)
+        got = compiled_rows.kernel_motion_sensitivity(
+            blocks, amplitudes, gamma_o, omega_dot, compiled=compiled
+        )
+        assert np.array_equal(got, want)
+
+
+def _d_excitation(rpm: np.ndarray, orders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    w2 = (rpm * np.pi / 30) ** 2
+    return (orders * w2)[:, None] * [0.1, 0.2j, 0.3], (orders * w2)[:, None] * [0.02j, 0.01, 0.03]
+
+
+MODEL_INPUTS = (
+    ModelInput("exc", "excitation", 0.05, d_excitation=_d_excitation),
+    ModelInput("spin_inertia", "spin_inertia", 0.01),
+    ModelInput("mount:m1", "mount", 0.15, mount=1),
+    ModelInput("exc2", "excitation", 0.05, d_excitation=_d_excitation),
+    ModelInput("mount:m0", "mount", 0.15, mount=0),
+)
+
+
+@pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=NUMBA)])
+@pytest.mark.parametrize("mass_known", [True, False])
+def test_model_input_kernel_gives_the_numpy_rows(compiled: bool, mass_known: bool) -> None:
+    body = Body()
+    setup = dataclasses.replace(make_setup(body, mass_known=mass_known), model_inputs=MODEL_INPUTS)
+    lin = Linearisation(cog=body.cog + 0.01, inertia=body.inertia, mass=body.mass * 0.97)
+    motion = 0.1 * _complex(P, 3), _complex(P, 3)
+    origin = RNG.normal(scale=0.02, size=(P, 3))
+    args = (setup, lin, mass_known, *motion, origin, ORDERS, RPM)
+    got = compiled_rows.kernel_model_input_rows(*args, compiled=compiled)
+    _close((got,), (model_input_rows(*args),))
+
+
 def _run(compiled: bool, single: bool) -> InertiaEstimator:
     body = Body(unbalance=4e-4 * np.exp(-1j * 0.7))
     corrections = Corrections(crank_offset=True)
-    est = InertiaEstimator(make_setup(body, corrections=corrections))
+    setup = make_setup(body, corrections=corrections)
+    est = InertiaEstimator(dataclasses.replace(setup, model_inputs=MODEL_INPUTS))
     est.rows.compiled = compiled
     rng = np.random.default_rng(2)
     data = [
