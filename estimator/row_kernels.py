@@ -157,6 +157,11 @@ def pair_rows(
     low = np.empty((12, 12))
     wd = np.empty((12, 12))
     raw = np.empty((12, n))
+    model_w = np.empty((12, n_model))
+    r = np.empty(3)
+    cog_o = np.empty(3)
+    f_known = np.empty(3, np.complex128)
+    cu = np.empty((6, 6))
     yraw = np.empty(12)
     for p in range(n_p):
         big_w2 = (h[p] * w[p]) ** 2
@@ -172,7 +177,8 @@ def pair_rows(
         for i in range(n_mounts):
             # f_i = K_i gamma_i / W^2 and its derivatives, summed in mount order
             pos = mount_pos[i]
-            r = pos - o
+            for a in range(3):
+                r[a] = pos[a] - o[a]
             _skew(r, skew_r)
             _skew(pos, skew_p)
             for a in range(3):
@@ -186,17 +192,24 @@ def pair_rows(
                 f_mounts[a] += f_i[a]
                 m_mounts[a] += _cross_at(pos, f_i, a)
             _matmul3(kw, skew_r, dfi_dw)
-            dfi_dw[:, :] = -dfi_dw
-            df_dgo += kw
-            df_dw += dfi_dw
+            for a in range(3):
+                for b in range(3):
+                    dfi_dw[a, b] = -dfi_dw[a, b]
+                    df_dgo[a, b] += kw[a, b]
+                    df_dw[a, b] += dfi_dw[a, b]
             _matmul3(skew_p, kw, tmp)
-            dmp_dgo += tmp
+            for a in range(3):
+                for b in range(3):
+                    dmp_dgo[a, b] += tmp[a, b]
             _matmul3(skew_p, dfi_dw, tmp)
-            dmp_dw += tmp
+            for a in range(3):
+                for b in range(3):
+                    dmp_dw[a, b] += tmp[a, b]
         spin = spin_j / (1j * h[p])
         rows[:, :] = 0.0
-        f_known = force[p] + f_mounts
-        cog_o = lin[0:3] - o
+        for a in range(3):
+            f_known[a] = force[p, a] + f_mounts[a]
+            cog_o[a] = lin[a] - o[a]
         scale = mass  # the rows' mass factor (1 with the mass unknown), and F_unb's
         unb_scale = 1.0
         if mass_unknown:
@@ -276,22 +289,25 @@ def pair_rows(
                 dm[a, 6 + b] = -d_c[a, b].imag
                 dm[6 + a, b] = d_c[a, b].imag
                 dm[6 + a, 6 + b] = d_c[a, b].real
-        # row covariance D diag(C, C) D^T, C = var cov_unit
-        dmp = dm
-        cu = cov_unit[p] * var[p]
+        # row covariance D diag(C, C) D^T, C = var cov_unit. (The products below run
+        # with the output's last index innermost: independent sums the compiler can
+        # vectorise, each still taken in the order of its terms.)
+        for a in range(6):
+            for b in range(6):
+                cu[a, b] = cov_unit[p, a, b] * var[p]
         cov[:, :] = 0.0
         for half in range(2):
+            dcu[:, :] = 0.0
             for a in range(12):
-                for b in range(6):
-                    acc_r = 0.0
-                    for k in range(6):
-                        acc_r += dmp[a, 6 * half + k] * cu[k, b]
-                    dcu[a, b] = acc_r
+                for k in range(6):
+                    c = dm[a, 6 * half + k]
+                    for b in range(6):
+                        dcu[a, b] += c * cu[k, b]
             for a in range(12):
                 for b in range(12):
                     acc_r = 0.0
                     for k in range(6):
-                        acc_r += dcu[a, k] * dmp[b, 6 * half + k]
+                        acc_r += dcu[a, k] * dm[b, 6 * half + k]
                     cov[a, b] += acc_r
         trace = 0.0
         for a in range(12):
@@ -301,32 +317,31 @@ def pair_rows(
             cov[a, a] += jitter
         _cholesky_inverse(cov, low, whiten[p])
         wp = whiten[p]
+        hp = H[p]
+        drp = dr[p]
+        hp[:, :] = 0.0
+        wd[:, :] = 0.0
+        model_w[:, :] = 0.0
+        drp[:, :] = 0.0
         for a in range(12):
             acc_r = 0.0
             for k in range(a + 1):
-                acc_r += wp[a, k] * yraw[k]
+                c = wp[a, k]
+                acc_r += c * yraw[k]
+                for j in range(n):
+                    hp[a, j] += c * raw[k, j]
+                for b in range(12):
+                    wd[a, b] += c * dm[k, b]
+                for j in range(n_model):
+                    model_w[a, j] += c * model[p, k, j]
             y[p, a] = acc_r
-            for j in range(n):
-                acc_r = 0.0
-                for k in range(a + 1):
-                    acc_r += wp[a, k] * raw[k, j]
-                H[p, a, j] = acc_r
-            for b in range(12):
-                acc_r = 0.0
-                for k in range(a + 1):
-                    acc_r += wp[a, k] * dmp[k, b]
-                wd[a, b] = acc_r
         for a in range(12):
-            for j in range(n_sys):
-                acc_r = 0.0
-                for k in range(12):
-                    acc_r += wd[a, k] * (sign[p] * sens[p, k, j])
-                dr[p, a, j] = acc_r
+            for k in range(12):
+                c = wd[a, k] * sign[p]
+                for j in range(n_sys - n_model):  # (the model inputs' columns of sens: 0)
+                    drp[a, j] += c * sens[p, k, j]
             for j in range(n_model):
-                acc_r = 0.0
-                for k in range(a + 1):
-                    acc_r += wp[a, k] * model[p, k, j]
-                dr[p, a, n_sys - n_model + j] += acc_r
+                drp[a, n_sys - n_model + j] += model_w[a, j]
 
 
 def _skew(v: np.ndarray, out: np.ndarray) -> None:
