@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from estimator.compiled_rows import kernel_frame_sums
 from estimator.rls import RlsState, rank_decision, rls_init, rls_update
 
 # The half-order sign is decided when, after this many ambiguous frames, the wrong
@@ -121,6 +122,7 @@ def add_frames(
     dr: np.ndarray,
     bounds: np.ndarray,
     forgetting: float = 1.0,
+    compiled: bool = False,
 ) -> Accumulator:
     """:func:`add_frame` for consecutive frames (no redundancy rows): frame f's rows
     are ``H[bounds[f]:bounds[f + 1]]`` (pairs, 12, n), ``y`` and ``dr`` alike.
@@ -128,11 +130,26 @@ def add_frames(
     Each frame's products are formed as :func:`add_frame` forms them (the same
     bits), those of all frames with as many orders in one call, and added to the
     state in stream order: the per-call overhead of numpy, not the arithmetic,
-    is what a frame costs at these sizes.
+    is what a frame costs at these sizes. ``compiled``: the sums by
+    :func:`estimator.compiled_rows.frame_sums` (numba; the same frame by frame
+    structure, its sums in row order where BLAS groups them its own way: within
+    rounding of these, tests/estimator/test_row_kernels.py).
     """
     n = H.shape[-1]
     starts = np.asarray(bounds[:-1])
     sizes = np.diff(bounds)
+    if compiled:
+        st = acc.state
+        info_total, vec_total, yty_total, sens_total = kernel_frame_sums(
+            st.info, st.vec, st.yty, acc.sens, H, y, dr, bounds, forgetting
+        )
+        rows = st.rows
+        if forgetting == 1.0:
+            rows = rows + 12 * float(np.sum(sizes))
+        else:
+            for k in sizes.tolist():
+                rows = forgetting * rows + 12 * k
+        return Accumulator(RlsState(info_total, vec_total, yty_total, rows), sens_total)
     n_f = len(sizes)
     info, vec = np.empty((n_f, n, n)), np.empty((n_f, n))
     yty, sens = np.empty(n_f), np.empty((n_f, n, dr.shape[-1]))

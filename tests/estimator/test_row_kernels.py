@@ -12,6 +12,7 @@ The loops are checked run by the interpreter (no numba needed) and compiled.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from types import SimpleNamespace
 from typing import Any
 
@@ -21,7 +22,9 @@ from support.estimator_harness import Body, frames, make_setup
 
 from estimator import compiled_rows, row_kernels
 from estimator.equations import Linearisation, ParameterLayout, frame_rows
+from estimator.hypotheses import Accumulator, add_frames
 from estimator.model_inputs import model_input_rows
+from estimator.rls import RlsState
 from estimator.setup import Corrections, ModelInput
 from estimator.streaming import InertiaEstimator
 from estimator.systematic import motion_sensitivity, sensor_blocks
@@ -190,6 +193,35 @@ def test_model_input_kernel_gives_the_numpy_rows(compiled: bool, mass_known: boo
     args = (setup, lin, mass_known, *motion, origin, ORDERS, RPM)
     got = compiled_rows.kernel_model_input_rows(*args, compiled=compiled)
     _close((got,), (model_input_rows(*args),))
+
+
+@pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=NUMBA)])
+@pytest.mark.parametrize("forgetting", [1.0, 0.98])
+def test_compiled_sums_give_the_numpy_state(compiled: bool, forgetting: float) -> None:
+    rng = np.random.default_rng(4)
+    sizes = [3, 1, 2, 3, 3, 2]
+    bounds = np.cumsum([0, *sizes])
+    n_p, n, n_sys = int(bounds[-1]), 21, 30
+    H, y = rng.normal(size=(n_p, 12, n)), rng.normal(size=(n_p, 12))
+    dr = rng.normal(size=(n_p, 12, n_sys))
+    start = Accumulator(
+        RlsState(np.eye(n), rng.normal(size=n), 3.0, 10.0), rng.normal(size=(n, n_sys))
+    )
+    want = add_frames(start, H, y, dr, bounds, forgetting)
+    kw: dict[str, Any] = {"forgetting": forgetting, "compiled": compiled}
+    got = add_frames(start, H, y, dr, bounds, **kw)
+    _close(
+        (got.state.info, got.state.vec, np.array(got.state.yty), got.sens),
+        (want.state.info, want.state.vec, np.array(want.state.yty), want.sens),
+    )
+    assert got.state.rows == want.state.rows
+    # frame by frame: the same bits
+    acc = start
+    for a, b in itertools.pairwise(bounds):
+        acc = add_frames(acc, H[a:b], y[a:b], dr[a:b], np.array([0, b - a]), **kw)
+    assert np.array_equal(acc.state.info, got.state.info)
+    assert np.array_equal(acc.sens, got.sens)
+    assert acc.state.yty == got.state.yty
 
 
 def _run(compiled: bool, single: bool) -> InertiaEstimator:
