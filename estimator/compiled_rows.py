@@ -82,15 +82,17 @@ def kernel_rows(
     dr = np.empty((n_p, 12, sens.shape[2]))
     (jit(pair_rows) if compiled else pair_rows)(
         h,
-        np.asarray(rpm, float) * 2 * np.pi / 60.0,
-        np.ascontiguousarray(origin, float),
+        np.broadcast_to(np.asarray(rpm, float) * 2 * np.pi / 60.0, (n_p,)).copy(),
+        np.ascontiguousarray(np.broadcast_to(origin, (n_p, 3)), float),
         np.ascontiguousarray(gamma_o, complex),
         np.ascontiguousarray(omega_dot, complex),
         np.ascontiguousarray(force, complex),
         np.ascontiguousarray(moment_r, complex),
-        np.zeros((n_p, 3), complex) if measured_moment is None else measured_moment,
+        np.zeros((n_p, 3), complex)
+        if measured_moment is None
+        else np.ascontiguousarray(measured_moment, complex),
         np.asarray(noise_var, float),
-        np.ascontiguousarray(cov_unit, float),
+        np.ascontiguousarray(np.broadcast_to(cov_unit, (n_p, 6, 6)), float),
         np.array([*lin.cog, lin.mass, 1.0 if layout.mass else 0.0], float),
         np.ascontiguousarray(lin.inertia, float),
         bt.mount_positions if mounts else np.zeros((0, 3)),
@@ -300,86 +302,3 @@ def model_rows(
                 out[p, 3 + a, j] = r[a].real
                 out[p, 6 + a, j] = t[a].imag
                 out[p, 9 + a, j] = r[a].imag
-
-
-def kernel_frame_sums(
-    info: np.ndarray,
-    vec: np.ndarray,
-    yty: float,
-    sens: np.ndarray,
-    H: np.ndarray,
-    y: np.ndarray,
-    dr: np.ndarray,
-    bounds: np.ndarray,
-    forgetting: float,
-    compiled: bool = True,
-) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
-    """:func:`estimator.hypotheses.add_frames`' sums by the compiled :func:`frame_sums`:
-    the state ``info`` (n, n), ``vec`` (n,), ``yty``, ``sens`` (n, n_sys) after the
-    frames' rows (frame f: ``H[bounds[f]:bounds[f + 1]]``), new arrays."""
-    info, vec, sens = info.copy(), vec.copy(), sens.copy()
-    yty_io = np.array([yty])
-    (jit(frame_sums) if compiled else frame_sums)(
-        np.ascontiguousarray(H),
-        np.ascontiguousarray(y),
-        np.ascontiguousarray(dr),
-        np.asarray(bounds, np.int64),
-        float(forgetting),
-        info,
-        vec,
-        yty_io,
-        sens,
-    )
-    return info, vec, float(yty_io[0]), sens
-
-
-def frame_sums(
-    H: np.ndarray,
-    y: np.ndarray,
-    dr: np.ndarray,
-    bounds: np.ndarray,
-    lam: float,
-    info: np.ndarray,
-    vec: np.ndarray,
-    yty: np.ndarray,
-    sens: np.ndarray,
-) -> None:
-    """Per frame ``Lambda <- lam Lambda + H^T H``, ``eta <- lam eta + H^T y``, ``yty <- lam
-    yty + y^T y``, ``S <- lam S + H^T dr`` (rows (pairs, 12, .) whitened), in place: each
-    frame's sums formed on their own (in row order) and then added, in stream order, so
-    the state does not depend on how the frames were batched."""
-    n = H.shape[2]
-    n_sys = dr.shape[2]
-    info_f = np.empty((n, n))
-    vec_f = np.empty(n)
-    sens_f = np.empty((n, n_sys))
-    for f in range(bounds.shape[0] - 1):
-        info_f[:, :] = 0.0
-        vec_f[:] = 0.0
-        sens_f[:, :] = 0.0
-        yty_f = 0.0
-        for p in range(bounds[f], bounds[f + 1]):
-            for r in range(12):
-                row = H[p, r]
-                d_row = dr[p, r]
-                yr = y[p, r]
-                yty_f += yr * yr
-                for i in range(n):
-                    hi = row[i]
-                    vec_f[i] += hi * yr
-                    info_i = info_f[i]
-                    for j in range(i, n):  # (the upper triangle; mirrored below)
-                        info_i[j] += hi * row[j]
-                    sens_i = sens_f[i]
-                    for j in range(n_sys):
-                        sens_i[j] += hi * d_row[j]
-        for i in range(n):
-            for j in range(i + 1, n):
-                info_f[j, i] = info_f[i, j]
-        for i in range(n):
-            vec[i] = lam * vec[i] + vec_f[i]
-            for j in range(n):
-                info[i, j] = lam * info[i, j] + info_f[i, j]
-            for j in range(n_sys):
-                sens[i, j] = lam * sens[i, j] + sens_f[i, j]
-        yty[0] = lam * yty[0] + yty_f

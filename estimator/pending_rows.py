@@ -7,7 +7,9 @@ the equations of motion (:func:`estimator.equations.frame_rows`), their
 sensitivity to the declared systematic sensor errors and, with
 self-calibration, the rigid fits' redundancy rows. The store of frames with an
 unseen motion (:mod:`estimator.partial_pairs`) builds its rows with the same
-assembler.
+assembler. With ``PTINERTIA_NUMBA=1`` the assembler builds the rows and both
+sensitivities with compiled loops (:mod:`estimator.compiled_rows`), within rounding of
+the numpy functions, which stay the default and the reference.
 """
 
 from __future__ import annotations

@@ -1,25 +1,15 @@
 """Compiled row assembly: the whitened rows of (frame, order) pairs, one pair at a time.
 
-:func:`estimator.equations.frame_rows` builds the rows of a flush with a few hundred numpy
-calls on (pairs, 3..12, 3..12) arrays; at a dozen frames a flush the calls, not the
-arithmetic, are its cost (about 35 us per used frame of the 171 the estimator took on the
-60 s log, the whitening's ``inv(cholesky)`` a quarter of it). :func:`pair_rows` does the
-same arithmetic pair by pair in loops (mount reactions, gyroscopic term, translation and
-rotation rows, unbalance and crank-offset columns, d residual / d measurement, the row
-covariance, its Cholesky factor and inverse, the whitened rows and the whitened
-sensitivities ``W D dm`` plus the model inputs' ``W M``, :class:`RowAssembler`'s ``dr``),
-compiled by numba (``nogil=True``: it releases the GIL). Layouts with estimated mount
-stiffness scales stay on the numpy path.
-
-Used only with ``PTINERTIA_NUMBA=1`` (as :mod:`dsp.kernels`: importing numba and loading
-the cached machine code costs about 0.5 s of CPU per process, more than a short run
-saves); numba is imported on first use, and the default path never imports it. The numpy
-code stays the reference: sums run in another order here (explicit loops against BLAS,
-einsum and LAPACK, a Cholesky factor inverted by forward substitution against LAPACK's
-``gesv``), so the rows agree within rounding, not bit for bit
-(``tests/estimator/test_row_kernels.py``: within 1e-12 relative on the rows and on every
-estimate and interval of a run). One frame at a time and in blocks still give the same
-bits: the kernel's result of a pair does not depend on the other pairs.
+:func:`pair_rows` does :func:`estimator.equations.frame_rows`' arithmetic pair by pair in
+loops (mount reactions, gyroscopic term, translation and rotation rows, unbalance and
+crank-offset columns, d residual / d measurement, the row covariance, its Cholesky factor
+and inverse, the whitened rows), and :class:`estimator.pending_rows.RowAssembler`'s
+whitened sensitivities ``dr`` beside them. Layouts with estimated mount stiffness scales
+stay on the numpy path. :func:`jit` compiles this module's kernels and those of
+:mod:`estimator.compiled_rows` and :mod:`estimator.hypotheses` (``cache=True``,
+``nogil=True``: they release the GIL), importing numba on the first call: the default
+path (``PTINERTIA_NUMBA`` unset) never imports it. Why, what it gains and how close it
+stays to the numpy reference: :mod:`estimator.compiled_rows`.
 """
 
 from __future__ import annotations

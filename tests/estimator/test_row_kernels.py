@@ -27,7 +27,7 @@ from estimator.model_inputs import model_input_rows
 from estimator.rls import RlsState
 from estimator.setup import Corrections, ModelInput
 from estimator.streaming import InertiaEstimator
-from estimator.systematic import motion_sensitivity, sensor_blocks
+from estimator.systematic import motion_sensitivity, reading_sensitivity, sensor_blocks
 
 NUMBA = pytest.mark.skipif(not row_kernels.AVAILABLE, reason="numba not installed")
 RNG = np.random.default_rng(5)
@@ -154,6 +154,16 @@ def _sensor_setups(count: int):
         motion = [rng.normal(size=(n_p, k)) + 1j * rng.normal(size=(n_p, k)) for k in (3, 3)]
         amplitudes = rng.normal(size=(n_p, len(used))) + 1j * rng.normal(size=(n_p, len(used)))
         yield setup, fit, amplitudes, *motion
+
+
+def test_motion_sensitivity_is_the_gain_times_the_reading_sensitivity() -> None:
+    """A second route: the fit is linear (motion = gain @ readings), so d motion / dp is
+    the dense product of the gain with d readings / dp, real and imaginary rows."""
+    for setup, fit, amplitudes, gamma_o, omega_dot in _sensor_setups(40):
+        got = motion_sensitivity(setup, fit, amplitudes, gamma_o, omega_dot)
+        dense = fit.gain @ reading_sensitivity(setup, fit, amplitudes, gamma_o, omega_dot)
+        want = np.concatenate([dense.real, dense.imag], axis=1)
+        assert np.max(np.abs(got - want)) <= 1e-13 * np.max(np.abs(want))
 
 
 @pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=NUMBA)])
