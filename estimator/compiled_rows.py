@@ -4,11 +4,37 @@
 model inputs, by the loops here): what :class:`estimator.pending_rows.RowAssembler`
 calls with ``PTINERTIA_NUMBA=1`` in place of the numpy functions
 (:func:`estimator.equations.frame_rows`, :func:`estimator.systematic.motion_sensitivity`,
-:func:`estimator.model_inputs.model_input_rows`), which stay the reference. numba is
-imported on the first call only (:func:`estimator.row_kernels.jit`).
+:func:`estimator.model_inputs.model_input_rows`), which stay the default and the
+reference; the RLS sums beside them are :func:`estimator.hypotheses.frame_sums`.
 
-The sensitivity loops take the numpy functions' products and sums in their order (the
-same values, tested); the rows' do not (:mod:`estimator.row_kernels`).
+Why: a flush assembles a dozen frames (some 35 (frame, order) pairs) with a few hundred
+numpy calls on (pairs, 3..12, 3..12) arrays, and the calls, not the arithmetic, are its
+cost; the numpy code was restructured as far as it keeps its bits (the motion
+sensitivity in real arithmetic, the model inputs' products together), which gained
+little. Measured (issue 24; the 60 s log's frames, 1498 used, CPU best of 3,
+``benchmarks/bench_pipeline.py``' estimator_alone, load average 9-10 on the 2 cores):
+row assembly and RLS sums 83-93 us per used frame before, 80-82 with the numpy rows,
+39-40 compiled (``pair_rows`` 4.3 us a pair: its arithmetic, the whitened sensitivities
+``W D dm`` most of it); the whole estimator 163-183 -> 160-166 numpy, 117-120 compiled in
+blocks, 371-406 -> 376-387 numpy, 315-328 compiled one frame at a time (there the
+gates, fits and published estimates dominate). The kernels release the GIL. numba is
+imported on the first call only (:func:`estimator.row_kernels.jit`), and compiling
+them costs about 7 s of CPU once per install (``ptinertia run --duration 5`` with an
+empty numba cache: 12.4-13.0 s against 5.3-5.7 s with the dsp's kernels alone); from a
+filled cache they add 0.04 s to the start (1.20 against 1.16 s; load 4).
+
+How close: the sensitivity loops take the numpy functions' products and sums in their
+order (the same values, tested); the rows and the RLS sums do not (loops against BLAS,
+einsum and LAPACK). On the 60 s log the accumulators agree within 9e-15 of their largest
+entries, the inertia, cog and their standard deviations within 1e-13 relative, the
+unbalance and crank offset of that noise-free run (zero, 1e-10) within 7e-13 of their
+standard deviations. ``ptinertia run --realistic`` (kernels on against off, the dsp's
+compiled in both): every estimate and interval within 1e-12 relative (the crank offset
+9.7e-13 the worst), a principal axis component of 0.029 within 1.8e-12 of its value
+(5e-14 of the unit vector). What rests on round-off moves more, as with the dsp's
+compiled sums: the random part of the noise-free intervals (1e-8 of the total) by 4e-4,
+the default run's variance factor by 1 %, its half-order residual ratio by 0.3 %, the
+angle of its zero unbalance by 2e-7 (the dsp's kernels: 1.6 %, 0.4 %, 2e-7).
 """
 
 from __future__ import annotations
