@@ -260,14 +260,16 @@ class RowAssembler:
         order), linearised at ``lin``. ``calibrate=False``: the self-calibrated
         sensor errors stay systematic errors in these rows. ``model_motion``: the
         motion the model inputs' sensitivities are taken at (default: the rows')."""
-        cat = lambda name: np.concatenate([getattr(p, name) for p in batch])[sel]  # noqa: E731
+        # every pair selected (the common case): the concatenations as they are, no copies
+        pick: slice | np.ndarray = slice(None) if bool(np.all(sel)) else sel
+        cat = lambda name: np.concatenate([getattr(p, name) for p in batch])[pick]  # noqa: E731
         gamma_o, omega_dot = (cat("gamma_o"), cat("omega_dot")) if motion is None else motion
         counts = [len(p.orders) for p in batch]
 
         def rep(name):
-            return np.repeat(np.array([getattr(p, name) for p in batch]), counts, axis=0)[sel]
+            return np.repeat(np.array([getattr(p, name) for p in batch]), counts, axis=0)[pick]
 
-        sg = sign[sel]
+        sg = sign[pick]
         origin, orders, rpm = rep("origin"), cat("orders"), rep("rpm")
         args = (
             sg[:, None] * gamma_o,
@@ -299,13 +301,13 @@ class RowAssembler:
         if self.compiled and not self.layout.mount_scales:
             no_model = np.zeros((len(sg), 12, 0))
             H, y, dr = kernel_rows(
-                self.setup, self.layout, lin, *args, measured, dm_real[sel], sg,
+                self.setup, self.layout, lin, *args, measured, dm_real[pick], sg,
                 no_model if model is None else model,
             )  # fmt: skip
         else:
             r = frame_rows(self.setup, self.layout, lin, *args, measured_moment=measured)
             H, y = r.H, r.y
-            dr = r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[sel])
+            dr = r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[pick])
             if model is not None:
                 dr[:, :, -model.shape[2] :] += r.whiten @ model
         if self.cal and calibrate:
