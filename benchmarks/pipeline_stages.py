@@ -181,7 +181,13 @@ def study_run() -> None:
 def estimator_alone(log: Path, repeat: int = 3) -> None:
     """The estimator on the frames of the 60 s log: CPU per used frame, blocks and single
     frames, best of ``repeat`` (each run from a fresh estimator, published as the pipeline
-    does as fast as possible: an estimate every 0.5 s of stream)."""
+    does as fast as possible: an estimate every 0.5 s of stream), with the numpy rows and,
+    numba installed, the compiled ones (estimator.row_kernels).
+
+    Measured (issue 24, load average 9-10 on the 2 cores, 1498 used frames): in blocks
+    160-166 us per used frame with the numpy rows (row assembly and RLS sums 80-82; 163-183
+    and 83-93 before the rows' rework), 117-120 compiled (39-40); one frame at a time
+    376-387 numpy (88-89; 371-406 and 89-103 before), 315-328 compiled (42-43)."""
     from acquisition.stream import SourceEvent
     from ptinertia.pipeline import as_recorded
     from ptinertia.runner import processing_chain
