@@ -153,7 +153,7 @@ def motion_sensitivity(
     """
     b = sensor_blocks(setup, fit) if blocks is None else blocks
     n_p, u = amplitudes.shape
-    parts = np.empty((3, n_p, 2, 3))
+    parts = np.empty((2, n_p, 2, 3))  # gamma_O, Omega' (P, Re/Im, 3)
     parts[0, :, 0], parts[0, :, 1] = gamma_o.real, gamma_o.imag
     parts[1, :, 0], parts[1, :, 1] = omega_dot.real, omega_dot.imag
     w = parts[1][:, :, None, :]  # (P, 2, 1, 3)
