@@ -27,14 +27,15 @@ Prints:
 5. RSS over a long sweep (``--hours``, default 1 h at 5120 Hz, recording on): growth;
 6. the cold start of a short CLI run, ``ptinertia run --duration 5``: wall and CPU, with the
    numpy segment sums (the default) and with the compiled ones (``PTINERTIA_NUMBA=1``), the
-   latter with an empty numba cache (the first run after an install) and a filled one;
+   latter with an empty numba cache (the first run after an install) and a filled one, and
+   with the estimator's row kernels switched off (what they add to the start);
 7. the figures side by side: order tracking, estimator, replay, live with recording, simulator,
    each with the load average when it was taken (CPU figures suffer less from other work than
    wall figures, but not nothing: the cores' caches are shared).
 8. the estimator alone on the 60 s log's frames (issue 24: <= 60 us per used frame), best of
    three: fed as the blocks replay and studies hand it, and one frame at a time as a live
-   run may, with the share of the row assembly (rows, sensitivities, RLS sums); and the
-   replay of the log again, best of three (>= 300x).
+   run may, with the share of the row assembly (rows, sensitivities, RLS sums), with the
+   numpy rows and the compiled ones (estimator.row_kernels); and the replay of the log again, best of three (>= 300x).
 
 Usage: python benchmarks/bench_pipeline.py [--hours 1.0] [--skip-long]
 """
@@ -145,16 +146,16 @@ def cold_start(repeat: int = 3) -> None:
     exe = Path(sys.executable).parent / "ptinertia"
     cmd = [str(exe), "run", "--duration", "5", "--rerun", "off", "--quiet"]
 
-    def once(env: dict[str, str]) -> tuple[float, float]:
+    def once(env: dict[str, str], argv: list[str] = cmd) -> tuple[float, float]:
         t0 = time.perf_counter()
         before = resource.getrusage(resource.RUSAGE_CHILDREN)
-        subprocess.run(cmd, env={**os.environ, **env}, check=True, capture_output=True)
+        subprocess.run(argv, env={**os.environ, **env}, check=True, capture_output=True)
         after = resource.getrusage(resource.RUSAGE_CHILDREN)
         cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
         return time.perf_counter() - t0, cpu
 
-    def best(env: dict[str, str]) -> str:
-        runs = [once(env) for _ in range(repeat)]
+    def best(env: dict[str, str], argv: list[str] = cmd) -> str:
+        runs = [once(env, argv) for _ in range(repeat)]
         return f"wall {min(w for w, _ in runs):.2f} s, CPU {min(c for _, c in runs):.2f} s"
 
     print(f"cold start of `ptinertia run --duration 5` (best of {repeat}):")
@@ -175,6 +176,16 @@ def cold_start(repeat: int = 3) -> None:
         )
         filled = best(env)
         print(f"  compiled sums, numba cache filled: {filled}")
+        # what the estimator's row kernels add (estimator.row_kernels): the same run with
+        # them switched off, the dsp's still compiled
+        rows_off = [
+            sys.executable,
+            "-c",
+            "import sys; import estimator.row_kernels as k; k.USE = False; "
+            "from ptinertia.cli import main; sys.exit(main(sys.argv[1:]))",
+            *cmd[1:],
+        ]
+        print(f"  compiled sums, numpy estimator rows, cache filled: {best(env, rows_off)}")
         FIGURES["cold start, compiled sums"] = (
             f"{filled} (cache filled), wall {wall:.2f} s, CPU {cpu:.2f} s (empty cache; load {load})"
         )

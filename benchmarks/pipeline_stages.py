@@ -181,7 +181,13 @@ def study_run() -> None:
 def estimator_alone(log: Path, repeat: int = 3) -> None:
     """The estimator on the frames of the 60 s log: CPU per used frame, blocks and single
     frames, best of ``repeat`` (each run from a fresh estimator, published as the pipeline
-    does as fast as possible: an estimate every 0.5 s of stream)."""
+    does as fast as possible: an estimate every 0.5 s of stream), with the numpy rows and,
+    numba installed, the compiled ones (estimator.row_kernels).
+
+    Measured (issue 24, load average 9-10 on the 2 cores, 1498 used frames): in blocks
+    160-166 us per used frame with the numpy rows (row assembly and RLS sums 80-82; 163-183
+    and 83-93 before the rows' rework), 117-120 compiled (39-40); one frame at a time
+    376-387 numpy (88-89; 371-406 and 89-103 before), 315-328 compiled (42-43)."""
     from acquisition.stream import SourceEvent
     from ptinertia.pipeline import as_recorded
     from ptinertia.runner import processing_chain
@@ -195,8 +201,9 @@ def estimator_alone(log: Path, repeat: int = 3) -> None:
             blocks.append(tracker.feed(item)[0])
     blocks.append(tracker.finish()[0])
 
-    def once(single: bool) -> tuple[float, float, int]:
+    def once(single: bool, compiled: bool) -> tuple[float, float, int]:
         estimator = processing_chain(bench, source.layout)[1]
+        estimator.rows.compiled = compiled  # the row assembly's kernels (estimator.row_kernels)
         rows = [0.0]
         flush = estimator._flush
 
@@ -210,17 +217,26 @@ def estimator_alone(log: Path, repeat: int = 3) -> None:
         _feed(estimator, blocks, single)
         return time.process_time() - t0, rows[0], estimator.stats.used
 
+    from estimator import row_kernels
+
     print(f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)")
-    for single in (False, True):
-        best = min((once(single) for _ in range(repeat)), key=lambda r: r[0])
-        cpu, rows, used = best
-        how = "one frame at a time (live)" if single else "in blocks (replay, studies)"
-        print(
-            f"estimator alone, {how}: {1e6 * cpu / used:.0f} us per used frame (CPU, best of "
-            f"{repeat}, {used} frames), of which row assembly and RLS sums {1e6 * rows / used:.0f} us"
-        )
-        if not single:
-            FIGURES["estimator alone, blocks"] = f"{1e6 * cpu / used:.0f} us per used frame (CPU)"
+    for compiled in (False, True) if row_kernels.AVAILABLE else (False,):
+        if compiled:
+            once(False, True)  # numba's import and its cached machine code, once per process
+        for single in (False, True):
+            best = min((once(single, compiled) for _ in range(repeat)), key=lambda r: r[0])
+            cpu, rows, used = best
+            how = "one frame at a time (live)" if single else "in blocks (replay, studies)"
+            rows_how = "compiled rows" if compiled else "numpy rows"
+            print(
+                f"estimator alone, {how}, {rows_how}: {1e6 * cpu / used:.0f} us per used frame "
+                f"(CPU, best of {repeat}, {used} frames), of which row assembly and RLS sums "
+                f"{1e6 * rows / used:.0f} us"
+            )
+            if not single:
+                FIGURES[f"estimator alone, blocks, {rows_how}"] = (
+                    f"{1e6 * cpu / used:.0f} us per used frame (CPU)"
+                )
 
 
 def _feed(estimator: Any, blocks: list[list[Any]], single: bool) -> None:

@@ -66,16 +66,22 @@ def model_input_rows(
     per_force = 1.0 if mass_known else 1.0 / lin.mass  # translation rows per newton
     s = setup.crank_axis
     mounts = []  # (column, mount) of the mount stiffness inputs
+    excitation = []  # (column, d force, d moment) of the excitation inputs
     for j, inp in enumerate(inputs):
         if inp.kind == "excitation":
             assert inp.d_excitation is not None
-            df, dm = inp.d_excitation(rpm, h)
-            out[:, :3, j] = -per_force * df
-            out[:, 3:, j] = cross(g - setup.reference_point, df) - dm
+            excitation.append((j, *inp.d_excitation(rpm, h)))
         elif inp.kind == "spin_inertia":
             out[:, 3:, j] = cross(omega_dot, s) / (1j * h)[:, None]
         else:
             mounts.append((j, setup.mounts[inp.mount]))
+    if excitation:
+        # every excitation input at once (axis 0: the same elementwise products)
+        cols = [j for j, _, _ in excitation]
+        df = np.stack([d for _, d, _ in excitation])  # (E, P, 3)
+        dm = np.stack([d for _, _, d in excitation])
+        out[:, :3, cols] = (-per_force * df).transpose(1, 2, 0)
+        out[:, 3:, cols] = (cross(g - setup.reference_point, df) - dm).transpose(1, 2, 0)
     if mounts:
         # every mount at once (axis 0: the same elementwise products and the same
         # three-term sums per mount as one mount at a time)

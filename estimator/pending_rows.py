@@ -7,7 +7,9 @@ the equations of motion (:func:`estimator.equations.frame_rows`), their
 sensitivity to the declared systematic sensor errors and, with
 self-calibration, the rigid fits' redundancy rows. The store of frames with an
 unseen motion (:mod:`estimator.partial_pairs`) builds its rows with the same
-assembler.
+assembler. With ``PTINERTIA_NUMBA=1`` the assembler builds the rows and both
+sensitivities with compiled loops (:mod:`estimator.compiled_rows`), within rounding of
+the numpy functions, which stay the default and the reference.
 """
 
 from __future__ import annotations
@@ -17,13 +19,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from estimator import row_kernels
+from estimator.compiled_rows import (
+    kernel_model_input_rows,
+    kernel_motion_sensitivity,
+    kernel_rows,
+)
 from estimator.elastic_tail import ELASTIC_TERMS
 from estimator.equations import Linearisation, ParameterLayout, frame_rows
 from estimator.kinematics import RigidFit, RigidMotion
 from estimator.model_inputs import model_input_rows
 from estimator.redundancy import redundancy_rows
 from estimator.setup import EstimatorSetup
-from estimator.systematic import motion_sensitivity
+from estimator.systematic import SensorBlocks, motion_sensitivity, sensor_blocks
 
 
 @dataclass(frozen=True)
@@ -186,6 +194,15 @@ class RowAssembler:
         self.layout = layout
         self.cal = list(cal)
         self.cal_cols = list(cal_cols)
+        # the last fit's channels grouped by sensor (a bench keeps its fit frame after frame)
+        self._blocks: tuple[RigidFit, SensorBlocks] | None = None
+        # the compiled rows (PTINERTIA_NUMBA=1; tests and benchmarks switch it per assembler)
+        self.compiled = row_kernels.USE
+
+    def _sensor_blocks(self, fit: RigidFit) -> SensorBlocks:
+        if self._blocks is None or self._blocks[0] is not fit:
+            self._blocks = (fit, sensor_blocks(self.setup, fit))
+        return self._blocks[1]
 
     def sensitivity(
         self, batch: list[PendingFrame], motion: tuple[np.ndarray, np.ndarray] | None = None
@@ -204,15 +221,25 @@ class RowAssembler:
             if end == len(batch) or batch[end].fit is not batch[start].fit:
                 run = batch[start:end]
                 a, b = bounds[start], bounds[end]
-                out.append(
-                    motion_sensitivity(
-                        self.setup,
-                        run[0].fit,
-                        np.concatenate([p.amplitudes for p in run]),
-                        motion[0][a:b],
-                        motion[1][a:b],
+                amplitudes = np.concatenate([p.amplitudes for p in run])
+                blocks = self._sensor_blocks(run[0].fit)
+                if self.compiled:
+                    out.append(
+                        kernel_motion_sensitivity(
+                            blocks, amplitudes, motion[0][a:b], motion[1][a:b]
+                        )
                     )
-                )
+                else:
+                    out.append(
+                        motion_sensitivity(
+                            self.setup,
+                            run[0].fit,
+                            amplitudes,
+                            motion[0][a:b],
+                            motion[1][a:b],
+                            blocks,
+                        )
+                    )
                 start = end
         return np.concatenate(out)
 
@@ -233,19 +260,18 @@ class RowAssembler:
         order), linearised at ``lin``. ``calibrate=False``: the self-calibrated
         sensor errors stay systematic errors in these rows. ``model_motion``: the
         motion the model inputs' sensitivities are taken at (default: the rows')."""
-        cat = lambda name: np.concatenate([getattr(p, name) for p in batch])[sel]  # noqa: E731
+        # every pair selected (the common case): the concatenations as they are, no copies
+        pick: slice | np.ndarray = slice(None) if bool(np.all(sel)) else sel
+        cat = lambda name: np.concatenate([getattr(p, name) for p in batch])[pick]  # noqa: E731
         gamma_o, omega_dot = (cat("gamma_o"), cat("omega_dot")) if motion is None else motion
         counts = [len(p.orders) for p in batch]
 
         def rep(name):
-            return np.repeat(np.array([getattr(p, name) for p in batch]), counts, axis=0)[sel]
+            return np.repeat(np.array([getattr(p, name) for p in batch]), counts, axis=0)[pick]
 
-        sg = sign[sel]
+        sg = sign[pick]
         origin, orders, rpm = rep("origin"), cat("orders"), rep("rpm")
-        r = frame_rows(
-            self.setup,
-            self.layout,
-            lin,
+        args = (
             sg[:, None] * gamma_o,
             sg[:, None] * omega_dot,
             origin,
@@ -255,15 +281,14 @@ class RowAssembler:
             cat("force"),
             cat("moment"),
             cat("var"),
-            measured_moment=None if batch[0].measured_moment is None else cat("measured_moment"),
         )
-        dr = r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[sel])
+        measured = None if batch[0].measured_moment is None else cat("measured_moment")
+        model = None
         if self.setup.model_inputs:
             # the model inputs' columns (zero in dm_real: they do not touch the readings)
-            n_model = len(self.setup.model_inputs)
             if model_motion is not None:
                 gamma_o, omega_dot = model_motion
-            dr[:, :, -n_model:] += r.whiten @ model_input_rows(
+            model = (kernel_model_input_rows if self.compiled else model_input_rows)(
                 self.setup,
                 lin,
                 not self.layout.mass,
@@ -273,11 +298,23 @@ class RowAssembler:
                 orders,
                 rpm,
             )
+        if self.compiled and not self.layout.mount_scales:
+            no_model = np.zeros((len(sg), 12, 0))
+            H, y, dr = kernel_rows(
+                self.setup, self.layout, lin, *args, measured, dm_real[pick], sg,
+                no_model if model is None else model,
+            )  # fmt: skip
+        else:
+            r = frame_rows(self.setup, self.layout, lin, *args, measured_moment=measured)
+            H, y = r.H, r.y
+            dr = r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[pick])
+            if model is not None:
+                dr[:, :, -model.shape[2] :] += r.whiten @ model
         if self.cal and calibrate:
             # self-calibration: what was a systematic error becomes an unknown
-            r.H[:, :, self.cal_cols] = dr[:, :, self.cal]
+            H[:, :, self.cal_cols] = dr[:, :, self.cal]
             dr[:, :, self.cal] = 0.0
-        return r.H, r.y, dr
+        return H, y, dr
 
     def redundancy(self, batch: list[PendingFrame]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Self-calibration rows from the rigid fits' redundancy (:mod:`estimator.redundancy`)

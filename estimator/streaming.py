@@ -281,7 +281,9 @@ class InertiaEstimator:
             for a, b in itertools.pairwise(bounds):
                 self.misfit.add(sign_, orders[a:b], Hs[a:b], ys[a:b])
             if kin is None:
-                self.acc[sign_] = add_frames(self.acc[sign_], Ha, ys, drs, bounds, self.forgetting)
+                self.acc[sign_] = add_frames(
+                    self.acc[sign_], Ha, ys, drs, bounds, self.forgetting, self.rows.compiled
+                )
                 continue
             for a, b in itertools.pairwise(bounds):
                 # the frame's redundancy rows (already discounted with the frame's own)

@@ -11,6 +11,8 @@ turns the declared tolerances into the type-B part of the covariance.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from estimator.kinematics import RigidFit
@@ -82,36 +84,99 @@ def reading_sensitivity(
     return out
 
 
+def sensor_blocks(setup: EstimatorSetup, fit: RigidFit) -> SensorBlocks:
+    """What :func:`motion_sensitivity` takes from the fit's channel geometry (the same for
+    every frame fitted with ``fit``: callers keep it per fit)."""
+    assert fit.channels is not None
+    used = np.asarray(fit.channels)
+    n_sys = len(setup.channels) + 6 * setup.n_sensors + len(setup.model_inputs)
+    bases = (len(setup.channels) + 6 * setup.sensor_of_channel[used]).tolist()
+    sensors = list(dict.fromkeys(bases))  # in order of their first channel
+    members: list[list[int]] = [[j for j, b in enumerate(bases) if b == s] for s in sensors]
+    width = max(len(m) for m in members)
+    # a sensor with fewer channels than the widest is padded with a zero-gain channel:
+    # its terms (+0) come after the real ones and leave their sum as it is
+    pad = len(used)
+    idx = np.array([m + [pad] * (width - len(m)) for m in members])  # (S, width)
+    gain = np.concatenate([fit.gain, np.zeros((6, 1))], axis=1)
+    cols = (np.array(sensors)[:, None] + np.arange(6)).ravel()
+    return SensorBlocks(
+        used=used,
+        n_sys=n_sys,
+        arm=setup.positions[used] - fit.origin,
+        # (a unit axis for the padding channel, whose motion is zero)
+        directions=np.concatenate([setup.directions[used], np.ones((1, 3))])[:, None, :],
+        gain=fit.gain,
+        idx=idx,
+        gain_by_place=[gain[:, idx[:, q]][:, :, None] for q in range(width)],  # (6, S, 1)
+        cols=cols,
+        bases=np.array(bases),
+    )
+
+
+@dataclass(frozen=True)
+class SensorBlocks:
+    """The used channels of a fit grouped by sensor (:func:`sensor_blocks`)."""
+
+    used: np.ndarray  # (u,) setup channel indices
+    n_sys: int
+    arm: np.ndarray  # (u, 3) m, channel point - fit origin
+    directions: np.ndarray  # (u + 1, 1, 3) the channels' axes, then the padding's
+    gain: np.ndarray  # (6, u) the fit's gain
+    idx: np.ndarray  # (S, width) each sensor's used channels in channel order (u: padding)
+    gain_by_place: list[np.ndarray]  # per place in a sensor: the gain columns (6, S, 1)
+    cols: np.ndarray  # (6 S,) the sensors' alignment and position columns
+    bases: np.ndarray  # (u,) each used channel's sensor's first column
+
+
 def motion_sensitivity(
     setup: EstimatorSetup,
     fit: RigidFit,
     amplitudes: np.ndarray,
     gamma_o: np.ndarray,
     omega_dot: np.ndarray,
+    blocks: SensorBlocks | None = None,
 ) -> np.ndarray:
     """d[gamma_O, Omega'] / d(systematic parameters), (P, 12, n_sys) real (Re rows, Im rows).
 
-    The arguments are those of :func:`reading_sensitivity`. The fit is linear
+    The arguments are those of :func:`reading_sensitivity` (``blocks``: the fit's
+    :func:`sensor_blocks`, made here when not given). The fit is linear
     (``motion = gain @ readings``), so each reading's change reaches the motion
     through its column of the gain: ``gain @ reading_sensitivity(...)``, formed
     without the zeros of that product (a channel's gain error moves its own reading
     only, a sensor's alignment and position the readings of its channels).
+
+    Every product here has a real factor (gain, sensor axis, lever arm), so the real and
+    imaginary parts are carried side by side as reals (axis 1): the values of the complex
+    arithmetic (whose product with a real adds only ``0 * x`` terms), without its
+    complex temporaries.
     """
-    used, n_sys, base_of, d_pose = _pose_sensitivity(setup, fit, gamma_o, omega_dot)
-    out = np.zeros((len(gamma_o), 6, n_sys), complex)
-    out[:, :, used] = fit.gain[None] * amplitudes[:, None, :]
+    b = sensor_blocks(setup, fit) if blocks is None else blocks
+    n_p, u = amplitudes.shape
+    parts = np.empty((2, n_p, 2, 3))  # gamma_O, Omega' (P, Re/Im, 3)
+    parts[0, :, 0], parts[0, :, 1] = gamma_o.real, gamma_o.imag
+    parts[1, :, 0], parts[1, :, 1] = omega_dot.real, omega_dot.imag
+    w = parts[1][:, :, None, :]  # (P, 2, 1, 3)
+    # gamma_P = gamma_O + Omega' x r, and d reading / d(alignment, position) of each
+    # channel: n x gamma_P, n x Omega' (one cross product over both)
+    motion = np.empty((n_p, 2, u + 1, 2, 3))
+    motion[:, :, :u, 0] = parts[0][:, :, None, :] + cross(w, b.arm)
+    motion[:, :, :u, 1] = w
+    motion[:, :, u] = 0.0  # the padding channel
+    d_pose = cross(b.directions, motion)
+    d_pose = d_pose.reshape(n_p, 2, u + 1, 6)
+    out = np.zeros((n_p, 2, 6, b.n_sys))
+    amp = np.empty((n_p, 2, 1, u))
+    amp[:, 0, 0], amp[:, 1, 0] = amplitudes.real, amplitudes.imag
+    out[:, :, :, b.used] = b.gain * amp
     # The channels of a sensor summed in channel order (elementwise products, a fixed
     # order): the result of a pair does not depend on how many pairs are assembled
     # together, and it is the dense product's sum without its zero terms. Each pass adds
     # every sensor's channel at one place at once (their column blocks are disjoint).
-    bases = base_of.tolist()
-    seen: dict[int, int] = {}
-    rank = []  # each used channel's place among its sensor's channels
-    for base in bases:
-        rank.append(seen.get(base, 0))
-        seen[base] = rank[-1] + 1
-    for place in range(max(rank, default=-1) + 1):
-        js = [j for j, q in enumerate(rank) if q == place]
-        cols = np.array([bases[j] for j in js])[:, None] + np.arange(6)  # (k, 6)
-        out[:, :, cols] += fit.gain[None, :, js, None] * d_pose[:, js][:, None]
-    return np.concatenate([out.real, out.imag], axis=1)
+    total = None
+    for q, g in enumerate(b.gain_by_place):
+        term = g * d_pose[:, :, None, b.idx[:, q]]  # (P, 2, 6, S, 6)
+        total = term if total is None else total + term
+    assert total is not None
+    out[:, :, :, b.cols] = total.reshape(n_p, 2, 6, -1)
+    return out.reshape(n_p, 12, b.n_sys)

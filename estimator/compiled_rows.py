@@ -1,0 +1,330 @@
+"""The compiled row assembly's entry points: :func:`kernel_rows` (the rows, by
+:func:`estimator.row_kernels.pair_rows`), :func:`kernel_motion_sensitivity` and
+:func:`kernel_model_input_rows` (the sensitivities to the systematic errors and to the
+model inputs, by the loops here): what :class:`estimator.pending_rows.RowAssembler`
+calls with ``PTINERTIA_NUMBA=1`` in place of the numpy functions
+(:func:`estimator.equations.frame_rows`, :func:`estimator.systematic.motion_sensitivity`,
+:func:`estimator.model_inputs.model_input_rows`), which stay the default and the
+reference; the RLS sums beside them are :func:`estimator.hypotheses.frame_sums`.
+
+Why: a flush assembles a dozen frames (some 35 (frame, order) pairs) with a few hundred
+numpy calls on (pairs, 3..12, 3..12) arrays, and the calls, not the arithmetic, are its
+cost; the numpy code was restructured as far as it keeps its bits (the motion
+sensitivity in real arithmetic, the model inputs' products together), which gained
+little. Measured (issue 24; the 60 s log's frames, 1498 used, CPU best of 3,
+``benchmarks/bench_pipeline.py``' estimator_alone, load average 9-10 on the 2 cores):
+row assembly and RLS sums 83-93 us per used frame before, 80-82 with the numpy rows,
+39-40 compiled (``pair_rows`` 4.3 us a pair: its arithmetic, the whitened sensitivities
+``W D dm`` most of it); the whole estimator 163-183 -> 160-166 numpy, 117-120 compiled in
+blocks, 371-406 -> 376-387 numpy, 315-328 compiled one frame at a time (there the
+gates, fits and published estimates dominate). The kernels release the GIL. numba is
+imported on the first call only (:func:`estimator.row_kernels.jit`), and compiling
+them costs about 7 s of CPU once per install (``ptinertia run --duration 5`` with an
+empty numba cache: 12.4-13.0 s against 5.3-5.7 s with the dsp's kernels alone); from a
+filled cache they add 0.04 s to the start (1.20 against 1.16 s; load 4).
+
+How close: the sensitivity loops take the numpy functions' products and sums in their
+order (the same values, tested); the rows and the RLS sums do not (loops against BLAS,
+einsum and LAPACK). On the 60 s log the accumulators agree within 9e-15 of their largest
+entries, the inertia, cog and their standard deviations within 1e-13 relative, the
+unbalance and crank offset of that noise-free run (zero, 1e-10) within 7e-13 of their
+standard deviations. ``ptinertia run --realistic`` (kernels on against off, the dsp's
+compiled in both): every estimate and interval within 1e-12 relative (the crank offset
+9.7e-13 the worst), a principal axis component of 0.029 within 1.8e-12 of its value
+(5e-14 of the unit vector). What rests on round-off moves more, as with the dsp's
+compiled sums: the random part of the noise-free intervals (1e-8 of the total) by 4e-4,
+the default run's variance factor by 1 %, its half-order residual ratio by 0.3 %, the
+angle of its zero unbalance by 2e-7 (the dsp's kernels: 1.6 %, 0.4 %, 2e-7).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from estimator.equations import Linearisation, ParameterLayout
+from estimator.row_kernels import jit, pair_rows
+from estimator.setup import EstimatorSetup
+from estimator.systematic import SensorBlocks
+
+
+def kernel_rows(
+    setup: EstimatorSetup,
+    layout: ParameterLayout,
+    lin: Linearisation,
+    gamma_o: np.ndarray,
+    omega_dot: np.ndarray,
+    origin: np.ndarray,
+    cov_unit: np.ndarray,
+    orders: np.ndarray,
+    rpm: np.ndarray,
+    force: np.ndarray,
+    moment_r: np.ndarray,
+    noise_var: np.ndarray,
+    measured_moment: np.ndarray | None,
+    sens: np.ndarray,
+    sign: np.ndarray,
+    model: np.ndarray,
+    compiled: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Whitened rows H (P, 12, n), y (P, 12) and sensitivities ``dr`` (P, 12, n_sys) of
+    :meth:`estimator.pending_rows.RowAssembler.rows` (before self-calibration) by the
+    compiled :func:`pair_rows`; the arguments are :func:`estimator.equations.frame_rows`'
+    (per pair), ``sens`` the pairs' d motion / d systematic parameters, ``sign`` the
+    sign their motion was multiplied by, ``model`` the model inputs' raw rows.
+    Not for layouts with estimated mount scales. ``compiled=False``: :func:`pair_rows`
+    run by the interpreter (slow: for tests without numba)."""
+    assert not layout.mount_scales
+    n_p = len(orders)
+    corr = setup.corrections
+    bt = setup.frame_constants
+    mounts = corr.suspension and len(setup.mounts) > 0
+    names = set(layout.names)
+
+    def col(name: str) -> int:
+        return layout.index(name) if name in names else -1
+
+    cols = np.array(
+        [
+            col("inv_mass"),
+            col("unb_re"),
+            col("unb_im"),
+            col("unb_couple_re"),
+            col("unb_couple_im"),
+            col("crank_offset"),
+            0 if measured_moment is None else 1,
+        ]
+    )
+    consts = np.concatenate(
+        [
+            setup.crank_axis,
+            [setup.spin_inertia if corr.gyroscopic else 0.0],
+            setup.reference_point,
+            setup.unbalance_point,
+        ]
+    ).astype(float)
+    h = np.asarray(orders, float)
+    H = np.empty((n_p, 12, layout.size))
+    y = np.empty((n_p, 12))
+    dr = np.empty((n_p, 12, sens.shape[2]))
+    (jit(pair_rows) if compiled else pair_rows)(
+        h,
+        np.broadcast_to(np.asarray(rpm, float) * 2 * np.pi / 60.0, (n_p,)).copy(),
+        np.ascontiguousarray(np.broadcast_to(origin, (n_p, 3)), float),
+        np.ascontiguousarray(gamma_o, complex),
+        np.ascontiguousarray(omega_dot, complex),
+        np.ascontiguousarray(force, complex),
+        np.ascontiguousarray(moment_r, complex),
+        np.zeros((n_p, 3), complex)
+        if measured_moment is None
+        else np.ascontiguousarray(measured_moment, complex),
+        np.asarray(noise_var, float),
+        np.ascontiguousarray(np.broadcast_to(cov_unit, (n_p, 6, 6)), float),
+        np.array([*lin.cog, lin.mass, 1.0 if layout.mass else 0.0], float),
+        np.ascontiguousarray(lin.inertia, float),
+        bt.mount_positions if mounts else np.zeros((0, 3)),
+        bt.mount_stiffness.astype(complex) if mounts else np.zeros((0, 3, 3), complex),
+        consts,
+        np.asarray(bt.c_it, complex),
+        cols,
+        np.ascontiguousarray(sens, float),
+        np.asarray(sign, float),
+        np.ascontiguousarray(model, float),
+        H,
+        y,
+        np.empty((n_p, 12, 12)),
+        np.empty((n_p, 12, 12)),
+        dr,
+    )
+    return H, y, dr
+
+
+def kernel_motion_sensitivity(
+    blocks: SensorBlocks,
+    amplitudes: np.ndarray,
+    gamma_o: np.ndarray,
+    omega_dot: np.ndarray,
+    compiled: bool = True,
+) -> np.ndarray:
+    """:func:`estimator.systematic.motion_sensitivity` by the compiled :func:`motion_sens`
+    (``blocks``: the fit's :func:`estimator.systematic.sensor_blocks`)."""
+    b = blocks
+    u = len(b.used)
+    out = np.zeros((len(gamma_o), 12, b.n_sys))
+    (jit(motion_sens) if compiled else motion_sens)(
+        np.ascontiguousarray(amplitudes, complex),
+        np.ascontiguousarray(gamma_o, complex),
+        np.ascontiguousarray(omega_dot, complex),
+        b.arm,
+        np.ascontiguousarray(b.directions[:u, 0]),
+        np.ascontiguousarray(b.gain, float),
+        b.used,
+        b.bases,
+        out,
+    )
+    return out
+
+
+def motion_sens(
+    amplitudes: np.ndarray,
+    gamma_o: np.ndarray,
+    omega_dot: np.ndarray,
+    arm: np.ndarray,
+    directions: np.ndarray,
+    gain: np.ndarray,
+    used: np.ndarray,
+    bases: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """:func:`estimator.systematic.motion_sensitivity` of P pairs into ``out`` (P, 12,
+    n_sys), zeros on entry: ``amplitudes`` (P, u), the motion (P, 3) complex; the fit's
+    channels: lever ``arm`` (u, 3) m from its origin, ``directions`` (u, 3), ``gain``
+    (6, u), their columns ``used`` (u,) and their sensors' first columns ``bases`` (u,).
+    The same products and the same sums in channel order as the numpy function."""
+    n_p, u = amplitudes.shape
+    pose = np.empty(6)
+    for p in range(n_p):
+        for part in range(2):
+            for j in range(u):
+                a = amplitudes[p, j].real if part == 0 else amplitudes[p, j].imag
+                n = directions[j]
+                r = arm[j]
+                go = gamma_o[p]
+                om = omega_dot[p]
+                w0 = om[0].real if part == 0 else om[0].imag
+                w1 = om[1].real if part == 0 else om[1].imag
+                w2 = om[2].real if part == 0 else om[2].imag
+                g0 = (go[0].real if part == 0 else go[0].imag) + (w1 * r[2] - w2 * r[1])
+                g1 = (go[1].real if part == 0 else go[1].imag) + (w2 * r[0] - w0 * r[2])
+                g2 = (go[2].real if part == 0 else go[2].imag) + (w0 * r[1] - w1 * r[0])
+                # d reading / d(alignment, position): n x gamma_P, n x Omega'
+                pose[0] = n[1] * g2 - n[2] * g1
+                pose[1] = n[2] * g0 - n[0] * g2
+                pose[2] = n[0] * g1 - n[1] * g0
+                pose[3] = n[1] * w2 - n[2] * w1
+                pose[4] = n[2] * w0 - n[0] * w2
+                pose[5] = n[0] * w1 - n[1] * w0
+                for i in range(6):
+                    row = out[p, 6 * part + i]
+                    row[used[j]] = gain[i, j] * a
+                    for c in range(6):
+                        row[bases[j] + c] += gain[i, j] * pose[c]
+
+
+def kernel_model_input_rows(
+    setup: EstimatorSetup,
+    lin: Linearisation,
+    mass_known: bool,
+    gamma_o: np.ndarray,
+    omega_dot: np.ndarray,
+    origin: np.ndarray,
+    orders: np.ndarray,
+    rpm: np.ndarray,
+    compiled: bool = True,
+) -> np.ndarray:
+    """:func:`estimator.model_inputs.model_input_rows` by the compiled :func:`model_rows`
+    (the excitation inputs' derivatives still come from their numpy functions)."""
+    inputs = setup.model_inputs
+    n_p, n_m = len(orders), len(inputs)
+    h, rpm = np.asarray(orders, float), np.asarray(rpm, float)
+    kinds = np.zeros(n_m, np.int64)  # 0 excitation, 1 spin inertia, 2 mount stiffness
+    d_exc = np.zeros((n_m, n_p, 6), complex)
+    mount_pos = np.zeros((n_m, 3))
+    mount_stiff = np.zeros((n_m, 3, 3), complex)
+    for j, inp in enumerate(inputs):
+        if inp.kind == "excitation":
+            assert inp.d_excitation is not None
+            df, dm = inp.d_excitation(rpm, h)
+            d_exc[j, :, :3], d_exc[j, :, 3:] = df, dm
+        elif inp.kind == "spin_inertia":
+            kinds[j] = 1
+        else:
+            kinds[j] = 2
+            mount = setup.mounts[inp.mount]
+            mount_pos[j], mount_stiff[j] = mount.position, mount.stiffness
+    consts = np.concatenate(
+        [lin.cog, setup.reference_point, setup.crank_axis, [1.0 if mass_known else 1.0 / lin.mass]]
+    ).astype(float)
+    out = np.empty((n_p, 12, n_m))
+    (jit(model_rows) if compiled else model_rows)(
+        h,
+        rpm * 2 * np.pi / 60.0,
+        np.ascontiguousarray(origin, float),
+        np.ascontiguousarray(gamma_o, complex),
+        np.ascontiguousarray(omega_dot, complex),
+        kinds,
+        d_exc,
+        mount_pos,
+        mount_stiff,
+        consts,
+        out,
+    )
+    return out
+
+
+def model_rows(
+    h: np.ndarray,
+    w: np.ndarray,
+    origin: np.ndarray,
+    gamma_o: np.ndarray,
+    omega_dot: np.ndarray,
+    kinds: np.ndarray,
+    d_exc: np.ndarray,
+    mount_pos: np.ndarray,
+    mount_stiff: np.ndarray,
+    consts: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """d raw residual / d model inputs of P pairs into ``out`` (P, 12, n_model): per input
+    its ``kinds`` (0 excitation with d(force, moment) ``d_exc`` (n_model, P, 6), 1 spin
+    inertia, 2 the stiffness of the mount at ``mount_pos`` with ``mount_stiff``);
+    ``consts``: cog (3), reference point (3), crank axis (3), translation rows per
+    newton. :func:`estimator.model_inputs.model_input_rows`' formulas, pair by pair."""
+    n_p = h.shape[0]
+    n_m = kinds.shape[0]
+    g = consts[0:3]
+    per_force = consts[9]
+    t = np.empty(3, np.complex128)  # translation rows
+    r = np.empty(3, np.complex128)  # rotation rows
+    v = np.empty(3, np.complex128)
+    arm = np.empty(3)
+    for p in range(n_p):
+        om = omega_dot[p]
+        big_w2 = (h[p] * w[p]) ** 2
+        for j in range(n_m):
+            if kinds[j] == 0:
+                d = d_exc[j, p]
+                for a in range(3):
+                    arm[a] = g[a] - consts[3 + a]
+                    t[a] = -per_force * d[a]
+                for a in range(3):
+                    b, c = (a + 1) % 3, (a + 2) % 3
+                    r[a] = (arm[b] * d[c] - arm[c] * d[b]) - d[3 + a]
+            elif kinds[j] == 1:
+                s = consts[6:9]
+                for a in range(3):
+                    b, c = (a + 1) % 3, (a + 2) % 3
+                    t[a] = 0.0
+                    r[a] = (om[b] * s[c] - om[c] * s[b]) / (1j * h[p])
+            else:
+                pos = mount_pos[j]
+                k = mount_stiff[j]
+                for a in range(3):
+                    b, c = (a + 1) % 3, (a + 2) % 3
+                    v[a] = gamma_o[p, a] + (
+                        om[b] * (pos[c] - origin[p, c]) - om[c] * (pos[b] - origin[p, b])
+                    )
+                for a in range(3):
+                    f_a = (k[a, 0] * v[0] + k[a, 1] * v[1] + k[a, 2] * v[2]) / big_w2
+                    t[a] = -per_force * f_a
+                    r[a] = f_a  # (f, then the moment below)
+                for a in range(3):
+                    arm[a] = g[a] - pos[a]
+                for a in range(3):
+                    b, c = (a + 1) % 3, (a + 2) % 3
+                    v[a] = arm[b] * r[c] - arm[c] * r[b]
+                r[:] = v
+            for a in range(3):
+                out[p, a, j] = t[a].real
+                out[p, 3 + a, j] = r[a].real
+                out[p, 6 + a, j] = t[a].imag
+                out[p, 9 + a, j] = r[a].imag

@@ -1,0 +1,396 @@
+"""Compiled row assembly: the whitened rows of (frame, order) pairs, one pair at a time.
+
+:func:`pair_rows` does :func:`estimator.equations.frame_rows`' arithmetic pair by pair in
+loops (mount reactions, gyroscopic term, translation and rotation rows, unbalance and
+crank-offset columns, d residual / d measurement, the row covariance, its Cholesky factor
+and inverse, the whitened rows), and :class:`estimator.pending_rows.RowAssembler`'s
+whitened sensitivities ``dr`` beside them. Layouts with estimated mount stiffness scales
+stay on the numpy path. :func:`jit` compiles this module's kernels and those of
+:mod:`estimator.compiled_rows` and :mod:`estimator.hypotheses` (``cache=True``,
+``nogil=True``: they release the GIL), importing numba on the first call: the default
+path (``PTINERTIA_NUMBA`` unset) never imports it. Why, what it gains and how close it
+stays to the numpy reference: :mod:`estimator.compiled_rows`.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+AVAILABLE = importlib.util.find_spec("numba") is not None
+# PTINERTIA_NUMBA=1: the row assembly uses the kernel (long runs, campaigns and studies)
+USE = AVAILABLE and os.environ.get("PTINERTIA_NUMBA", "0") == "1"
+_compiled: dict[Callable[..., None], Callable[..., None]] = {}
+
+
+# the helpers pair_rows calls: compiled with it (a compiled function calls compiled ones)
+_HELPERS = (
+    "_matmul3",
+    "_skew",
+    "_skew_entry",
+    "_skew_into",
+    "_cross_at",
+    "_cross_unb",
+    "_cholesky_inverse",
+)
+
+
+def jit(fn: Callable[..., None]) -> Callable[..., None]:
+    """``fn`` compiled by numba (``cache=True, nogil=True``), once per process."""
+    names = globals()
+    compiled = _compiled.get(fn)
+    if compiled is None:
+        from numba import njit  # heavy (0.3 s): only where a kernel is used
+
+        # the module's helpers become their compiled selves (callable from Python alike),
+        # which the kernels' compilation then finds as their globals
+        for helper in _HELPERS:
+            if not hasattr(names[helper], "py_func"):
+                names[helper] = njit(cache=True, nogil=True)(names[helper])
+        compiled = _compiled[fn] = njit(cache=True, nogil=True)(fn)
+    return compiled
+
+
+def _matmul3(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j]
+
+
+def pair_rows(
+    h: np.ndarray,
+    w: np.ndarray,
+    origin: np.ndarray,
+    gamma_o: np.ndarray,
+    omega_dot: np.ndarray,
+    force: np.ndarray,
+    moment: np.ndarray,
+    measured: np.ndarray,
+    var: np.ndarray,
+    cov_unit: np.ndarray,
+    lin: np.ndarray,
+    inertia: np.ndarray,
+    mount_pos: np.ndarray,
+    mount_stiff: np.ndarray,
+    consts: np.ndarray,
+    c_it: np.ndarray,
+    cols: np.ndarray,
+    sens: np.ndarray,
+    sign: np.ndarray,
+    model: np.ndarray,
+    H: np.ndarray,
+    y: np.ndarray,
+    whiten: np.ndarray,
+    d_meas: np.ndarray,
+    dr: np.ndarray,
+) -> None:
+    """The rows of P (frame, order) pairs, written into ``H`` (P, 12, n), ``y`` (P, 12),
+    ``whiten`` and ``d_meas`` (P, 12, 12) and ``dr`` (P, 12, n_sys): what
+    :func:`estimator.equations.frame_rows` returns and :meth:`RowAssembler.rows`' ``dr``.
+
+    Per pair: order ``h``, crank speed ``w`` rad/s, ``origin`` (3,) m, the motion
+    ``gamma_o``, ``omega_dot``, the excitation ``force``, ``moment`` and its measured part
+    ``measured`` (3,) complex (zeros when none), the channel noise ``var``, ``cov_unit``
+    (6, 6); ``sens`` (P, 12, n_sys) d motion / d systematic parameters, ``sign`` (P,)
+    the half-order sign the motion was multiplied by, ``model`` (P, 12, n_model) the
+    model inputs' raw rows (the last n_model columns of ``dr``). ``lin``: cog (3), mass,
+    whether the mass is unknown (1.0) ; ``inertia`` (3, 3) the linearisation's;
+    ``mount_pos`` (M, 3), ``mount_stiff`` (M, 3, 3) complex (M = 0 without the
+    suspension); ``consts``: crank axis (3), spin inertia (0 without the gyroscopic
+    term), reference point (3), unbalance point (3); ``c_it`` (3,) complex; ``cols``:
+    the columns of 1/m, unb_re, unb_im, unb_couple_re, unb_couple_im, crank_offset, and
+    whether ``measured`` is given (-1 / 0: absent).
+    """
+    n_p = h.shape[0]
+    n = H.shape[2]
+    n_sys = sens.shape[2]
+    n_model = model.shape[2]
+    n_mounts = mount_pos.shape[0]
+    i_inv, i_a, i_b, i_qa, i_qb, i_off, has_measured = (
+        cols[0],
+        cols[1],
+        cols[2],
+        cols[3],
+        cols[4],
+        cols[5],
+        cols[6],
+    )
+    mass = lin[3]
+    mass_unknown = lin[4] != 0.0
+    spin_j = consts[3]
+    skew_s = np.zeros((3, 3))
+    skew_g = np.zeros((3, 3))
+    _skew(consts[0:3], skew_s)
+    _skew(lin[0:3], skew_g)
+    skew_p = np.zeros((3, 3))
+    skew_r = np.zeros((3, 3))
+    kw = np.empty((3, 3), np.complex128)
+    tmp = np.empty((3, 3), np.complex128)
+    df_dgo = np.empty((3, 3), np.complex128)
+    df_dw = np.empty((3, 3), np.complex128)
+    dmp_dgo = np.empty((3, 3), np.complex128)
+    dmp_dw = np.empty((3, 3), np.complex128)
+    dfi_dw = np.empty((3, 3), np.complex128)
+    d_c = np.empty((6, 6), np.complex128)
+    rows = np.empty((6, n), np.complex128)  # translation rows, then rotation rows
+    yc = np.empty(6, np.complex128)
+    f_mounts = np.empty(3, np.complex128)
+    m_mounts = np.empty(3, np.complex128)
+    f_i = np.empty(3, np.complex128)
+    gamma_i = np.empty(3, np.complex128)
+    cov = np.empty((12, 12))
+    dcu = np.empty((12, 6))
+    low = np.empty((12, 12))
+    wd = np.empty((12, 12))
+    raw = np.empty((12, n))
+    model_w = np.empty((12, n_model))
+    r = np.empty(3)
+    cog_o = np.empty(3)
+    f_known = np.empty(3, np.complex128)
+    cu = np.empty((6, 6))
+    yraw = np.empty(12)
+    for p in range(n_p):
+        big_w2 = (h[p] * w[p]) ** 2
+        o = origin[p]
+        g = gamma_o[p]
+        om = omega_dot[p]
+        df_dgo[:, :] = 0.0
+        df_dw[:, :] = 0.0
+        dmp_dgo[:, :] = 0.0
+        dmp_dw[:, :] = 0.0
+        f_mounts[:] = 0.0
+        m_mounts[:] = 0.0
+        for i in range(n_mounts):
+            # f_i = K_i gamma_i / W^2 and its derivatives, summed in mount order
+            pos = mount_pos[i]
+            for a in range(3):
+                r[a] = pos[a] - o[a]
+            _skew(r, skew_r)
+            _skew(pos, skew_p)
+            for a in range(3):
+                for b in range(3):
+                    kw[a, b] = mount_stiff[i, a, b] / big_w2
+            for a in range(3):
+                gamma_i[a] = g[a] + _cross_at(om, r, a)
+            for a in range(3):
+                f_i[a] = kw[a, 0] * gamma_i[0] + kw[a, 1] * gamma_i[1] + kw[a, 2] * gamma_i[2]
+            for a in range(3):
+                f_mounts[a] += f_i[a]
+                m_mounts[a] += _cross_at(pos, f_i, a)
+            _matmul3(kw, skew_r, dfi_dw)
+            for a in range(3):
+                for b in range(3):
+                    dfi_dw[a, b] = -dfi_dw[a, b]
+                    df_dgo[a, b] += kw[a, b]
+                    df_dw[a, b] += dfi_dw[a, b]
+            _matmul3(skew_p, kw, tmp)
+            for a in range(3):
+                for b in range(3):
+                    dmp_dgo[a, b] += tmp[a, b]
+            _matmul3(skew_p, dfi_dw, tmp)
+            for a in range(3):
+                for b in range(3):
+                    dmp_dw[a, b] += tmp[a, b]
+        spin = spin_j / (1j * h[p])
+        rows[:, :] = 0.0
+        for a in range(3):
+            f_known[a] = force[p, a] + f_mounts[a]
+            cog_o[a] = lin[a] - o[a]
+        scale = mass  # the rows' mass factor (1 with the mass unknown), and F_unb's
+        unb_scale = 1.0
+        if mass_unknown:
+            scale = 1.0
+            unb_scale = mass
+            for a in range(3):
+                rows[a, i_inv] = -f_known[a]
+        for a in range(3):
+            # translation: scale (gamma_O + Omega' x (G - O)) (- F / m)
+            yc[a] = (
+                -g[a] + _cross_at(om, o, a)
+                if mass_unknown
+                else f_known[a] - mass * g[a] + mass * _cross_at(om, o, a)
+            )
+            # rotation: I Omega' + G x F_known = M_R + R x F + sum p_i x f_i - gyro
+            yc[3 + a] = (
+                moment[p, a]
+                + _cross_at(consts[4:7], force[p], a)
+                + m_mounts[a]
+                - spin * _cross_at(om, consts[0:3], a)
+            )
+        _skew_into(om, rows, 0, 6, scale)
+        _skew_into(f_known, rows, 3, 6, -1.0)
+        rows[3, 0], rows[3, 3], rows[3, 4] = om[0], -om[1], -om[2]
+        rows[4, 1], rows[4, 3], rows[4, 5] = om[1], -om[0], -om[2]
+        rows[5, 2], rows[5, 4], rows[5, 5] = om[2], -om[0], -om[1]
+        for a in range(3):
+            for b in range(3):
+                eye = 1.0 if a == b else 0.0
+                sk_cog_o = _skew_entry(cog_o, a, b)
+                if mass_unknown:
+                    d_c[a, b] = eye - df_dgo[a, b] / mass
+                    d_c[a, 3 + b] = -sk_cog_o - df_dw[a, b] / mass
+                else:
+                    d_c[a, b] = mass * eye - df_dgo[a, b]
+                    d_c[a, 3 + b] = -mass * sk_cog_o - df_dw[a, b]
+                sg_go = skew_g[a, 0] * df_dgo[0, b] + skew_g[a, 1] * df_dgo[1, b]
+                sg_go += skew_g[a, 2] * df_dgo[2, b]
+                sg_w = skew_g[a, 0] * df_dw[0, b] + skew_g[a, 1] * df_dw[1, b]
+                sg_w += skew_g[a, 2] * df_dw[2, b]
+                d_c[3 + a, b] = sg_go - dmp_dgo[a, b]
+                d_c[3 + a, 3 + b] = inertia[a, b] - spin * skew_s[a, b] + sg_w - dmp_dw[a, b]
+        if i_a >= 0 and h[p] == 1.0:
+            # the residual unbalance: F_unb = a col_a + b col_b, z = a + i b
+            for a in range(3):
+                col_a = w[p] ** 2 * c_it[a]
+                col_b = 1j * col_a
+                rows[a, i_a] = -col_a
+                rows[a, i_b] = -col_b
+                if i_qa >= 0:
+                    rows[3 + a, i_qa] = -col_b
+                    rows[3 + a, i_qb] = col_a
+            for a in range(3):
+                arm_a = _cross_unb(consts[7:10], lin[0:3], c_it, w[p] ** 2, a)
+                rows[3 + a, i_a] = -unb_scale * arm_a
+                rows[3 + a, i_b] = -unb_scale * (1j * arm_a)
+        if i_off >= 0:
+            # d residual / d offset = D (-i h m)
+            for a in range(6):
+                acc = 0j
+                for b in range(3):
+                    acc += d_c[a, b] * (-1j * h[p] * g[b]) + d_c[a, 3 + b] * (-1j * h[p] * om[b])
+                rows[a, i_off] = acc
+            if has_measured > 0:
+                for a in range(3):
+                    rows[3 + a, i_off] += 1j * h[p] * measured[p, a]
+        # real form: Re rows, then Im rows; D acts on [Re m, Im m]
+        dm = d_meas[p]
+        for a in range(6):
+            yraw[a] = yc[a].real
+            yraw[6 + a] = yc[a].imag
+            for j in range(n):
+                raw[a, j] = rows[a, j].real
+                raw[6 + a, j] = rows[a, j].imag
+            for b in range(6):
+                dm[a, b] = d_c[a, b].real
+                dm[a, 6 + b] = -d_c[a, b].imag
+                dm[6 + a, b] = d_c[a, b].imag
+                dm[6 + a, 6 + b] = d_c[a, b].real
+        # row covariance D diag(C, C) D^T, C = var cov_unit. (The products below run
+        # with the output's last index innermost: independent sums the compiler can
+        # vectorise, each still taken in the order of its terms.)
+        for a in range(6):
+            for b in range(6):
+                cu[a, b] = cov_unit[p, a, b] * var[p]
+        cov[:, :] = 0.0
+        for half in range(2):
+            dcu[:, :] = 0.0
+            for a in range(12):
+                for k in range(6):
+                    c = dm[a, 6 * half + k]
+                    for b in range(6):
+                        dcu[a, b] += c * cu[k, b]
+            for a in range(12):
+                for b in range(12):
+                    acc_r = 0.0
+                    for k in range(6):
+                        acc_r += dcu[a, k] * dm[b, 6 * half + k]
+                    cov[a, b] += acc_r
+        trace = 0.0
+        for a in range(12):
+            trace += cov[a, a]
+        jitter = 1e-12 * trace / 12 + 1e-300
+        for a in range(12):
+            cov[a, a] += jitter
+        _cholesky_inverse(cov, low, whiten[p])
+        wp = whiten[p]
+        hp = H[p]
+        drp = dr[p]
+        hp[:, :] = 0.0
+        wd[:, :] = 0.0
+        model_w[:, :] = 0.0
+        drp[:, :] = 0.0
+        for a in range(12):
+            acc_r = 0.0
+            for k in range(a + 1):
+                c = wp[a, k]
+                acc_r += c * yraw[k]
+                for j in range(n):
+                    hp[a, j] += c * raw[k, j]
+                for b in range(12):
+                    wd[a, b] += c * dm[k, b]
+                for j in range(n_model):
+                    model_w[a, j] += c * model[p, k, j]
+            y[p, a] = acc_r
+        for a in range(12):
+            for k in range(12):
+                c = wd[a, k] * sign[p]
+                for j in range(n_sys - n_model):  # (the model inputs' columns of sens: 0)
+                    drp[a, j] += c * sens[p, k, j]
+            for j in range(n_model):
+                drp[a, n_sys - n_model + j] += model_w[a, j]
+
+
+def _skew(v: np.ndarray, out: np.ndarray) -> None:
+    out[0, 0], out[0, 1], out[0, 2] = 0.0, -v[2], v[1]
+    out[1, 0], out[1, 1], out[1, 2] = v[2], 0.0, -v[0]
+    out[2, 0], out[2, 1], out[2, 2] = -v[1], v[0], 0.0
+
+
+def _skew_entry(v: np.ndarray, a: int, b: int) -> float:
+    if a == b:
+        return 0.0
+    if a == 0:
+        return -v[2] if b == 1 else v[1]
+    if a == 1:
+        return v[2] if b == 0 else -v[0]
+    return -v[1] if b == 0 else v[0]
+
+
+def _skew_into(v: np.ndarray, rows: np.ndarray, r0: int, c0: int, scale: float) -> None:
+    for a in range(3):
+        for b in range(3):
+            rows[r0 + a, c0 + b] = scale * _skew_entry(v, a, b)
+
+
+def _cross_at(a: np.ndarray, b: np.ndarray, i: int) -> Any:
+    """Component ``i`` of ``a x b``."""
+    if i == 0:
+        return a[1] * b[2] - a[2] * b[1]
+    if i == 1:
+        return a[2] * b[0] - a[0] * b[2]
+    return a[0] * b[1] - a[1] * b[0]
+
+
+def _cross_unb(point: np.ndarray, cog: np.ndarray, c_it: np.ndarray, w2: float, i: int) -> Any:
+    """Component ``i`` of ``(point - cog) x (w2 c_it)``."""
+    j, k = (i + 1) % 3, (i + 2) % 3
+    return (point[j] - cog[j]) * (w2 * c_it[k]) - (point[k] - cog[k]) * (w2 * c_it[j])
+
+
+def _cholesky_inverse(cov: np.ndarray, low: np.ndarray, inv: np.ndarray) -> None:
+    """``inv = L^-1``, ``L L^T = cov`` (12, 12) lower triangular; ``low`` is work space."""
+    m = cov.shape[0]
+    for j in range(m):
+        acc = cov[j, j]
+        for k in range(j):
+            acc -= low[j, k] * low[j, k]
+        d = np.sqrt(acc)
+        low[j, j] = d
+        for i in range(j + 1, m):
+            acc = cov[i, j]
+            for k in range(j):
+                acc -= low[i, k] * low[j, k]
+            low[i, j] = acc / d
+    for j in range(m):
+        for i in range(m):
+            inv[i, j] = 0.0
+        inv[j, j] = 1.0 / low[j, j]
+        for i in range(j + 1, m):
+            acc = 0.0
+            for k in range(j, i):
+                acc -= low[i, k] * inv[k, j]
+            inv[i, j] = acc / low[i, i]
