@@ -119,16 +119,13 @@ def fit_run(
     motions = fit.motions(x, residual_rms, relative, noise_var)
     power = np.mean(readings.real**2 + readings.imag**2, axis=2)
     bends = gates.curvature(run_frames, orders, motions, fit)
-    rpm = np.array([f.rpm for f in run_frames], dtype=float)
-    excitation = [setup.excitation(f.rpm, orders) for f in run_frames]
-    force, moment = np.stack([f for f, _ in excitation]), np.stack([m for _, m in excitation])
-    gas: list[np.ndarray | None] = [None] * len(run)
-    if setup.gas_moment is not None:
-        for j, f in enumerate(run_frames):
-            spectrum = getattr(f, "spectrum", None)
-            if spectrum is not None and np.isfinite(spectrum).all():
-                gas[j] = setup.gas_moment(orders, spectrum)
-                moment[j] = moment[j] + gas[j]
+    rpm_list = [f.rpm for f in run_frames]
+    rpm = np.array(rpm_list, dtype=float)
+    force, moment = run_excitation(setup, rpm_list, orders)
+    gas = run_gas(setup, run_frames, orders)
+    for j, g in enumerate(gas):
+        if g is not None:
+            moment[j] = moment[j] + g
     why, floor = gates.screen_orders(rpm, orders, force, moment, bends, power, relative, fit)
     mean, q = noise_levels_many(fit, [s.variance for s in run])
     share, beyond = excess_many(relative, noise_var, fit, mean, q)
@@ -136,3 +133,43 @@ def fit_run(
         index, orders, readings, motions, power, force, moment, gas, why, floor,
         relative, share, beyond,
     )  # fmt: skip
+
+
+def run_excitation(
+    setup: EstimatorSetup, rpm: list[float], orders: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The known excitation force and moment (n, k, 3) of a run's frames at their
+    crank speeds ``rpm``: in one call where the setup's excitation offers it."""
+    many = getattr(setup.excitation, "many", None)
+    if many is not None:
+        force, moment = many(rpm, orders)
+        return force, moment
+    excitation = [setup.excitation(r, orders) for r in rpm]
+    return np.stack([f for f, _ in excitation]), np.stack([m for _, m in excitation])
+
+
+def run_gas(
+    setup: EstimatorSetup, frames: list[FrameLike], orders: np.ndarray
+) -> list[np.ndarray | None]:
+    """The measured gas moment (k, 3) of each of a run's frames, None for a frame
+    without a finite pressure spectrum (or without a pressure channel at all)."""
+    gas: list[np.ndarray | None] = [None] * len(frames)
+    if setup.gas_moment is None:
+        return gas
+    given: list[tuple[int, np.ndarray]] = [
+        (j, p) for j, f in enumerate(frames) if (p := getattr(f, "spectrum", None)) is not None
+    ]
+    many = getattr(setup.gas_moment, "many", None)
+    shapes = {np.shape(p) for _, p in given}
+    if many is not None and len(shapes) == 1 and len(next(iter(shapes))) == 1:
+        stack = np.array([p for _, p in given])  # (m, n_half): a frame's pressure orders
+        finite = np.isfinite(stack).all(axis=1)
+        at = [j for (j, _), ok in zip(given, finite.tolist(), strict=True) if ok]
+        if at:
+            for j, g in zip(at, many(orders, stack[finite]), strict=True):
+                gas[j] = g
+        return gas
+    for j, p in given:
+        if np.isfinite(p).all():
+            gas[j] = setup.gas_moment(orders, p)
+    return gas
