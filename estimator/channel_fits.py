@@ -113,6 +113,12 @@ class ChannelFits:
                 return "sensor_geometry", None
         return None, fitter
 
+    def again(self, fit: RigidFit) -> None:
+        """:meth:`choose` for a later frame of a run whose first frame it chose ``fit``
+        for (the same channels and variance steps, :func:`estimator.fitted_runs.run_end`):
+        only the count of how long a sensor has been missing moves."""
+        self._unseen_run = 0 if fit.null is None else self._unseen_run + 1
+
     def _masks(
         self, frames: list[FrameLike]
     ) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray]:

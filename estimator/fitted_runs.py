@@ -91,13 +91,30 @@ class FittedRun:
             self.beyond.tolist(),
         )  # fmt: skip
 
-    def queued(self, j: int) -> tuple[Any, ...]:
-        """Frame ``j``'s readings, power, force, moment, floor and gas, as
+    def queued(self, j: int, cycle_unknown: bool) -> tuple[Any, ...]:
+        """Frame ``j``'s half orders of unknown sign (``cycle_unknown``: the run's frames
+        have no 720 deg reference), readings, power, force, moment, floor and gas, as
         :meth:`estimator.pending_rows.FrameQueue.add` takes them."""
         return (
-            self.readings[j], self.power[j], self.force[j], self.moment[j], self.floor[j],
-            self.gas[j],
+            self._half[cycle_unknown], self.readings[j], self._power_sums[j], self.force[j],
+            self.moment[j], self.floor[j], self.gas[j],
         )  # fmt: skip
+
+    @functools.cached_property
+    def _half(self) -> dict[bool, np.ndarray]:
+        """(k,) bool, the half orders, when the cycle is unknown or not (read-only:
+        every frame of the run shares them)."""
+        out = {}
+        for unknown in (False, True):
+            out[unknown] = ((2 * self.orders) % 2 == 1) & unknown
+            out[unknown].flags.writeable = False
+        return out
+
+    @functools.cached_property
+    def _power_sums(self) -> list[float]:
+        """Each frame's ``power`` summed over its orders (the bits of a frame's own sum:
+        one reduction per row)."""
+        return np.add.reduce(self.power, axis=1).tolist()  # type: ignore[no-any-return]
 
 
 def fit_run(
@@ -112,9 +129,7 @@ def fit_run(
     index = [s.position for s in run]
     run_frames = [frames[i] for i in index]
     orders = np.asarray(run_frames[0].orders, dtype=float)
-    readings = np.stack(
-        [f.amplitudes[:, s.cols[s.used]] for f, s in zip(run_frames, run, strict=True)]
-    )
+    readings = _run_readings(run_frames, run)
     x, residual_rms, relative, noise_var = fit.fit_arrays(readings)
     motions = fit.motions(x, residual_rms, relative, noise_var)
     power = np.mean(readings.real**2 + readings.imag**2, axis=2)
@@ -133,6 +148,14 @@ def fit_run(
         index, orders, readings, motions, power, force, moment, gas, why, floor,
         relative, share, beyond,
     )  # fmt: skip
+
+
+def _run_readings(frames: list[FrameLike], run: list[Screened]) -> np.ndarray:
+    """(n, k, u) the fitted channels' amplitudes of a run's frames (a copy)."""
+    first = run[0]
+    if all(s.cols is first.cols for s in run):  # the same channels (run_end: same used)
+        return np.array([f.amplitudes for f in frames])[:, :, first.cols[first.used]]
+    return np.stack([f.amplitudes[:, s.cols[s.used]] for f, s in zip(frames, run, strict=True)])
 
 
 def run_excitation(

@@ -175,8 +175,7 @@ class InertiaEstimator:
         generation = self.channels.generation
         for j, i in enumerate(r.index):
             if j:
-                _, again = self.channels.choose(run[j].used, run[j].steps)  # counts missing sensors
-                assert again is fit, "a run's geometry changed without a relinearisation"
+                self.channels.again(fit)  # counts how long a sensor has been missing
             self.channels.channel_noise.release(run[j].estimates)  # weights: frames so far
             if self.setup.gas_moment is not None and r.gas[j] is None:
                 outcomes[i] = self._reject(frames[i], "no_pressure")
@@ -209,9 +208,7 @@ class InertiaEstimator:
             counts = Counter(rejected.values())
             return self._reject(frame, counts.most_common(1)[0][0] if counts else "no_orders")
         motion, orders = run.motions[j], run.orders
-        self.queue.add(
-            frame.rpm, self.cycle_unknown, fitter, motion, np.array(ks), orders, *run.queued(j)
-        )
+        self.queue.add(frame.rpm, fitter, motion, ks, orders, *run.queued(j, self.cycle_unknown))
         # (the sign hypotheses of the fully measured frames: frames with an unseen
         # motion decide their own, see estimator.partial_pairs)
         tested = self.cycle_unknown and fitter.null is None
