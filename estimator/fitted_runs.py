@@ -114,7 +114,7 @@ class FittedRun:
     def _power_sums(self) -> list[float]:
         """Each frame's ``power`` summed over its orders (the bits of a frame's own sum:
         one reduction per row)."""
-        return np.add.reduce(self.power, axis=1).tolist()  # type: ignore[no-any-return]
+        return np.add.reduce(self.power, axis=1).tolist()
 
 
 def fit_run(
