@@ -129,7 +129,9 @@ def fit_run(
     index = [s.position for s in run]
     run_frames = [frames[i] for i in index]
     orders = np.asarray(run_frames[0].orders, dtype=float)
-    readings = _run_readings(run_frames, run)
+    readings = np.stack(
+        [f.amplitudes[:, s.cols[s.used]] for f, s in zip(run_frames, run, strict=True)]
+    )
     x, residual_rms, relative, noise_var = fit.fit_arrays(readings)
     motions = fit.motions(x, residual_rms, relative, noise_var)
     power = np.mean(readings.real**2 + readings.imag**2, axis=2)
@@ -148,14 +150,6 @@ def fit_run(
         index, orders, readings, motions, power, force, moment, gas, why, floor,
         relative, share, beyond,
     )  # fmt: skip
-
-
-def _run_readings(frames: list[FrameLike], run: list[Screened]) -> np.ndarray:
-    """(n, k, u) the fitted channels' amplitudes of a run's frames (a copy)."""
-    first = run[0]
-    if all(s.cols is first.cols for s in run):  # the same channels (run_end: same used)
-        return np.array([f.amplitudes for f in frames])[:, :, first.cols[first.used]]
-    return np.stack([f.amplitudes[:, s.cols[s.used]] for f, s in zip(frames, run, strict=True)])
 
 
 def run_excitation(
