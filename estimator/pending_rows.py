@@ -149,7 +149,7 @@ class FrameQueue:
 
     def _noise_var(
         self, raw_var: np.ndarray, ks: list[int], orders: np.ndarray, floor: float
-    ) -> np.ndarray:
+    ) -> list[float]:
         """Per-order channel noise variance, smoothed over frames (3 dof per frame is noisy),
         floored so noise-free data keep finite weights."""
         out = []
@@ -160,7 +160,7 @@ class FrameQueue:
             var = 0.8 * smoothed[h] + 0.2 * raw if h in smoothed else raw
             smoothed[h] = var
             out.append(max(var, floor))
-        return np.array(out)
+        return out
 
 
 class RowAssembler:
