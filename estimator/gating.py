@@ -54,9 +54,9 @@ class FrameLike(Protocol):
 
 def frame_gate(frame: FrameLike, gates: Gates) -> str | None:
     """Why the whole frame is unusable (rpm, tacho, dsp settling, steadiness), None if not."""
-    if not np.isfinite(frame.rpm) or frame.rpm <= 0:
+    if not math.isfinite(frame.rpm) or frame.rpm <= 0:  # (np.isfinite: a ufunc call)
         return "no_rpm"
-    if frame.flags & TACHO_FLAGS:
+    if not TACHO_FLAGS.isdisjoint(frame.flags):
         return "tacho"
     if "leakage_uncorrected" in frame.flags:
         return "dsp_settling"
