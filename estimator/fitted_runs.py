@@ -101,6 +101,11 @@ class FittedRun:
         )  # fmt: skip
 
     @functools.cached_property
+    def order_list(self) -> list[float]:
+        """``orders`` as Python floats (once per run)."""
+        return self.orders.tolist()
+
+    @functools.cached_property
     def _half(self) -> dict[bool, np.ndarray]:
         """(k,) bool, the half orders, when the cycle is unknown or not (read-only:
         every frame of the run shares them)."""

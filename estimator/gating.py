@@ -177,10 +177,9 @@ class OrderGates:
         was rejected, every order's relative residual, and the orders that passed.
         """
         rejected: dict[float, str] = {}
-        residuals: dict[float, float] = {}
+        residuals = dict(zip(orders, relative, strict=True))
         used: list[int] = []
         for k, h in enumerate(orders):
-            residuals[h] = relative[k]
             reason = (
                 ORDER_REASONS[why[k]]
                 if why[k]
@@ -217,8 +216,11 @@ class OrderGates:
         # Motions fitted with a rotation unseen lack it: compare them only with motions
         # that lack the same one.
         key = (tuple(orders.tolist()), None if fit.null is None else fit.null.tobytes())
-        none = np.full((len(orders), 3), np.nan + 0j)
-        r0, r1, (w0, w1) = self.motion_history.get(key, (-(10**9), -(10**9), (none, none)))
+        last = self.motion_history.get(key)
+        if last is None:
+            none = np.full((len(orders), 3), np.nan + 0j)
+            last = (-(10**9), -(10**9), (none, none))
+        r0, r1, (w0, w1) = last
         seq_rev = np.array([r0, r1] + [revs[j] for j in at])
         seq_w = np.array([w0, w1] + [motions[j].omega_dot for j in at])  # (2 + n, k, 3)
         w = seq_w[2:]

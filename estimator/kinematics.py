@@ -165,6 +165,13 @@ class RigidFit:
         """(n_ch, n_ch) ``I - J_w J_w^+``: the weighted readings' part no rigid motion makes."""
         return np.eye(self.sw.size) - self.jw @ self.pinv
 
+    @functools.cached_property
+    def residual_projector_parts(self) -> tuple[np.ndarray, np.ndarray]:
+        """The diagonal of :attr:`residual_projector` and its elements squared
+        (:func:`estimator.rigidity.noise_levels_many`: once per geometry, not per run)."""
+        m = self.residual_projector
+        return np.diag(m).copy(), m**2
+
     @property
     def rank(self) -> int:
         """How many rigid-body motions the channels determine (6, or 5 with ``null``)."""

@@ -171,7 +171,7 @@ class InertiaEstimator:
         weights (the rest are fitted anew)."""
         history = self.gates.motion_history.copy()
         r = fit_run(self.setup, self.gates, fit, frames, run)
-        order_list = r.orders.tolist()
+        order_list = r.order_list
         generation = self.channels.generation
         for j, i in enumerate(r.index):
             if j:
@@ -219,8 +219,10 @@ class InertiaEstimator:
         # estimate must not move the relinearisation points.)
         if relinearise_due(self.stats.used):
             relinearise(self)
-        order_list = orders.tolist()
-        used_orders = tuple(order_list[k] for k in ks)
+        order_list = run.order_list
+        used_orders = tuple(
+            order_list if len(ks) == len(order_list) else [order_list[k] for k in ks]
+        )
         return FrameOutcome(frame.time_s, frame.rpm, used_orders, rejected, None, residuals, motion)
 
     def _reject(self, frame: FrameLike, reason: str) -> FrameOutcome:
