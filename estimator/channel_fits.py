@@ -64,6 +64,8 @@ class ChannelFits:
         used channels' variance steps (:meth:`variance_steps`).
 
         Frames sharing their channels and orders are masked with one array call."""
+        if not frames:  # (a block of overlapping or rejected frames)
+            return []
         masks: list[tuple[np.ndarray, np.ndarray]] = []
         used_amps: list[np.ndarray] = []  # per frame (k, n_setup), NaN where not used
         start = 0

@@ -206,7 +206,8 @@ class RigidFit:
         dof = max(self.sw.size - self.rank, 1)
         resid_ss = np.sum(resid.real**2 + resid.imag**2, axis=1)
         residual_rms = np.sqrt(resid_ss / dof / self.mean_w)
-        signal_rms = np.sqrt(np.mean(a.real**2 + a.imag**2, axis=1))
+        # (np.mean's sum and division without its wrapper's checks: the same bits)
+        signal_rms = np.sqrt(np.add.reduce(a.real**2 + a.imag**2, axis=1) / n_ch)
         with np.errstate(divide="ignore", invalid="ignore"):
             relative = np.where(signal_rms > 0, residual_rms / signal_rms, 0.0)
         noise_var = resid_ss / (2 * dof)
