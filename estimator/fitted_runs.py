@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -75,6 +75,24 @@ class FittedRun:
     relative: np.ndarray  # (n, k) the relative rigidity residual
     share: np.ndarray  # (n, k) that less the channel noise's mean
     beyond: np.ndarray  # (n, k) that beyond the channel noise's quantile
+    # set in __post_init__ (per run): the orders as Python floats, and more
+    order_list: list[float] = field(init=False, repr=False)
+    _gate_lists: tuple[list[Any], ...] = field(init=False, repr=False)
+    _power_sums: list[float] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        # per run, not per frame: the rows the residual gate and the queue take as Python
+        # numbers (made here: a cached_property's first look-up costs more, one run per
+        # frame when frames come one at a time)
+        lists = (
+            self.why.tolist(), self.relative.tolist(), self.share.tolist(),
+            self.beyond.tolist(),
+        )  # fmt: skip
+        object.__setattr__(self, "_gate_lists", lists)
+        object.__setattr__(self, "order_list", self.orders.tolist())
+        # each frame's power summed over its orders: the bits of a frame's own sum (one
+        # reduction per row)
+        object.__setattr__(self, "_power_sums", np.add.reduce(self.power, axis=1).tolist())
 
     def gate_inputs(self, j: int) -> tuple[list[int], list[float], list[float], list[float]]:
         """Frame ``j``'s rows of ``why``, ``relative``, ``share``, ``beyond``, as the
@@ -82,44 +100,23 @@ class FittedRun:
         why, relative, share, beyond = self._gate_lists
         return why[j], relative[j], share[j], beyond[j]
 
-    @functools.cached_property
-    def _gate_lists(self) -> tuple[list[Any], ...]:
-        """The run's ``why``, ``relative``, ``share``, ``beyond`` as nested lists (four
-        conversions per run rather than per frame)."""
-        return (
-            self.why.tolist(), self.relative.tolist(), self.share.tolist(),
-            self.beyond.tolist(),
-        )  # fmt: skip
-
     def queued(self, j: int, cycle_unknown: bool) -> tuple[Any, ...]:
         """Frame ``j``'s half orders of unknown sign (``cycle_unknown``: the run's frames
         have no 720 deg reference), readings, power, force, moment, floor and gas, as
         :meth:`estimator.pending_rows.FrameQueue.add` takes them."""
         return (
-            self._half[cycle_unknown], self.readings[j], self._power_sums[j], self.force[j],
-            self.moment[j], self.floor[j], self.gas[j],
+            half_orders(tuple(self.order_list), cycle_unknown), self.readings[j],
+            self._power_sums[j], self.force[j], self.moment[j], self.floor[j], self.gas[j],
         )  # fmt: skip
 
-    @functools.cached_property
-    def order_list(self) -> list[float]:
-        """``orders`` as Python floats (once per run)."""
-        return self.orders.tolist()
 
-    @functools.cached_property
-    def _half(self) -> dict[bool, np.ndarray]:
-        """(k,) bool, the half orders, when the cycle is unknown or not (read-only:
-        every frame of the run shares them)."""
-        out = {}
-        for unknown in (False, True):
-            out[unknown] = ((2 * self.orders) % 2 == 1) & unknown
-            out[unknown].flags.writeable = False
-        return out
-
-    @functools.cached_property
-    def _power_sums(self) -> list[float]:
-        """Each frame's ``power`` summed over its orders (the bits of a frame's own sum:
-        one reduction per row)."""
-        return np.add.reduce(self.power, axis=1).tolist()
+@functools.lru_cache(maxsize=32)
+def half_orders(orders: tuple[float, ...], unknown: bool) -> np.ndarray:
+    """(k,) bool: the half orders among ``orders`` when the cycle is ``unknown``, else
+    none (read-only: every frame with these orders shares it)."""
+    half = ((2 * np.array(orders)) % 2 == 1) & unknown
+    half.flags.writeable = False
+    return half
 
 
 def fit_run(
