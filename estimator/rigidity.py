@@ -118,7 +118,6 @@ def noise_levels_many(
     """:func:`noise_levels` of the frames fitted with ``fit``, one channel noise
     ``variance`` per frame (frames in a row often share one: each distinct one is
     done once): (n,) means and (n,) quantiles, NaN where the noise is unknown."""
-    mean, q = np.full(len(variances), np.nan), np.full(len(variances), np.nan)
     rows: dict[int, int] = {}  # id of a variance -> its row in ``var``
     var_list: list[np.ndarray] = []
     at: list[int] = []
@@ -130,7 +129,7 @@ def noise_levels_many(
             var_list.append(np.asarray(v, float) if fit.channels is None else v[fit.channels])
         at.append(j)
     if not var_list or var_list[0].shape != fit.sw.shape:
-        return mean, q
+        return np.full(len(variances), np.nan), np.full(len(variances), np.nan)
     var = np.array(var_list)  # (m, n_ch)
     d = fit.sw**2 * var
     m_diag, m_sq = fit.residual_projector_parts
@@ -143,6 +142,9 @@ def noise_levels_many(
         q_all = np.where(some, g * 2.0 * gammainccinv(h / 2.0, 1.0 - NOISE_QUANTILE), 0.0)
     mean_all = np.where(some, 2.0 * s1, 0.0)
     known = np.all(np.isfinite(var), axis=1)
+    if len(var_list) == len(variances):  # each frame its own, known variance: rows as is
+        return np.where(known, mean_all, np.nan), np.where(known, q_all, np.nan)
+    mean, q = np.full(len(variances), np.nan), np.full(len(variances), np.nan)
     pick = np.array([rows[id(variances[j])] for j in at])
     mean[at] = np.where(known[pick], mean_all[pick], np.nan)
     q[at] = np.where(known[pick], q_all[pick], np.nan)
