@@ -31,6 +31,9 @@ TACHO_FLAGS = frozenset({"no_tacho", "tacho_resync", "angle_ambiguous", "angle_r
 ELASTIC_WINDOW = 5
 ELASTIC_CONFIRM = 3
 
+# the curvature gate: three fits' noise in a second difference (sqrt 6 sigma), 3 of them
+BEND_NOISE = 3 * np.sqrt(6.0)
+
 # OrderGates.judge: why each rejected order was rejected, every order's relative
 # residual, the indices of the orders that passed
 Judged = tuple[dict[float, str], dict[float, float], list[int]]
@@ -208,11 +211,10 @@ class OrderGates:
         mass-line sweeps up to 150 rpm/s, 0.1-130 % in a 60 rpm/s sweep through the
         modes, where the frame errors reach 0.2-28 %.
         """
-        out = np.zeros((len(frames), len(orders)))
         revs = [revolution(f) for f in frames]
         at = [j for j, r in enumerate(revs) if r is not None]
         if not at:
-            return out
+            return np.zeros((len(frames), len(orders)))
         # Motions fitted with a rotation unseen lack it: compare them only with motions
         # that lack the same one.
         key = (tuple(orders.tolist()), None if fit.null is None else fit.null.tobytes())
@@ -221,10 +223,13 @@ class OrderGates:
             none = np.full((len(orders), 3), np.nan + 0j)
             last = (-(10**9), -(10**9), (none, none))
         r0, r1, (w0, w1) = last
-        seq_rev = np.array([r0, r1] + [revs[j] for j in at])
+        seq_rev = [r0, r1, *(r for r in revs if r is not None)]
         seq_w = np.array([w0, w1] + [motions[j].omega_dot for j in at])  # (2 + n, k, 3)
         w = seq_w[2:]
-        chained = (seq_rev[1:-1] == seq_rev[2:] - 2) & (seq_rev[:-2] == seq_rev[2:] - 4)
+        # each frame's revolution 2 and 4 after the two before it (frames 720 deg apart)
+        chained = np.array(
+            [seq_rev[i + 1] == c - 2 and seq_rev[i] == c - 4 for i, c in enumerate(seq_rev[2:])]
+        )
         size = np.maximum(np.sqrt(np.sum(w.real**2 + w.imag**2, axis=2)), 1e-300)  # (n, k)
         d = w - 2 * seq_w[1:-1] + seq_w[:-2]
         bend = np.sqrt(np.sum(d.real**2 + d.imag**2, axis=2)) / size
@@ -237,10 +242,13 @@ class OrderGates:
             trace = np.array([np.trace(c[3:, 3:]) for c in covs])
         noise = np.array([motions[j].noise_var for j in at])  # (n, k)
         sigma = np.sqrt(2 * noise * trace[:, None]) / size
-        excess = np.maximum(0.0, bend - 3 * np.sqrt(6.0) * sigma)
+        excess = np.maximum(0.0, bend - BEND_NOISE * sigma)
         excess = np.where(chained[:, None] & np.isfinite(excess), excess, 0.0)
+        self.motion_history[key] = (seq_rev[-2], seq_rev[-1], (seq_w[-2], seq_w[-1]))
+        if len(at) == len(frames):
+            return excess
+        out = np.zeros((len(frames), len(orders)))
         out[at] = excess
-        self.motion_history[key] = (int(seq_rev[-2]), int(seq_rev[-1]), (seq_w[-2], seq_w[-1]))
         return out
 
     def residual(
