@@ -117,8 +117,8 @@ class OrderGates:
         """
         # Excitation level per order (force times a typical 0.3 m arm, plus moment):
         # an order the engine does not excite carries no information, only noise.
-        level = 0.3 * np.sqrt(np.sum(np.abs(force) ** 2, axis=2)) + np.sqrt(
-            np.sum(np.abs(moment) ** 2, axis=2)
+        level = 0.3 * np.sqrt(np.add.reduce(np.abs(force) ** 2, axis=2)) + np.sqrt(
+            np.add.reduce(np.abs(moment) ** 2, axis=2)
         )
         excited = level > 1e-6 * np.maximum(level.max(axis=1, keepdims=True), 1e-300)
         corr = self.setup.corrections
@@ -230,9 +230,9 @@ class OrderGates:
         chained = np.array(
             [seq_rev[i + 1] == c - 2 and seq_rev[i] == c - 4 for i, c in enumerate(seq_rev[2:])]
         )
-        size = np.maximum(np.sqrt(np.sum(w.real**2 + w.imag**2, axis=2)), 1e-300)  # (n, k)
+        size = np.maximum(np.sqrt(np.add.reduce(w.real**2 + w.imag**2, axis=2)), 1e-300)  # (n, k)
         d = w - 2 * seq_w[1:-1] + seq_w[:-2]
-        bend = np.sqrt(np.sum(d.real**2 + d.imag**2, axis=2)) / size
+        bend = np.sqrt(np.add.reduce(d.real**2 + d.imag**2, axis=2)) / size
         # what noise alone puts into a second difference of three fits (sqrt 6
         # sigma), sigma from this frame's rigid-fit residual: only the excess bends
         covs = [motions[j].cov_unit for j in at]

@@ -204,7 +204,7 @@ class RigidFit:
         a = amplitudes.reshape(n_f * n_o, n_ch)
         x, resid = x3.reshape(n_f * n_o, 6), resid3.reshape(n_f * n_o, n_ch)
         dof = max(self.sw.size - self.rank, 1)
-        resid_ss = np.sum(resid.real**2 + resid.imag**2, axis=1)
+        resid_ss = np.add.reduce(resid.real**2 + resid.imag**2, axis=1)
         residual_rms = np.sqrt(resid_ss / dof / self.mean_w)
         # (np.mean's sum and division without its wrapper's checks: the same bits)
         signal_rms = np.sqrt(np.add.reduce(a.real**2 + a.imag**2, axis=1) / n_ch)

@@ -133,9 +133,9 @@ def noise_levels_many(
     var = np.array(var_list)  # (m, n_ch)
     d = fit.sw**2 * var
     m_diag, m_sq = fit.residual_projector_parts
-    s1 = np.sum(m_diag * d, axis=1)  # sum l = tr(M D), per frame
+    s1 = np.add.reduce(m_diag * d, axis=1)  # sum l = tr(M D), per frame
     # sum l^2 = tr(M D M D), each summed as one frame's (n_ch, n_ch) array is
-    s2 = np.sum((m_sq * (d[:, :, None] * d[:, None, :])).reshape(len(d), -1), axis=1)
+    s2 = np.add.reduce((m_sq * (d[:, :, None] * d[:, None, :])).reshape(len(d), -1), axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         g, h = s2 / s1, 2.0 * s1**2 / s2
         some = (s1 > 0) & (s2 > 0)
