@@ -182,12 +182,10 @@ class OrderGates:
         rejected: dict[float, str] = {}
         residuals = dict(zip(orders, relative, strict=True))
         used: list[int] = []
+        residual = self.residual
         for k, h in enumerate(orders):
-            reason = (
-                ORDER_REASONS[why[k]]
-                if why[k]
-                else self.residual(h, rpm, relative[k], share[k], beyond[k])
-            )
+            w = why[k]
+            reason = ORDER_REASONS[w] if w else residual(h, rpm, relative[k], share[k], beyond[k])
             if reason:
                 rejected[h] = reason
             else:
@@ -290,7 +288,9 @@ class OrderGates:
         if recent is None:
             recent = self._non_rigid_recent[h] = collections.deque(maxlen=ELASTIC_WINDOW)
         recent.append(flagged)
-        if self.elastic is None and sum(recent) >= ELASTIC_CONFIRM:
+        # (only a flagged frame can confirm: while no mode is, the window held fewer than
+        # ELASTIC_CONFIRM after every earlier frame, and a rigid one adds none)
+        if flagged and self.elastic is None and sum(recent) >= ELASTIC_CONFIRM:
             self.elastic = {"order": h, "frequency_hz": f_hz}
 
 
