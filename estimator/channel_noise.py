@@ -75,14 +75,18 @@ class ThinnedSample:
         self._seen = 0
 
     def add(self, item: Any) -> None:
-        self.add_made(lambda: item)
+        self._seen += 1
+        if not self._seen % self._stride:
+            self._keep(item)
 
     def add_made(self, make: Callable[[], Any]) -> None:
         """:meth:`add` of ``make()``, called only when the item is kept."""
         self._seen += 1
-        if self._seen % self._stride:
-            return
-        self.items.append(make())
+        if not self._seen % self._stride:
+            self._keep(make())
+
+    def _keep(self, item: Any) -> None:
+        self.items.append(item)
         if len(self.items) >= self.capacity:
             self.items = self.items[::2]
             self._stride *= 2

@@ -79,6 +79,7 @@ class FittedRun:
     order_list: list[float] = field(init=False, repr=False)
     _gate_lists: tuple[list[Any], ...] = field(init=False, repr=False)
     _power_sums: list[float] = field(init=False, repr=False)
+    _order_key: tuple[float, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         # per run, not per frame: the rows the residual gate and the queue take as Python
@@ -90,6 +91,7 @@ class FittedRun:
         )  # fmt: skip
         object.__setattr__(self, "_gate_lists", lists)
         object.__setattr__(self, "order_list", self.orders.tolist())
+        object.__setattr__(self, "_order_key", tuple(self.order_list))
         # each frame's power summed over its orders: the bits of a frame's own sum (one
         # reduction per row)
         object.__setattr__(self, "_power_sums", np.add.reduce(self.power, axis=1).tolist())
@@ -105,7 +107,7 @@ class FittedRun:
         have no 720 deg reference), readings, power, force, moment, floor and gas, as
         :meth:`estimator.pending_rows.FrameQueue.add` takes them."""
         return (
-            half_orders(tuple(self.order_list), cycle_unknown), self.readings[j],
+            half_orders(self._order_key, cycle_unknown), self.readings[j],
             self._power_sums[j], self.force[j], self.moment[j], self.floor[j], self.gas[j],
         )  # fmt: skip
 

@@ -93,26 +93,35 @@ class FrameQueue:
         near modes), ``gas`` the measured gas moment in ``moment``.
         """
         floor = max(1e-16 * (power_sum / len(orders)), 1e-30)  # of the mean square
-        # every order used (the common case): the frame's arrays as they are, no copies
-        at: slice | np.ndarray = slice(None) if len(ks) == len(orders) else np.array(ks)
         redundancy = self._redundancy_raw(fit, motion, readings, ks)
         var = self._noise_var(self._raw_noise_var(motion, ks, redundancy), ks, orders, floor)
-        var = np.maximum(var, dsp_var[at])
+        gamma_o, omega_dot, h, dsp_h = motion.gamma_o, motion.omega_dot, orders, dsp_var
+        if len(ks) < len(orders):  # (every order used, the common case: the arrays as they are)
+            at = np.array(ks)
+            gamma_o, omega_dot, h, dsp_h, half = (
+                gamma_o[at],
+                omega_dot[at],
+                h[at],
+                dsp_h[at],
+                half[at],
+            )
+            force, moment, readings = force[at], moment[at], readings[at]
+            gas = None if gas is None else gas[at]
         self.frames.append(
             PendingFrame(
-                gamma_o=motion.gamma_o[at],
-                omega_dot=motion.omega_dot[at],
+                gamma_o=gamma_o,
+                omega_dot=omega_dot,
                 origin=motion.origin,
                 cov_unit=motion.cov_unit,
-                orders=orders[at],
+                orders=h,
                 rpm=float(rpm),
-                force=force[at],
-                moment=moment[at],
-                var=var,
+                force=force,
+                moment=moment,
+                var=np.maximum(var, dsp_h),
                 fit=fit,
-                amplitudes=readings[at],
-                half=half[at],
-                measured_moment=None if gas is None else gas[at],
+                amplitudes=readings,
+                half=half,
+                measured_moment=gas,
                 redundancy=redundancy,
             )
         )
