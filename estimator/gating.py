@@ -182,10 +182,18 @@ class OrderGates:
         rejected: dict[float, str] = {}
         residuals = dict(zip(orders, relative, strict=True))
         used: list[int] = []
-        residual = self.residual
+        limits, top = self.residual_limit, self.setup.gates.max_relative_residual
         for k, h in enumerate(orders):
             w = why[k]
-            reason = ORDER_REASONS[w] if w else residual(h, rpm, relative[k], share[k], beyond[k])
+            if w:
+                reason: str | None = ORDER_REASONS[w]
+            elif relative[k] <= top and (limit := limits.get(h)) is not None:
+                # :meth:`residual` once the order's baseline is set (the rule), inline
+                flagged = beyond[k] > limit
+                self._note_non_rigid(h, h * rpm / 60.0, flagged)
+                reason = "non_rigid" if flagged else None
+            else:
+                reason = self.residual(h, rpm, relative[k], share[k], beyond[k])
             if reason:
                 rejected[h] = reason
             else:
