@@ -27,7 +27,7 @@ import numpy as np
 
 from acquisition.stream import SourceEvent
 from estimator.channel_fits import ChannelFits
-from estimator.elastic_tail import ELASTIC_TERMS, effective_state, elastic_mode_event, with_tail
+from estimator.elastic_tail import ELASTIC_TERMS, elastic_mode_event, with_tail
 from estimator.equations import (
     Linearisation,
     ParameterLayout,
@@ -53,8 +53,9 @@ from estimator.pending_rows import FrameQueue, PendingFrame, RowAssembler
 from estimator.redundancy import calibrated_names
 from estimator.relinearise import relinearise, relinearise_due
 from estimator.result import Estimate, EstimatorStats, build_estimate
-from estimator.rls import RlsSolution, RlsState, rls_solve
+from estimator.rls import RlsSolution, RlsState
 from estimator.setup import EstimatorSetup
+from estimator.solve_memo import SolveMemo, within_one_call
 from estimator.systematic import systematic_names, systematic_stds
 
 
@@ -108,6 +109,7 @@ class InertiaEstimator:
         # the sign matters unless the gas moment is measured in that angle (it flips too)
         self.cycle_unknown = setup.gas_moment is None
         self.scale = parameter_scale(self.layout, setup.inertia_nominal, setup.mass_nominal)
+        self.memo = SolveMemo(n, self.scale, self._cal_cols)  # (kept within a call only)
         self.channels = ChannelFits(setup)  # the used channels and their fits' geometry
         # frames whose channels leave one rigid-body motion unseen (two sensors left)
         self.partial = PartialPairs(self, self.rows, self.scale, n_sys)
@@ -289,6 +291,7 @@ class InertiaEstimator:
                     self.acc[sign_], Ha[a:b], ys[a:b], drs[a:b], self.forgetting, own
                 )
 
+    @within_one_call
     def _relinearise(self) -> None:
         self.channels.refresh_weights()
         # stop carrying the losing sign hypothesis once the residuals leave no doubt
@@ -309,14 +312,12 @@ class InertiaEstimator:
 
     def _effective(self, sign: int) -> Accumulator:
         """A sign hypothesis's state of theta (:func:`estimator.elastic_tail.effective_state`)."""
-        return effective_state(
-            self.acc[sign], self.layout.size, self.scale, self.elastic is not None
-        )
+        return self.memo.effective(sign, self.acc[sign], self.elastic is not None)
 
     def solve(self, state: RlsState) -> RlsSolution:
         """The estimate of a state of theta: rank decisions on the parameter scale,
         the self-calibrated sensor errors held by their priors."""
-        return rls_solve(state, scale=self.scale, anchored=self._cal_cols)
+        return self.memo.solve(state)
 
     def best_state(self) -> Accumulator:
         """The state of the estimate: the sign hypothesis with the smaller weighted
@@ -357,6 +358,7 @@ class InertiaEstimator:
             referenced=bool(self.stats.referenced_frames),
         )
 
+    @within_one_call
     def estimate(self, final: bool = True) -> Estimate:
         """The current estimate. ``final=False`` (a live update) skips the full re-solve
         of frames with an unseen motion that the final estimate makes."""
