@@ -64,6 +64,8 @@ class ChannelFits:
         used channels' variance steps (:meth:`variance_steps`).
 
         Frames sharing their channels and orders are masked with one array call."""
+        if not frames:  # (a block of overlapping or rejected frames)
+            return []
         masks: list[tuple[np.ndarray, np.ndarray]] = []
         used_amps: list[np.ndarray] = []  # per frame (k, n_setup), NaN where not used
         start = 0
@@ -112,6 +114,12 @@ class ChannelFits:
             if self._unseen_run < UNSEEN_AFTER_FRAMES:
                 return "sensor_geometry", None
         return None, fitter
+
+    def again(self, fit: RigidFit) -> None:
+        """:meth:`choose` for a later frame of a run whose first frame it chose ``fit``
+        for (the same channels and variance steps, :func:`estimator.fitted_runs.run_end`):
+        only the count of how long a sensor has been missing moves."""
+        self._unseen_run = 0 if fit.null is None else self._unseen_run + 1
 
     def _masks(
         self, frames: list[FrameLike]

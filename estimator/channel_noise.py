@@ -75,14 +75,18 @@ class ThinnedSample:
         self._seen = 0
 
     def add(self, item: Any) -> None:
-        self.add_made(lambda: item)
+        self._seen += 1
+        if not self._seen % self._stride:
+            self._keep(item)
 
     def add_made(self, make: Callable[[], Any]) -> None:
         """:meth:`add` of ``make()``, called only when the item is kept."""
         self._seen += 1
-        if self._seen % self._stride:
-            return
-        self.items.append(make())
+        if not self._seen % self._stride:
+            self._keep(make())
+
+    def _keep(self, item: Any) -> None:
+        self.items.append(item)
         if len(self.items) >= self.capacity:
             self.items = self.items[::2]
             self._stride *= 2
@@ -137,36 +141,40 @@ class ChannelNoise:
         prior = self.variance()
         made = self.estimates
         chained: list[int] = []  # frames with a second difference, in order
-        diffs: list[np.ndarray] = []
+        triples: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # their x, x1, x0
+        history = self._history
         for j, (revolution, orders, x) in enumerate(frames):
             key = (orders, revolution % 2)
-            last = self._history.get(key)
+            last = history.get(key)
             if last is None:
-                self._history[key] = (revolution - 10**6, x, revolution, x)
+                history[key] = (revolution - 10**6, x, revolution, x)
                 continue
             r0, x0, r1, x1 = last
             if r1 == revolution - 2 and r0 == revolution - 4:
-                diffs.append(x - 2 * x1 + x0)
+                triples.append((x, x1, x0))
                 chained.append(j)
-            self._history[key] = (r1, x1, revolution, x)
+            history[key] = (r1, x1, revolution, x)
         out: list[tuple[np.ndarray | None, int]] = []
         if not chained:
             return [(prior, made)] * len(frames)
-        # frames of one block track the same orders: one median call per order count
-        medians: dict[int, np.ndarray] = {}
+        # frames of one block track the same orders: one array call per order count
+        # (each operation elementwise or per frame: the bits of one frame at a time)
+        medians: list[np.ndarray] = [np.empty(0)] * len(triples)
+        recent: list[np.ndarray] = [np.empty(0)] * len(triples)
         by_k: dict[int, list[int]] = {}
-        for i, d in enumerate(diffs):
-            by_k.setdefault(len(d), []).append(i)
-        for at in by_k.values():
-            d = np.array([diffs[i] for i in at])
+        for i, (x, _, _) in enumerate(triples):
+            by_k.setdefault(len(x), []).append(i)
+        for k, at in by_k.items():
+            x, x1, x0 = (np.array([triples[i][m] for i in at]) for m in range(3))
+            d = x - 2 * x1 + x0
             per_order = (d.real**2 + d.imag**2) / 12.0  # 6 Var per part, two parts
-            for i, m in zip(at, np.median(per_order, axis=1), strict=True):
-                medians[i] = m
+            m = median_of_orders(per_order)
+            for i, row, unbiased in zip(at, m, m / median_bias(k), strict=True):
+                medians[i], recent[i] = row, unbiased
         before = len(self._recent)
         self.estimates += len(chained)
-        for i in range(len(chained)):
-            self._held.append(medians[i])
-            self._recent.append(medians[i] / median_bias(len(diffs[i])))
+        self._held.extend(medians)
+        self._recent.extend(recent)
         windows = _window_variances(self._recent[max(before - RECENT + 1, 0) :])
         self._recent = self._recent[-RECENT:]
         if windows:
@@ -203,6 +211,24 @@ class ChannelNoise:
         w = np.ones(self.n_channels)
         w[known] = np.clip(ref / np.maximum(var, 1e-300), 1.0 / MAX_WEIGHT_RATIO, MAX_WEIGHT_RATIO)
         return w
+
+
+def median_of_orders(a: np.ndarray) -> np.ndarray:
+    """``np.median(a, axis=1)`` of a float (m, k, n) array, without its wrapper (most of
+    its time at these sizes): the same partition, the same mean of the middle pair, the
+    same NaN where a slice has one; so the same bits."""
+    k = a.shape[1]
+    half = k // 2
+    kth = [half, -1] if k % 2 else [half - 1, half, -1]
+    part = np.partition(a, kth, axis=1)
+    if k % 2:
+        out = part[:, half].copy()
+    else:
+        out = (part[:, half - 1] + part[:, half]) / 2  # np.mean of the pair
+    last = part[:, -1]
+    nan = np.isnan(last)  # (NaN partitions last, as np.median checks)
+    out[nan] = last[nan]
+    return out
 
 
 def _window_variances(recent: list[np.ndarray]) -> list[np.ndarray]:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -75,6 +75,26 @@ class FittedRun:
     relative: np.ndarray  # (n, k) the relative rigidity residual
     share: np.ndarray  # (n, k) that less the channel noise's mean
     beyond: np.ndarray  # (n, k) that beyond the channel noise's quantile
+    # set in __post_init__ (per run): the orders as Python floats, and more
+    order_list: list[float] = field(init=False, repr=False)
+    _gate_lists: tuple[list[Any], ...] = field(init=False, repr=False)
+    _power_sums: list[float] = field(init=False, repr=False)
+    _order_key: tuple[float, ...] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        # per run, not per frame: the rows the residual gate and the queue take as Python
+        # numbers (made here: a cached_property's first look-up costs more, one run per
+        # frame when frames come one at a time)
+        lists = (
+            self.why.tolist(), self.relative.tolist(), self.share.tolist(),
+            self.beyond.tolist(),
+        )  # fmt: skip
+        object.__setattr__(self, "_gate_lists", lists)
+        object.__setattr__(self, "order_list", self.orders.tolist())
+        object.__setattr__(self, "_order_key", tuple(self.order_list))
+        # each frame's power summed over its orders: the bits of a frame's own sum (one
+        # reduction per row)
+        object.__setattr__(self, "_power_sums", np.add.reduce(self.power, axis=1).tolist())
 
     def gate_inputs(self, j: int) -> tuple[list[int], list[float], list[float], list[float]]:
         """Frame ``j``'s rows of ``why``, ``relative``, ``share``, ``beyond``, as the
@@ -82,22 +102,23 @@ class FittedRun:
         why, relative, share, beyond = self._gate_lists
         return why[j], relative[j], share[j], beyond[j]
 
-    @functools.cached_property
-    def _gate_lists(self) -> tuple[list[Any], ...]:
-        """The run's ``why``, ``relative``, ``share``, ``beyond`` as nested lists (four
-        conversions per run rather than per frame)."""
-        return (
-            self.why.tolist(), self.relative.tolist(), self.share.tolist(),
-            self.beyond.tolist(),
-        )  # fmt: skip
-
-    def queued(self, j: int) -> tuple[Any, ...]:
-        """Frame ``j``'s readings, power, force, moment, floor and gas, as
+    def queued(self, j: int, cycle_unknown: bool) -> tuple[Any, ...]:
+        """Frame ``j``'s half orders of unknown sign (``cycle_unknown``: the run's frames
+        have no 720 deg reference), readings, power, force, moment, floor and gas, as
         :meth:`estimator.pending_rows.FrameQueue.add` takes them."""
         return (
-            self.readings[j], self.power[j], self.force[j], self.moment[j], self.floor[j],
-            self.gas[j],
+            half_orders(self._order_key, cycle_unknown), self.readings[j],
+            self._power_sums[j], self.force[j], self.moment[j], self.floor[j], self.gas[j],
         )  # fmt: skip
+
+
+@functools.lru_cache(maxsize=32)
+def half_orders(orders: tuple[float, ...], unknown: bool) -> np.ndarray:
+    """(k,) bool: the half orders among ``orders`` when the cycle is ``unknown``, else
+    none (read-only: every frame with these orders shares it)."""
+    half = ((2 * np.array(orders)) % 2 == 1) & unknown
+    half.flags.writeable = False
+    return half
 
 
 def fit_run(
@@ -117,18 +138,16 @@ def fit_run(
     )
     x, residual_rms, relative, noise_var = fit.fit_arrays(readings)
     motions = fit.motions(x, residual_rms, relative, noise_var)
-    power = np.mean(readings.real**2 + readings.imag**2, axis=2)
+    # np.mean's sum and division without its wrapper's checks (the same bits)
+    power = np.add.reduce(readings.real**2 + readings.imag**2, axis=2) / readings.shape[2]
     bends = gates.curvature(run_frames, orders, motions, fit)
-    rpm = np.array([f.rpm for f in run_frames], dtype=float)
-    excitation = [setup.excitation(f.rpm, orders) for f in run_frames]
-    force, moment = np.stack([f for f, _ in excitation]), np.stack([m for _, m in excitation])
-    gas: list[np.ndarray | None] = [None] * len(run)
-    if setup.gas_moment is not None:
-        for j, f in enumerate(run_frames):
-            spectrum = getattr(f, "spectrum", None)
-            if spectrum is not None and np.isfinite(spectrum).all():
-                gas[j] = setup.gas_moment(orders, spectrum)
-                moment[j] = moment[j] + gas[j]
+    rpm_list = [f.rpm for f in run_frames]
+    rpm = np.array(rpm_list, dtype=float)
+    force, moment = run_excitation(setup, rpm_list, orders)
+    gas = run_gas(setup, run_frames, orders)
+    for j, g in enumerate(gas):
+        if g is not None:
+            moment[j] = moment[j] + g
     why, floor = gates.screen_orders(rpm, orders, force, moment, bends, power, relative, fit)
     mean, q = noise_levels_many(fit, [s.variance for s in run])
     share, beyond = excess_many(relative, noise_var, fit, mean, q)
@@ -136,3 +155,43 @@ def fit_run(
         index, orders, readings, motions, power, force, moment, gas, why, floor,
         relative, share, beyond,
     )  # fmt: skip
+
+
+def run_excitation(
+    setup: EstimatorSetup, rpm: list[float], orders: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The known excitation force and moment (n, k, 3) of a run's frames at their
+    crank speeds ``rpm``: in one call where the setup's excitation offers it."""
+    many = getattr(setup.excitation, "many", None)
+    if many is not None:
+        force, moment = many(rpm, orders)
+        return force, moment
+    excitation = [setup.excitation(r, orders) for r in rpm]
+    return np.stack([f for f, _ in excitation]), np.stack([m for _, m in excitation])
+
+
+def run_gas(
+    setup: EstimatorSetup, frames: list[FrameLike], orders: np.ndarray
+) -> list[np.ndarray | None]:
+    """The measured gas moment (k, 3) of each of a run's frames, None for a frame
+    without a finite pressure spectrum (or without a pressure channel at all)."""
+    gas: list[np.ndarray | None] = [None] * len(frames)
+    if setup.gas_moment is None:
+        return gas
+    given: list[tuple[int, np.ndarray]] = [
+        (j, p) for j, f in enumerate(frames) if (p := getattr(f, "spectrum", None)) is not None
+    ]
+    many = getattr(setup.gas_moment, "many", None)
+    shapes = {np.shape(p) for _, p in given}
+    if many is not None and len(shapes) == 1 and len(next(iter(shapes))) == 1:
+        stack = np.array([p for _, p in given])  # (m, n_half): a frame's pressure orders
+        finite = np.isfinite(stack).all(axis=1)
+        at = [j for (j, _), ok in zip(given, finite.tolist(), strict=True) if ok]
+        if at:
+            for j, g in zip(at, many(orders, stack[finite]), strict=True):
+                gas[j] = g
+        return gas
+    for j, p in given:
+        if np.isfinite(p).all():
+            gas[j] = setup.gas_moment(orders, p)
+    return gas

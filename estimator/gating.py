@@ -31,6 +31,9 @@ TACHO_FLAGS = frozenset({"no_tacho", "tacho_resync", "angle_ambiguous", "angle_r
 ELASTIC_WINDOW = 5
 ELASTIC_CONFIRM = 3
 
+# the curvature gate: three fits' noise in a second difference (sqrt 6 sigma), 3 of them
+BEND_NOISE = 3 * np.sqrt(6.0)
+
 # OrderGates.judge: why each rejected order was rejected, every order's relative
 # residual, the indices of the orders that passed
 Judged = tuple[dict[float, str], dict[float, float], list[int]]
@@ -54,9 +57,9 @@ class FrameLike(Protocol):
 
 def frame_gate(frame: FrameLike, gates: Gates) -> str | None:
     """Why the whole frame is unusable (rpm, tacho, dsp settling, steadiness), None if not."""
-    if not np.isfinite(frame.rpm) or frame.rpm <= 0:
+    if not math.isfinite(frame.rpm) or frame.rpm <= 0:  # (np.isfinite: a ufunc call)
         return "no_rpm"
-    if frame.flags & TACHO_FLAGS:
+    if not TACHO_FLAGS.isdisjoint(frame.flags):
         return "tacho"
     if "leakage_uncorrected" in frame.flags:
         return "dsp_settling"
@@ -114,8 +117,8 @@ class OrderGates:
         """
         # Excitation level per order (force times a typical 0.3 m arm, plus moment):
         # an order the engine does not excite carries no information, only noise.
-        level = 0.3 * np.sqrt(np.sum(np.abs(force) ** 2, axis=2)) + np.sqrt(
-            np.sum(np.abs(moment) ** 2, axis=2)
+        level = 0.3 * np.sqrt(np.add.reduce(np.abs(force) ** 2, axis=2)) + np.sqrt(
+            np.add.reduce(np.abs(moment) ** 2, axis=2)
         )
         excited = level > 1e-6 * np.maximum(level.max(axis=1, keepdims=True), 1e-300)
         corr = self.setup.corrections
@@ -177,15 +180,20 @@ class OrderGates:
         was rejected, every order's relative residual, and the orders that passed.
         """
         rejected: dict[float, str] = {}
-        residuals: dict[float, float] = {}
+        residuals = dict(zip(orders, relative, strict=True))
         used: list[int] = []
+        limits, top = self.residual_limit, self.setup.gates.max_relative_residual
         for k, h in enumerate(orders):
-            residuals[h] = relative[k]
-            reason = (
-                ORDER_REASONS[why[k]]
-                if why[k]
-                else self.residual(h, rpm, relative[k], share[k], beyond[k])
-            )
+            w = why[k]
+            if w:
+                reason: str | None = ORDER_REASONS[w]
+            elif relative[k] <= top and (limit := limits.get(h)) is not None:
+                # :meth:`residual` once the order's baseline is set (the rule), inline
+                flagged = beyond[k] > limit
+                self._note_non_rigid(h, h * rpm / 60.0, flagged)
+                reason = "non_rigid" if flagged else None
+            else:
+                reason = self.residual(h, rpm, relative[k], share[k], beyond[k])
             if reason:
                 rejected[h] = reason
             else:
@@ -209,23 +217,28 @@ class OrderGates:
         mass-line sweeps up to 150 rpm/s, 0.1-130 % in a 60 rpm/s sweep through the
         modes, where the frame errors reach 0.2-28 %.
         """
-        out = np.zeros((len(frames), len(orders)))
         revs = [revolution(f) for f in frames]
         at = [j for j, r in enumerate(revs) if r is not None]
         if not at:
-            return out
+            return np.zeros((len(frames), len(orders)))
         # Motions fitted with a rotation unseen lack it: compare them only with motions
         # that lack the same one.
         key = (tuple(orders.tolist()), None if fit.null is None else fit.null.tobytes())
-        none = np.full((len(orders), 3), np.nan + 0j)
-        r0, r1, (w0, w1) = self.motion_history.get(key, (-(10**9), -(10**9), (none, none)))
-        seq_rev = np.array([r0, r1] + [revs[j] for j in at])
+        last = self.motion_history.get(key)
+        if last is None:
+            none = np.full((len(orders), 3), np.nan + 0j)
+            last = (-(10**9), -(10**9), (none, none))
+        r0, r1, (w0, w1) = last
+        seq_rev = [r0, r1, *(r for r in revs if r is not None)]
         seq_w = np.array([w0, w1] + [motions[j].omega_dot for j in at])  # (2 + n, k, 3)
         w = seq_w[2:]
-        chained = (seq_rev[1:-1] == seq_rev[2:] - 2) & (seq_rev[:-2] == seq_rev[2:] - 4)
-        size = np.maximum(np.sqrt(np.sum(w.real**2 + w.imag**2, axis=2)), 1e-300)  # (n, k)
+        # each frame's revolution 2 and 4 after the two before it (frames 720 deg apart)
+        chained = np.array(
+            [seq_rev[i + 1] == c - 2 and seq_rev[i] == c - 4 for i, c in enumerate(seq_rev[2:])]
+        )
+        size = np.maximum(np.sqrt(np.add.reduce(w.real**2 + w.imag**2, axis=2)), 1e-300)  # (n, k)
         d = w - 2 * seq_w[1:-1] + seq_w[:-2]
-        bend = np.sqrt(np.sum(d.real**2 + d.imag**2, axis=2)) / size
+        bend = np.sqrt(np.add.reduce(d.real**2 + d.imag**2, axis=2)) / size
         # what noise alone puts into a second difference of three fits (sqrt 6
         # sigma), sigma from this frame's rigid-fit residual: only the excess bends
         covs = [motions[j].cov_unit for j in at]
@@ -235,10 +248,13 @@ class OrderGates:
             trace = np.array([np.trace(c[3:, 3:]) for c in covs])
         noise = np.array([motions[j].noise_var for j in at])  # (n, k)
         sigma = np.sqrt(2 * noise * trace[:, None]) / size
-        excess = np.maximum(0.0, bend - 3 * np.sqrt(6.0) * sigma)
+        excess = np.maximum(0.0, bend - BEND_NOISE * sigma)
         excess = np.where(chained[:, None] & np.isfinite(excess), excess, 0.0)
+        self.motion_history[key] = (seq_rev[-2], seq_rev[-1], (seq_w[-2], seq_w[-1]))
+        if len(at) == len(frames):
+            return excess
+        out = np.zeros((len(frames), len(orders)))
         out[at] = excess
-        self.motion_history[key] = (int(seq_rev[-2]), int(seq_rev[-1]), (seq_w[-2], seq_w[-1]))
         return out
 
     def residual(
@@ -280,7 +296,9 @@ class OrderGates:
         if recent is None:
             recent = self._non_rigid_recent[h] = collections.deque(maxlen=ELASTIC_WINDOW)
         recent.append(flagged)
-        if self.elastic is None and sum(recent) >= ELASTIC_CONFIRM:
+        # (only a flagged frame can confirm: while no mode is, the window held fewer than
+        # ELASTIC_CONFIRM after every earlier frame, and a rigid one adds none)
+        if flagged and self.elastic is None and sum(recent) >= ELASTIC_CONFIRM:
             self.elastic = {"order": h, "frequency_hz": f_hz}
 
 

@@ -165,6 +165,13 @@ class RigidFit:
         """(n_ch, n_ch) ``I - J_w J_w^+``: the weighted readings' part no rigid motion makes."""
         return np.eye(self.sw.size) - self.jw @ self.pinv
 
+    @functools.cached_property
+    def residual_projector_parts(self) -> tuple[np.ndarray, np.ndarray]:
+        """The diagonal of :attr:`residual_projector` and its elements squared
+        (:func:`estimator.rigidity.noise_levels_many`: once per geometry, not per run)."""
+        m = self.residual_projector
+        return np.diag(m).copy(), m**2
+
     @property
     def rank(self) -> int:
         """How many rigid-body motions the channels determine (6, or 5 with ``null``)."""
@@ -197,9 +204,10 @@ class RigidFit:
         a = amplitudes.reshape(n_f * n_o, n_ch)
         x, resid = x3.reshape(n_f * n_o, 6), resid3.reshape(n_f * n_o, n_ch)
         dof = max(self.sw.size - self.rank, 1)
-        resid_ss = np.sum(resid.real**2 + resid.imag**2, axis=1)
+        resid_ss = np.add.reduce(resid.real**2 + resid.imag**2, axis=1)
         residual_rms = np.sqrt(resid_ss / dof / self.mean_w)
-        signal_rms = np.sqrt(np.mean(a.real**2 + a.imag**2, axis=1))
+        # (np.mean's sum and division without its wrapper's checks: the same bits)
+        signal_rms = np.sqrt(np.add.reduce(a.real**2 + a.imag**2, axis=1) / n_ch)
         with np.errstate(divide="ignore", invalid="ignore"):
             relative = np.where(signal_rms > 0, residual_rms / signal_rms, 0.0)
         noise_var = resid_ss / (2 * dof)

@@ -80,13 +80,13 @@ class FrameQueue:
     def add(
         self,
         rpm: float,
-        cycle_unknown: bool,
         fit: RigidFit,
         motion: RigidMotion,
-        ks: np.ndarray,
+        ks: list[int],
         orders: np.ndarray,
+        half: np.ndarray,
         readings: np.ndarray,
-        power: np.ndarray,
+        power_sum: float,
         force: np.ndarray,
         moment: np.ndarray,
         dsp_var: np.ndarray,
@@ -94,40 +94,48 @@ class FrameQueue:
     ) -> None:
         """Queue the used orders ``ks`` of a frame; their rows are assembled a batch at a time.
 
-        ``cycle_unknown``: the frame's half orders have an unknown sign. ``readings``
-        (k, u) are the fitted channels' amplitudes, ``power`` (k,) their mean square
-        per order, ``dsp_var`` (k,) a floor for the channel noise variance (what the
-        dsp errs by near modes), ``gas`` the measured gas moment in ``moment``.
+        ``half`` (k,) bool: the frame's half orders of unknown sign (no 720 deg
+        reference; never changed: frames share it). ``readings`` (k, u) are the fitted
+        channels' amplitudes, ``power_sum`` their mean square summed over the orders,
+        ``dsp_var`` (k,) a floor for the channel noise variance (what the dsp errs by
+        near modes), ``gas`` the measured gas moment in ``moment``.
         """
-        # np.mean's sum and division without its wrapper's checks (the same bits)
-        floor = max(1e-16 * (float(np.add.reduce(power)) / power.size), 1e-30)
+        floor = max(1e-16 * (power_sum / len(orders)), 1e-30)  # of the mean square
         redundancy = self._redundancy_raw(fit, motion, readings, ks)
         var = self._noise_var(self._raw_noise_var(motion, ks, redundancy), ks, orders, floor)
-        # every order used (the common case): the frame's arrays as they are, no copies
-        at: slice | np.ndarray = slice(None) if len(ks) == len(orders) else ks
-        var = np.maximum(var, dsp_var[at])
-        h = orders[at]
+        gamma_o, omega_dot, h, dsp_h = motion.gamma_o, motion.omega_dot, orders, dsp_var
+        if len(ks) < len(orders):  # (every order used, the common case: the arrays as they are)
+            at = np.array(ks)
+            gamma_o, omega_dot, h, dsp_h, half = (
+                gamma_o[at],
+                omega_dot[at],
+                h[at],
+                dsp_h[at],
+                half[at],
+            )
+            force, moment, readings = force[at], moment[at], readings[at]
+            gas = None if gas is None else gas[at]
         self.frames.append(
             PendingFrame(
-                gamma_o=motion.gamma_o[at],
-                omega_dot=motion.omega_dot[at],
+                gamma_o=gamma_o,
+                omega_dot=omega_dot,
                 origin=motion.origin,
                 cov_unit=motion.cov_unit,
                 orders=h,
                 rpm=float(rpm),
-                force=force[at],
-                moment=moment[at],
-                var=var,
+                force=force,
+                moment=moment,
+                var=np.maximum(var, dsp_h),
                 fit=fit,
-                amplitudes=readings[at],
-                half=((2 * h) % 2 == 1) & cycle_unknown,
-                measured_moment=None if gas is None else gas[at],
+                amplitudes=readings,
+                half=half,
+                measured_moment=gas,
                 redundancy=redundancy,
             )
         )
 
     def _redundancy_raw(
-        self, fit: RigidFit, motion: RigidMotion, readings: np.ndarray, ks: np.ndarray
+        self, fit: RigidFit, motion: RigidMotion, readings: np.ndarray, ks: list[int]
     ) -> tuple[np.ndarray, np.ndarray] | None:
         """The redundancy rows of the orders ``ks`` of a fitted frame, not whitened (None
         without self-calibration, or when two sensors leave no redundancy)."""
@@ -143,7 +151,7 @@ class FrameQueue:
         )
 
     def _raw_noise_var(
-        self, motion: RigidMotion, ks: np.ndarray, rows: tuple[np.ndarray, np.ndarray] | None
+        self, motion: RigidMotion, ks: list[int], rows: tuple[np.ndarray, np.ndarray] | None
     ) -> np.ndarray:
         """Per-order channel noise variance of one frame: what the rigid fit leaves, less
         what the calibrated sensor errors explain once they are estimated (``rows``: the
@@ -157,19 +165,19 @@ class FrameQueue:
         return raw
 
     def _noise_var(
-        self, raw_var: np.ndarray, ks: np.ndarray, orders: np.ndarray, floor: float
-    ) -> np.ndarray:
+        self, raw_var: np.ndarray, ks: list[int], orders: np.ndarray, floor: float
+    ) -> list[float]:
         """Per-order channel noise variance, smoothed over frames (3 dof per frame is noisy),
         floored so noise-free data keep finite weights."""
         out = []
         smoothed = self.noise_var
         hs, raws = orders.tolist(), raw_var.tolist()
-        for k in ks.tolist():
+        for k in ks:
             h, raw = hs[k], raws[k]
             var = 0.8 * smoothed[h] + 0.2 * raw if h in smoothed else raw
             smoothed[h] = var
             out.append(max(var, floor))
-        return np.array(out)
+        return out
 
 
 class RowAssembler:

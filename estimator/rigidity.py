@@ -118,7 +118,6 @@ def noise_levels_many(
     """:func:`noise_levels` of the frames fitted with ``fit``, one channel noise
     ``variance`` per frame (frames in a row often share one: each distinct one is
     done once): (n,) means and (n,) quantiles, NaN where the noise is unknown."""
-    mean, q = np.full(len(variances), np.nan), np.full(len(variances), np.nan)
     rows: dict[int, int] = {}  # id of a variance -> its row in ``var``
     var_list: list[np.ndarray] = []
     at: list[int] = []
@@ -130,19 +129,22 @@ def noise_levels_many(
             var_list.append(np.asarray(v, float) if fit.channels is None else v[fit.channels])
         at.append(j)
     if not var_list or var_list[0].shape != fit.sw.shape:
-        return mean, q
+        return np.full(len(variances), np.nan), np.full(len(variances), np.nan)
     var = np.array(var_list)  # (m, n_ch)
     d = fit.sw**2 * var
-    m = fit.residual_projector
-    s1 = np.sum(np.diag(m) * d, axis=1)  # sum l = tr(M D), per frame
+    m_diag, m_sq = fit.residual_projector_parts
+    s1 = np.add.reduce(m_diag * d, axis=1)  # sum l = tr(M D), per frame
     # sum l^2 = tr(M D M D), each summed as one frame's (n_ch, n_ch) array is
-    s2 = np.sum((m**2 * (d[:, :, None] * d[:, None, :])).reshape(len(d), -1), axis=1)
+    s2 = np.add.reduce((m_sq * (d[:, :, None] * d[:, None, :])).reshape(len(d), -1), axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         g, h = s2 / s1, 2.0 * s1**2 / s2
         some = (s1 > 0) & (s2 > 0)
         q_all = np.where(some, g * 2.0 * gammainccinv(h / 2.0, 1.0 - NOISE_QUANTILE), 0.0)
     mean_all = np.where(some, 2.0 * s1, 0.0)
     known = np.all(np.isfinite(var), axis=1)
+    if len(var_list) == len(variances):  # each frame its own, known variance: rows as is
+        return np.where(known, mean_all, np.nan), np.where(known, q_all, np.nan)
+    mean, q = np.full(len(variances), np.nan), np.full(len(variances), np.nan)
     pick = np.array([rows[id(variances[j])] for j in at])
     mean[at] = np.where(known[pick], mean_all[pick], np.nan)
     q[at] = np.where(known[pick], q_all[pick], np.nan)
@@ -161,11 +163,11 @@ def excess_many(
 
     def beyond(c: np.ndarray) -> np.ndarray:
         c = c[:, None]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            part = relative * np.sqrt(np.where(rss > c, 1.0 - c / rss, 0.0))
+        part = relative * np.sqrt(np.where(rss > c, 1.0 - c / rss, 0.0))
         return np.where(known, part, relative)
 
-    return beyond(mean), beyond(q)
+    with np.errstate(divide="ignore", invalid="ignore"):  # (one context: a few us each)
+        return beyond(mean), beyond(q)
 
 
 def excess_residual(

@@ -121,7 +121,7 @@ def rls_solve(
     """
     n = state.vec.size
     s = np.ones(n) if scale is None else np.asarray(scale, dtype=float)
-    ss = np.outer(s, s)
+    ss = s[:, None] * s[None, :]  # np.outer's product, without its wrapper
     info = state.info * ss
     vec = state.vec * s
     if len(anchored):
@@ -129,13 +129,14 @@ def rls_solve(
     else:
         evals, evecs, keep, observable, _ = rank_decision(info, rcond)
         inv = (evecs[:, keep] / evals[keep]) @ evecs[:, keep].T
-        kept = int(np.sum(keep))
+        kept = int(np.count_nonzero(keep))
     theta_s = inv @ vec
     theta = theta_s * s
     cov = inv * ss
-    eye = np.eye(n, dtype=bool)
-    cov[~observable, :] = np.where(eye[~observable, :], np.inf, 0.0)
-    cov[:, ~observable] = np.where(eye[:, ~observable], np.inf, 0.0)
+    if not observable.all():  # (all observable, the common case: nothing to blank)
+        eye = np.eye(n, dtype=bool)
+        cov[~observable, :] = np.where(eye[~observable, :], np.inf, 0.0)
+        cov[:, ~observable] = np.where(eye[:, ~observable], np.inf, 0.0)
     theta = np.where(observable, theta, 0.0)
     rss = max(state.yty - float(vec @ theta_s), 0.0)
     dof = max(state.rows - kept, 1.0)

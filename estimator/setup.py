@@ -25,6 +25,14 @@ ExcitationFn = Callable[[float, np.ndarray], tuple[np.ndarray, np.ndarray]]
 PairExcitationFn = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 #: (orders, pressure spectrum of a frame) -> (n_orders, 3) complex N m gas moment
 GasMomentFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
+#: What an ``excitation`` (or ``gas_moment``) may also offer, as its attribute ``many``:
+#: the frames of a run in one call, each frame's (n_orders, 3) the same bits as its own
+#: call. ``excitation.many(rpm list (n,), orders)`` -> force and moment (n, n_orders, 3);
+#: ``gas_moment.many(orders, spectra (n, n_half))`` -> (n, n_orders, 3). The scalar
+#: call stays the contract (test helpers implement only that); ``many`` is looked up on
+#: the callable itself, so replacing the callable in a setup replaces both.
+ExcitationManyFn = Callable[[list[float], np.ndarray], tuple[np.ndarray, np.ndarray]]
+GasMomentManyFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 @dataclass(frozen=True)

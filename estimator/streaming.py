@@ -27,7 +27,7 @@ import numpy as np
 
 from acquisition.stream import SourceEvent
 from estimator.channel_fits import ChannelFits
-from estimator.elastic_tail import ELASTIC_TERMS, effective_state, elastic_mode_event, with_tail
+from estimator.elastic_tail import ELASTIC_TERMS, elastic_mode_event, with_tail
 from estimator.equations import (
     Linearisation,
     ParameterLayout,
@@ -53,8 +53,9 @@ from estimator.pending_rows import FrameQueue, PendingFrame, RowAssembler
 from estimator.redundancy import calibrated_names
 from estimator.relinearise import relinearise, relinearise_due
 from estimator.result import Estimate, EstimatorStats, build_estimate
-from estimator.rls import RlsSolution, RlsState, rls_solve
+from estimator.rls import RlsSolution, RlsState
 from estimator.setup import EstimatorSetup
+from estimator.solve_memo import SolveMemo, within_one_call
 from estimator.systematic import systematic_names, systematic_stds
 
 
@@ -108,6 +109,7 @@ class InertiaEstimator:
         # the sign matters unless the gas moment is measured in that angle (it flips too)
         self.cycle_unknown = setup.gas_moment is None
         self.scale = parameter_scale(self.layout, setup.inertia_nominal, setup.mass_nominal)
+        self.memo = SolveMemo(n, self.scale, self._cal_cols)  # (kept within a call only)
         self.channels = ChannelFits(setup)  # the used channels and their fits' geometry
         # frames whose channels leave one rigid-body motion unseen (two sensors left)
         self.partial = PartialPairs(self, self.rows, self.scale, n_sys)
@@ -171,12 +173,11 @@ class InertiaEstimator:
         weights (the rest are fitted anew)."""
         history = self.gates.motion_history.copy()
         r = fit_run(self.setup, self.gates, fit, frames, run)
-        order_list = r.orders.tolist()
+        order_list = r.order_list
         generation = self.channels.generation
         for j, i in enumerate(r.index):
             if j:
-                _, again = self.channels.choose(run[j].used, run[j].steps)  # counts missing sensors
-                assert again is fit, "a run's geometry changed without a relinearisation"
+                self.channels.again(fit)  # counts how long a sensor has been missing
             self.channels.channel_noise.release(run[j].estimates)  # weights: frames so far
             if self.setup.gas_moment is not None and r.gas[j] is None:
                 outcomes[i] = self._reject(frames[i], "no_pressure")
@@ -209,9 +210,7 @@ class InertiaEstimator:
             counts = Counter(rejected.values())
             return self._reject(frame, counts.most_common(1)[0][0] if counts else "no_orders")
         motion, orders = run.motions[j], run.orders
-        self.queue.add(
-            frame.rpm, self.cycle_unknown, fitter, motion, np.array(ks), orders, *run.queued(j)
-        )
+        self.queue.add(frame.rpm, fitter, motion, ks, orders, *run.queued(j, self.cycle_unknown))
         # (the sign hypotheses of the fully measured frames: frames with an unseen
         # motion decide their own, see estimator.partial_pairs)
         tested = self.cycle_unknown and fitter.null is None
@@ -222,8 +221,10 @@ class InertiaEstimator:
         # estimate must not move the relinearisation points.)
         if relinearise_due(self.stats.used):
             relinearise(self)
-        order_list = orders.tolist()
-        used_orders = tuple(order_list[k] for k in ks)
+        order_list = run.order_list
+        used_orders = tuple(
+            order_list if len(ks) == len(order_list) else [order_list[k] for k in ks]
+        )
         return FrameOutcome(frame.time_s, frame.rpm, used_orders, rejected, None, residuals, motion)
 
     def _reject(self, frame: FrameLike, reason: str) -> FrameOutcome:
@@ -292,6 +293,7 @@ class InertiaEstimator:
                     self.acc[sign_], Ha[a:b], ys[a:b], drs[a:b], self.forgetting, own
                 )
 
+    @within_one_call
     def _relinearise(self) -> None:
         self.channels.refresh_weights()
         # stop carrying the losing sign hypothesis once the residuals leave no doubt
@@ -312,14 +314,12 @@ class InertiaEstimator:
 
     def _effective(self, sign: int) -> Accumulator:
         """A sign hypothesis's state of theta (:func:`estimator.elastic_tail.effective_state`)."""
-        return effective_state(
-            self.acc[sign], self.layout.size, self.scale, self.elastic is not None
-        )
+        return self.memo.effective(sign, self.acc[sign], self.elastic is not None)
 
     def solve(self, state: RlsState) -> RlsSolution:
         """The estimate of a state of theta: rank decisions on the parameter scale,
         the self-calibrated sensor errors held by their priors."""
-        return rls_solve(state, scale=self.scale, anchored=self._cal_cols)
+        return self.memo.solve(state)
 
     def best_state(self) -> Accumulator:
         """The state of the estimate: the sign hypothesis with the smaller weighted
@@ -360,6 +360,7 @@ class InertiaEstimator:
             referenced=bool(self.stats.referenced_frames),
         )
 
+    @within_one_call
     def estimate(self, final: bool = True) -> Estimate:
         """The current estimate. ``final=False`` (a live update) skips the full re-solve
         of frames with an unseen motion that the final estimate makes."""

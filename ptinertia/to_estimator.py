@@ -7,6 +7,7 @@ inertia. It never sees the simulated truth.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,13 +17,12 @@ from acquisition.stream import StreamLayout
 from estimator.setup import (
     Corrections,
     EstimatorSetup,
-    GasMomentFn,
     Gates,
     MountStiffness,
     Tolerances,
 )
 from powertrain.engine import Engine
-from powertrain.half_orders import OrderExcitation
+from powertrain.half_orders import OrderExcitation, rpm_to_omega
 from powertrain.model import BenchModel
 from powertrain.pressure_torque import PressureTorqueMap, pressure_torque_map
 from ptinertia import config
@@ -73,29 +73,66 @@ def pressure_gas(bench: config.Bench, layout: StreamLayout) -> PressureGas | Non
 
 def gas_moment_from_pressure(
     engine: Engine, gas: PressureGas, orders: tuple[float, ...] = ()
-) -> GasMomentFn:
+) -> GasFromPressure:
     """The estimator's gas moment (``-T_gas s``, N m) from a frame's pressure spectrum.
 
     The map for ``orders`` (those the dsp will track) is built now, not at the first
     frame: a live run must not stall its first estimate on it (~20 ms).
     """
-    maps: dict[tuple[float, ...], PressureTorqueMap] = {}
-    axis = np.asarray(engine.crank_axis, float)
-
-    def map_for(orders: npt.ArrayLike) -> PressureTorqueMap:
-        key = tuple(np.asarray(orders, float).tolist())
-        if key not in maps:
-            maps[key] = pressure_torque_map(engine, key, gas.max_order)
-        return maps[key]
-
+    out = GasFromPressure(engine, gas)
     if orders:
-        map_for(orders)
+        out.map_for(orders)
+    return out
 
-    def gas_moment(orders: np.ndarray, spectrum: np.ndarray) -> np.ndarray:
-        torque = map_for(orders).torque(gas.pa_per_unit * np.asarray(spectrum))
-        return -np.outer(torque, axis)
 
-    return gas_moment
+class GasFromPressure:
+    """The gas moment of :func:`gas_moment_from_pressure`: a ``GasMomentFn``, with
+    ``many`` for the frames of a run at once (``estimator.setup``)."""
+
+    def __init__(self, engine: Engine, gas: PressureGas) -> None:
+        self.engine = engine
+        self.gas = gas
+        self.axis = np.asarray(engine.crank_axis, float)
+        self.maps: dict[tuple[float, ...], PressureTorqueMap] = {}
+
+    def map_for(self, orders: npt.ArrayLike) -> PressureTorqueMap:
+        key = tuple(np.asarray(orders, float).tolist())
+        if key not in self.maps:
+            self.maps[key] = pressure_torque_map(self.engine, key, self.gas.max_order)
+        return self.maps[key]
+
+    def __call__(self, orders: np.ndarray, spectrum: np.ndarray) -> np.ndarray:
+        torque = self.map_for(orders).torque(self.gas.pa_per_unit * np.asarray(spectrum))
+        return -np.outer(torque, self.axis)
+
+    def many(self, orders: np.ndarray, spectra: np.ndarray) -> np.ndarray:
+        """(n, n_orders, 3) from (n, n_half) spectra: each frame's the bits of its own call
+        (the map applied as (n, 1, n_half) stacks: one matrix-vector product per frame,
+        as a frame alone gets it, where a (n, n_half) product may take another kernel)."""
+        p = self.gas.pa_per_unit * np.asarray(spectra)[:, None, :]
+        torque = self.map_for(orders).torque(p)[:, 0]
+        return -(torque[:, :, None] * self.axis)  # np.outer's product, per frame
+
+
+class ExcitationAt:
+    """The known excitation per order at a crank speed: an ``ExcitationFn``, with
+    ``many`` for the frames of a run at once (``estimator.setup``)."""
+
+    def __init__(self, of_orders: Callable[[npt.ArrayLike], OrderExcitation]) -> None:
+        self.of_orders = of_orders  # the speed-independent parts of an order set
+
+    def __call__(self, rpm: float, orders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.of_orders(orders).at(rpm)
+
+    def many(self, rpm: list[float], orders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Force and moment (n, n_orders, 3) at the crank speeds ``rpm`` (n,), each frame's
+        the bits of :meth:`OrderExcitation.at` (omega^2 squared as a Python float there)."""
+        exc = self.of_orders(orders)
+        w2 = np.array([w**2 for w in rpm_to_omega(rpm).tolist()])[:, None, None]
+        return (
+            exc.gas_force + w2 * exc.unit_inertia_force,
+            exc.gas_moment + w2 * exc.unit_inertia_moment,
+        )
 
 
 def mount_stiffness(model: BenchModel) -> tuple[MountStiffness, ...]:
@@ -174,9 +211,6 @@ def estimator_setup(
     # run's first estimate would be late), as the pressure map below.
     excitation_of(bench.dsp.orders)
 
-    def excitation(rpm: float, orders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return excitation_of(orders).at(rpm)
-
     mode_max = float(np.max(model.modes().frequency_hz)) if has_mounts else None
     mounts = mount_stiffness(model) if corr.suspension else ()
     declared = model_inputs(
@@ -192,7 +226,7 @@ def estimator_setup(
         crank_axis=np.asarray(s, float),
         cylinder_axis=np.asarray(c, float),
         spin_inertia=float(engine.crank_spin_inertia),
-        excitation=excitation,
+        excitation=ExcitationAt(excitation_of),
         mounts=mounts,
         mass_nominal=float(bench.powertrain.mass_kg),
         mass_known=bench.powertrain.mass_known,

@@ -8,9 +8,10 @@ chain, the simulator's own per-channel noise std.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from support.estimator_runs import I3, run
 
-from estimator.channel_noise import CAPACITY, ChannelNoise
+from estimator.channel_noise import CAPACITY, ChannelNoise, median_of_orders
 from ptinertia.config import load_bench
 from ptinertia.runner import make_estimator
 from ptinertia.sources import REALISTIC_SIMULATION, open_source
@@ -109,3 +110,17 @@ def test_auto_weights_follow_the_self_calibration_actually_run():
     assert make_estimator(bench).setup.corrections.channel_weights
     # --no self_calibration: equal weights, as without self-calibration
     assert not make_estimator(bench, ("self_calibration",)).setup.corrections.channel_weights
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 4, 9, 12])
+def test_the_median_over_orders_is_numpys_bit_for_bit(k: int) -> None:
+    """median_of_orders replaces np.median(axis=1) in the per-frame noise estimate."""
+    rng = np.random.default_rng(k)
+    a = rng.lognormal(size=(40, k, 9)) * 10.0 ** rng.integers(-300, 300, size=(40, 1, 1))
+    a[rng.random(a.shape) < 0.05] = np.nan  # a channel missing in an order
+    a[rng.random(a.shape) < 0.05] = 0.0
+    a[rng.random(a.shape) < 0.02] = np.inf
+    a[:5] *= 1e-310  # subnormal: the mean of the middle pair rounds there
+    got = median_of_orders(a)
+    assert got.shape == (40, 9)
+    assert np.array_equal(got.view(np.int64), np.median(a, axis=1).view(np.int64))

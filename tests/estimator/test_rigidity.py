@@ -105,9 +105,11 @@ def test_noise_alone_never_confirms_an_elastic_mode(snr_db: float, seed: int) ->
     assert doc["elastic_mode"] is None
 
 
-def test_the_noise_levels_of_many_frames_are_those_of_each_frame_alone() -> None:
+@pytest.mark.parametrize("each_its_own", [False, True])
+def test_the_noise_levels_of_many_frames_are_those_of_each_frame_alone(each_its_own: bool) -> None:
     # the block path (noise_levels_many, excess_many) against the one-frame reference,
-    # bit for bit: unknown noise (None, a NaN channel), nil noise and measured noise
+    # bit for bit: unknown noise (None, a NaN channel), nil noise and measured noise;
+    # or every frame its own measured noise (the rule along a sweep: a shorter path)
     pos, dirs = _geometry()
     rng = np.random.default_rng(8)
     fit = RigidFit.of(pos, dirs, rng.uniform(0.5, 2.0, 9)).on_channels(np.arange(9))
@@ -116,10 +118,13 @@ def test_the_noise_levels_of_many_frames_are_those_of_each_frame_alone() -> None
     missing = measured.copy()
     missing[4] = np.nan
     variances = [None, measured, measured, np.zeros(9), missing, 0.01 * measured, None]
+    if each_its_own:
+        variances = [10.0 ** -(j / 2) * rng.uniform(0.1, 2.0, 9) for j in range(7)]
     _, _, relative, noise_var = fit.fit_arrays(amps)
     share, beyond = excess_many(relative, noise_var, fit, *noise_levels_many(fit, variances))
     for j, (motion, var) in enumerate(zip(fit.fit_many(amps), variances, strict=True)):
         one_share, one_beyond = excess_residual(motion, fit, var)
         assert np.array_equal(share[j], one_share)
         assert np.array_equal(beyond[j], one_beyond)
-    assert np.any(beyond < relative) and np.any(beyond == relative)
+    assert np.any(beyond < relative) and np.any(beyond > 0)
+    assert np.any(beyond == relative) != each_its_own  # (only unknown noise keeps it all)

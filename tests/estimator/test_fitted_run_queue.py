@@ -1,0 +1,39 @@
+"""What a fitted run hands the frame queue per frame (``FittedRun.queued``): the half-order
+masks and power sums it makes once per run are each frame's own."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from estimator.fitted_runs import FittedRun
+
+
+def _run(orders: list[float], n: int, seed: int) -> FittedRun:
+    rng = np.random.default_rng(seed)
+    k = len(orders)
+    power = rng.lognormal(size=(n, k)) * 10.0 ** rng.integers(-8, 3, size=(n, 1))
+    cplx = rng.normal(size=(n, k, 3)) + 1j * rng.normal(size=(n, k, 3))
+    real = rng.normal(size=(n, k))
+    return FittedRun(
+        list(range(n)), np.array(orders), rng.normal(size=(n, k, 9)) + 0j, [], power,
+        cplx, cplx, [None] * n, np.zeros((n, k), int), real, real, real, real,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("orders", [[1.0, 1.5, 2.0], [0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.5, 6.0, 7.5]])
+def test_each_frame_gets_its_own_half_orders_and_power_sum(orders: list[float]) -> None:
+    run = _run(orders, 23, seed=len(orders))
+    h = np.array(orders)
+    for j in range(23):
+        for unknown in (False, True):
+            half, readings, power_sum, *_ = run.queued(j, unknown)
+            assert np.array_equal(half, ((2 * h) % 2 == 1) & unknown)
+            assert np.array_equal(readings, run.readings[j])
+            # the frame's own sum, bit for bit (np.mean's sum of a frame's orders)
+            assert power_sum == float(np.add.reduce(run.power[j]))
+    # the masks are shared by the run's frames: nobody may change them
+    half = run.queued(0, True)[0]
+    assert half.any() and not half.all()
+    with pytest.raises(ValueError):
+        half[0] = not half[0]
