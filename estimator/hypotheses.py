@@ -16,6 +16,7 @@ test's sign is used and the contradiction reported
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from typing import Any
 
@@ -102,6 +103,24 @@ def add_frame(
         state = rls_update(state, Hk.reshape(-1, n), yk.reshape(-1))
         sens = sens + _rows_t(Hk, n) @ drk.reshape(-1, drk.shape[-1])
     return Accumulator(state, sens)
+
+
+def add_frames_redundant(
+    acc: Accumulator,
+    H: np.ndarray,
+    y: np.ndarray,
+    dr: np.ndarray,
+    bounds: np.ndarray,
+    forgetting: float,
+    redundancy: tuple[np.ndarray, np.ndarray, np.ndarray],
+) -> Accumulator:
+    """:func:`add_frame` for consecutive frames with self-calibration: frame f's rows are
+    ``H[bounds[f]:bounds[f + 1]]``, ``y`` and ``dr`` alike, and so are its redundancy rows
+    (already discounted with the frame's own), added one frame at a time in stream order."""
+    for a, b in itertools.pairwise(bounds.tolist()):
+        own = (redundancy[0][a:b], redundancy[1][a:b], redundancy[2][a:b])
+        acc = add_frame(acc, H[a:b], y[a:b], dr[a:b], forgetting, own)
+    return acc
 
 
 def _rows_t(H: np.ndarray, n: int) -> np.ndarray:

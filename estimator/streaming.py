@@ -40,8 +40,8 @@ from estimator.hypotheses import (
     DECIDE_AFTER_FRAMES,
     DECIDE_RATIO,
     Accumulator,
-    add_frame,
     add_frames,
+    add_frames_redundant,
     better_sign,
     half_order_report,
 )
@@ -286,12 +286,9 @@ class InertiaEstimator:
                     self.acc[sign_], Ha, ys, drs, bounds, self.forgetting, self.rows.compiled
                 )
                 continue
-            for a, b in itertools.pairwise(bounds):
-                # the frame's redundancy rows (already discounted with the frame's own)
-                own = (kin[0][a:b], kin[1][a:b], kin[2][a:b])
-                self.acc[sign_] = add_frame(
-                    self.acc[sign_], Ha[a:b], ys[a:b], drs[a:b], self.forgetting, own
-                )
+            self.acc[sign_] = add_frames_redundant(
+                self.acc[sign_], Ha, ys, drs, bounds, self.forgetting, kin
+            )
 
     @within_one_call
     def _relinearise(self) -> None:
