@@ -141,6 +141,69 @@ def replay_repeated(log: Path, repeat: int = 3) -> None:
     )
 
 
+def compiled_chain(tmp: Path, repeat: int = 3) -> None:
+    """The whole chain with every compiled kernel (``PTINERTIA_NUMBA=1``: simulator, dsp
+    sums, estimator rows), warmed up: live with recording and the replay of its log, best
+    of ``repeat``, the replay with the dsp on the processing thread (the default) and on a
+    thread of its own (``Pipeline(dsp_thread=True)``), runs interleaved."""
+    from acquisition.sim import kernels as sim_kernels
+    from dsp import kernels as dsp_kernels
+    from estimator import row_kernels
+    from ptinertia import pipeline
+    from ptinertia.runner import RunOptions, run_source
+    from replay.recorder import McapRecorder
+    from replay.source import McapSource
+
+    flags = (sim_kernels, dsp_kernels, row_kernels)
+    if not all(m.AVAILABLE for m in flags):
+        print("compiled chain: numba not installed (pip install '.[fast]')")
+        return
+    saved = [(m.USE, pipeline.DSP_THREAD) for m in flags]
+    for m in flags:
+        m.USE = True
+    bench, _, text = _bench(25600.0, 60.0)
+    log = tmp / "compiled.mcap"
+
+    def live() -> tuple[float, dict | None]:
+        source = _bench(25600.0, 60.0)[1]
+        t0 = time.perf_counter()
+        _, doc = run_source(
+            bench, text, source, "sim", RunOptions(quiet=True, sinks=(McapRecorder(log),))
+        )
+        return time.perf_counter() - t0, doc
+
+    def replay(dsp_thread: bool) -> tuple[float, dict | None]:
+        pipeline.DSP_THREAD = dsp_thread
+        t0 = time.perf_counter()
+        _, doc = run_source(bench, text, McapSource(log), "sim", RunOptions(quiet=True))
+        return time.perf_counter() - t0, doc
+
+    try:
+        live()  # loads (or compiles) every kernel
+        walls: dict[str, list[float]] = {"live": [], "inline": [], "dsp thread": []}
+        same = True
+        for _ in range(repeat):
+            wall, doc = live()
+            walls["live"].append(wall)
+            for name, on in (("inline", False), ("dsp thread", True)):
+                wall, again = replay(on)
+                walls[name].append(wall)
+                same &= json.dumps(doc, sort_keys=True) == json.dumps(again, sort_keys=True)
+    finally:
+        for m, (use, dsp_thread) in zip(flags, saved, strict=True):
+            m.USE, pipeline.DSP_THREAD = use, dsp_thread
+    best = {k: 60 / min(v) for k, v in walls.items()}
+    print(
+        f"compiled chain (PTINERTIA_NUMBA=1), best of {repeat}: live with recording "
+        f"{best['live']:.0f}x, replay {best['inline']:.0f}x (dsp on a thread of its own: "
+        f"{best['dsp thread']:.0f}x); replays identical to their live run: {same}"
+    )
+    FIGURES["compiled chain (PTINERTIA_NUMBA=1)"] = (
+        f"live with recording {best['live']:.0f}x, replay {best['inline']:.0f}x "
+        f"({best['dsp thread']:.0f}x with the dsp thread; wall, best of {repeat}; load {_load()})"
+    )
+
+
 def cold_start(repeat: int = 3) -> None:
     """``ptinertia run --duration 5`` as a user starts it: wall and CPU of the whole process."""
     exe = Path(sys.executable).parent / "ptinertia"
@@ -251,6 +314,7 @@ def main() -> None:
         study_run()
         estimator_alone(log)
         replay_repeated(log)
+        compiled_chain(tmp)
         cold_start()
         if not a.skip_long:
             long_run(tmp, a.hours)
