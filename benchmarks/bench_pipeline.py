@@ -35,7 +35,12 @@ Prints:
 8. the estimator alone on the 60 s log's frames (issue 24: <= 60 us per used frame), best of
    three: fed as the blocks replay and studies hand it, and one frame at a time as a live
    run may, with the share of the row assembly (rows, sensitivities, RLS sums), with the
-   numpy rows and the compiled ones (estimator.row_kernels); and the replay of the log again, best of three (>= 300x).
+   numpy rows and the compiled ones (estimator.row_kernels); and the replay of the log again,
+   best of three (>= 300x);
+9. the whole chain with every compiled kernel (``PTINERTIA_NUMBA=1``: simulator, dsp sums,
+   estimator rows), warmed up: live with recording and the replay of its log, best of three,
+   the replay with the dsp on the processing thread and on its own (issue 24, load 2.4:
+   live 86x, replay 145x, 137x with the dsp thread; numpy 53x and 95-99x at load 5).
 
 Usage: python benchmarks/bench_pipeline.py [--hours 1.0] [--skip-long]
 """
