@@ -202,10 +202,12 @@ def _sums1(x, c, s0, n, e, rp, r0, sums, top, clipping):
 # one signature, compiled (or loaded from numba's cache) when this module is imported, so
 # after the helpers above: the samples as any 2-d layout (blocks come channel-fastest,
 # sample-fastest or sliced), so that a run compiles one version, not one per layout (some
-# 3 s of CPU each on an empty cache)
+# 3 s of CPU each on an empty cache), read-only too (a block over a bytes buffer, as
+# np.frombuffer makes it: the numpy path takes it, so this one must)
 _F1, _I1 = nt.float64[::1], nt.int64[::1]
+_SAMPLES = nt.Array(nt.float64, 2, "A", readonly=True)
 _SIGNATURE = nt.void(
-    nt.float64[:, :], _F1, _F1, _F1, _F1, _F1, _I1, _I1, _I1, nt.float64, _I1, nt.boolean,
+    _SAMPLES, _F1, _F1, _F1, _F1, _F1, _I1, _I1, _I1, nt.float64, _I1, nt.boolean,
     nt.int64, nt.int64, nt.float64, _F1, _F1, _F1, _I1, _F1, _F1, nt.float64[:, ::1],
 )  # fmt: skip
 

@@ -12,6 +12,7 @@ from dsp import angle as ang
 from dsp import kernels
 from dsp.leakage import SLOPE_PERIODS, _slopes
 from dsp.ramp_slopes import ramp_slopes
+from dsp.sum_rows import unpack
 from dsp.sum_sets import SumSet
 from dsp.sums import add_sample_sets
 
@@ -35,10 +36,28 @@ def _sums(compiled: bool, phi, omega, x, spectrum, cuts, clip, k2, sk2, fpr):
     return add_sample_sets(sets, phi, omega, 1001, 25_600.0, fpr, 45.0, compiled=compiled)
 
 
+def _assert_rows_close(want: dict, have: dict, n_ch: int, no: int) -> None:
+    """Each part of every row (sums, taper sums, mean squares, weights, counts) within
+    1e-12 of that part's own largest finite value (a row's largest entry is its sum of
+    squares, hundreds of times its sums: a bound on the whole row would hide a sums error),
+    non-finite entries where numpy has them."""
+    assert want.keys() == have.keys()
+    for m, row in want.items():
+        np.testing.assert_array_equal(np.isfinite(have[m]), np.isfinite(row))
+        parts = zip(unpack(row[None], n_ch, no), unpack(have[m][None], n_ch, no), strict=True)
+        for ref, got in parts:
+            ref, got = np.asarray(ref).ravel(), np.asarray(got).ravel()
+            fine = np.isfinite(ref)
+            if not fine.any():
+                continue
+            scale = np.abs(ref[fine]).max()
+            np.testing.assert_allclose(got[fine], ref[fine], rtol=0, atol=1e-12 * scale)
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_compiled_rows_agree_with_numpy_on_random_block_splits(seed):
-    """Every row (sums, weights, mean square, counts, clip flags) within 1e-12 of the
-    segment's largest value, for random block cuts, order sets (with and without the
+    """Every row (sums, weights, mean square, counts, clip flags) within 1e-12 of each
+    part's largest value, for random block cuts, order sets (with and without the
     mean) and frames per revolution."""
     rng = np.random.default_rng(100 + seed)
     n = 4000
@@ -51,10 +70,8 @@ def test_compiled_rows_agree_with_numpy_on_random_block_splits(seed):
     clip = None if seed == 3 else 8.5
     ref = _sums(False, phi, omega, x, spectrum, cuts, clip, k2, sk2, fpr)
     got = _sums(True, phi, omega, x, spectrum, cuts, clip, k2, sk2, fpr)
-    for want, have in zip(ref, got, strict=True):
-        assert want.keys() == have.keys()
-        for m, row in want.items():
-            np.testing.assert_allclose(have[m], row, rtol=0, atol=1e-12 * np.abs(row).max())
+    _assert_rows_close(ref[0], got[0], x.shape[0], k2.size)
+    _assert_rows_close(ref[1], got[1], 1, sk2.size)
     # the clip flags and counts are exact, and some segment was clipped
     n_track = x.shape[0]
     counts = np.array([row[-n_track:] for row in ref[0].values()])
@@ -160,13 +177,8 @@ def test_compiled_rows_agree_with_numpy_for_any_channel_count_and_order_set(n_ch
     k2a = np.array(k2)
     ref = _sums(False, phi, omega, x, spectrum, cuts, 8.5, k2a, k2a, 2)
     got = _sums(True, phi, omega, x, spectrum, cuts, 8.5, k2a, k2a, 2)
-    for want, have in zip(ref, got, strict=True):
-        assert want.keys() == have.keys()
-        for m, row in want.items():
-            fine = np.isfinite(row)
-            np.testing.assert_array_equal(np.isfinite(have[m]), fine)
-            scale = np.abs(row[fine]).max()
-            np.testing.assert_allclose(have[m][fine], row[fine], rtol=0, atol=1e-12 * scale)
+    _assert_rows_close(ref[0], got[0], n_ch, k2a.size)
+    _assert_rows_close(ref[1], got[1], 1, k2a.size)
     counts = np.array([row[-n_ch:] for row in ref[0].values()])
     assert np.array_equal(counts, np.array([row[-n_ch:] for row in got[0].values()]))
     assert counts.sum() > 0
@@ -242,3 +254,17 @@ def test_the_default_path_never_imports_numba():
     )
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "[]"
+
+
+def test_compiled_sums_take_read_only_samples():
+    """A block over a bytes buffer (np.frombuffer: read-only) sums as a writable copy does,
+    as on the numpy path (the compiled signature once refused it with numba's TypeError)."""
+    phi, omega, x, spectrum = _signal(4, 2000)
+    frozen = np.frombuffer(x.tobytes(), float).reshape(x.shape)
+    assert not frozen.flags.writeable
+    k2, sk2 = np.arange(1, 5), np.arange(0, 5)
+    want = _sums(True, phi, omega, x, spectrum, [0, 2000], 8.5, k2, sk2, 1)
+    got = _sums(True, phi, omega, frozen, spectrum, [0, 2000], 8.5, k2, sk2, 1)
+    for a, b in zip(want, got, strict=True):
+        assert a.keys() == b.keys()
+        assert all(np.array_equal(a[m], b[m], equal_nan=True) for m in a)
