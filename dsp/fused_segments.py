@@ -4,7 +4,8 @@ Compiled helpers of :mod:`dsp.fused_sums` (imported only with it: numba). Both r
 the numpy path's operations in its order, so they give its numbers bit for bit:
 :func:`segment_cuts` those of :func:`dsp.sums._segments` and the angles from the frame
 angle, :func:`falling_taper` those of :func:`dsp.frames.rise_table`. numba's cache does
-not watch this file for :mod:`dsp.fused_sums`: after changing it, touch that module.
+not watch this file for :mod:`dsp.fused_sums`: after changing it, set
+``dsp.fused_sums.HELPERS_SHA256`` anew (its test prints the value).
 """
 
 from __future__ import annotations

@@ -199,6 +199,14 @@ def _sums1(x, c, s0, n, e, rp, r0, sums, top, clipping):
     top[0] = m0
 
 
+# numba's cache keys a kernel's machine code on the sha256 of its own file only: the
+# helpers this file inlines (vec8's intrinsics, spectrum_lanes, fused_segments) change
+# the code without changing this file. Their hash, written here, makes any edit of
+# theirs change this file too (tests/dsp/test_kernels.py recomputes it and fails with
+# the new value), so a stale cache is never loaded.
+HELPERS = ("fused_segments.py", "spectrum_lanes.py", "vec8.py")
+HELPERS_SHA256 = "4447de1a2d13f4e4554d6ba77bfe0f017f3f09ba97cfa3935765e41a2052911a"
+
 # one signature, compiled (or loaded from numba's cache) when this module is imported, so
 # after the helpers above: the samples as any 2-d layout (blocks come channel-fastest,
 # sample-fastest or sliced), so that a run compiles one version, not one per layout (some

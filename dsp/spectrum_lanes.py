@@ -11,7 +11,8 @@ order at the end. The same piece gives the same bits whatever else the call hold
 the segment's largest sum (``tests/dsp/test_kernels.py``). Measured (the run's dsp stage,
 9 accelerometers + the pressure's spectrum, 60 s, CPU, load 3): the spectrum channel's
 kernel time 17.7 ms -> 11.1 ms per minute against the transposed layout. numba's cache
-does not watch this file for :mod:`dsp.fused_sums`: after changing it, touch that module.
+does not watch this file for :mod:`dsp.fused_sums`: after changing it, set
+``dsp.fused_sums.HELPERS_SHA256`` anew (its test prints the value).
 """
 
 from __future__ import annotations

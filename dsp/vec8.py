@@ -5,7 +5,8 @@ Imported only by :mod:`dsp.fused_sums` (it imports numba and llvmlite: never on 
 default path). Each function is a numba intrinsic, callable from compiled code only;
 the arithmetic carries no fast-math flags (IEEE, no contraction), so a lane rounds as
 the scalar operation would. numba's cache does not watch this file: after changing it,
-touch :mod:`dsp.fused_sums` so its cached machine code is rebuilt.
+set ``dsp.fused_sums.HELPERS_SHA256`` anew (its test prints the value), so the cached
+machine code is rebuilt.
 """
 
 from __future__ import annotations

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -268,3 +270,20 @@ def test_compiled_sums_take_read_only_samples():
     for a, b in zip(want, got, strict=True):
         assert a.keys() == b.keys()
         assert all(np.array_equal(a[m], b[m], equal_nan=True) for m in a)
+
+
+def test_the_compiled_sums_name_their_helpers_hash():
+    """numba's cache watches only fused_sums.py's own bytes: the hash of the helpers it
+    inlines is written in it, so editing a helper must change it (else a warm cache runs
+    the old machine code and every test here compares that, not the edit)."""
+    from dsp import fused_sums
+
+    digest = hashlib.sha256()
+    for name in fused_sums.HELPERS:
+        digest.update(
+            name.encode() + b"\0" + (Path(fused_sums.__file__).parent / name).read_bytes()
+        )
+    assert digest.hexdigest() == fused_sums.HELPERS_SHA256, (
+        "a helper of dsp/fused_sums.py changed: set HELPERS_SHA256 there to "
+        f"{digest.hexdigest()!r} so numba's cache is rebuilt"
+    )
