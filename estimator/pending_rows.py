@@ -100,7 +100,10 @@ class FrameStack:
     @property
     def f_hz(self) -> np.ndarray:
         """(P,) each pair's frequency, Hz."""
-        return self.cat("orders") * self.per_pair("rpm") / 60.0
+        out = self._arrays.get("f_hz")
+        if out is None:
+            out = self._arrays["f_hz"] = self.cat("orders") * self.per_pair("rpm") / 60.0
+        return out
 
 
 def stacked(batch: list[PendingFrame] | FrameStack) -> FrameStack:

@@ -26,7 +26,7 @@ import numpy as np
 
 from acquisition.stream import SourceEvent
 from estimator.channel_fits import ChannelFits
-from estimator.elastic_tail import ELASTIC_TERMS, elastic_mode_event, with_tail
+from estimator.elastic_tail import ELASTIC_TERMS, add_with_tail, elastic_mode_event
 from estimator.equations import (
     Linearisation,
     ParameterLayout,
@@ -39,8 +39,6 @@ from estimator.hypotheses import (
     DECIDE_AFTER_FRAMES,
     DECIDE_RATIO,
     Accumulator,
-    add_frames,
-    add_frames_redundant,
     better_sign,
     half_order_report,
 )
@@ -275,17 +273,12 @@ class InertiaEstimator:
         bounds, orders = stack.bounds, stack.cat("orders")
         kin = self.rows.redundancy(batch) if self._cal else None
         for sign_, (Hs, ys, drs) in hyp.items():
-            Ha = with_tail(Hs, stack.f_hz)
             # one update per frame, in stream order: the same sums whatever the batch
             self.misfit.add_frames(sign_, orders, Hs, ys, bounds)
-            if kin is None:
-                self.acc[sign_] = add_frames(
-                    self.acc[sign_], Ha, ys, drs, bounds, self.forgetting, self.rows.compiled
-                )
-                continue
-            self.acc[sign_] = add_frames_redundant(
-                self.acc[sign_], Ha, ys, drs, bounds, self.forgetting, kin
-            )
+            self.acc[sign_] = add_with_tail(
+                self.acc[sign_], Hs, ys, drs, bounds, self.forgetting, stack.f_hz,
+                self.rows.compiled, kin,
+            )  # fmt: skip
 
     @within_one_call
     def _relinearise(self) -> None:
