@@ -240,6 +240,30 @@ def motion_sens(
                         row[bases[j] + c] += gain[i, j] * pose[c]
 
 
+def model_constants(
+    setup: EstimatorSetup, lin: Linearisation, mass_known: bool
+) -> tuple[np.ndarray, ...]:
+    """:func:`model_rows`' arguments that hold for every pair under one linearisation
+    ``lin``: each model input's kind (0 excitation, 1 spin inertia, 2 mount stiffness),
+    its mount's position and stiffness, the constants (kept like :func:`row_constants`)."""
+    inputs = setup.model_inputs
+    n_m = len(inputs)
+    kinds = np.zeros(n_m, np.int64)
+    mount_pos = np.zeros((n_m, 3))
+    mount_stiff = np.zeros((n_m, 3, 3), complex)
+    for j, inp in enumerate(inputs):
+        if inp.kind == "spin_inertia":
+            kinds[j] = 1
+        elif inp.kind != "excitation":
+            kinds[j] = 2
+            mount = setup.mounts[inp.mount]
+            mount_pos[j], mount_stiff[j] = mount.position, mount.stiffness
+    consts = np.concatenate(
+        [lin.cog, setup.reference_point, setup.crank_axis, [1.0 if mass_known else 1.0 / lin.mass]]
+    ).astype(float)
+    return kinds, mount_pos, mount_stiff, consts
+
+
 def kernel_model_input_rows(
     setup: EstimatorSetup,
     lin: Linearisation,
@@ -250,30 +274,23 @@ def kernel_model_input_rows(
     orders: np.ndarray,
     rpm: np.ndarray,
     compiled: bool = True,
+    constants: tuple[np.ndarray, ...] | None = None,
 ) -> np.ndarray:
     """:func:`estimator.model_inputs.model_input_rows` by the compiled :func:`model_rows`
-    (the excitation inputs' derivatives still come from their numpy functions)."""
+    (the excitation inputs' derivatives still come from their numpy functions);
+    ``constants``: :func:`model_constants` (None: made here)."""
     inputs = setup.model_inputs
     n_p, n_m = len(orders), len(inputs)
     h, rpm = np.asarray(orders, float), np.asarray(rpm, float)
-    kinds = np.zeros(n_m, np.int64)  # 0 excitation, 1 spin inertia, 2 mount stiffness
+    if constants is None:
+        constants = model_constants(setup, lin, mass_known)
+    kinds, mount_pos, mount_stiff, consts = constants
     d_exc = np.zeros((n_m, n_p, 6), complex)
-    mount_pos = np.zeros((n_m, 3))
-    mount_stiff = np.zeros((n_m, 3, 3), complex)
     for j, inp in enumerate(inputs):
         if inp.kind == "excitation":
             assert inp.d_excitation is not None
             df, dm = inp.d_excitation(rpm, h)
             d_exc[j, :, :3], d_exc[j, :, 3:] = df, dm
-        elif inp.kind == "spin_inertia":
-            kinds[j] = 1
-        else:
-            kinds[j] = 2
-            mount = setup.mounts[inp.mount]
-            mount_pos[j], mount_stiff[j] = mount.position, mount.stiffness
-    consts = np.concatenate(
-        [lin.cog, setup.reference_point, setup.crank_axis, [1.0 if mass_known else 1.0 / lin.mass]]
-    ).astype(float)
     out = np.empty((n_p, 12, n_m))
     (jit(model_rows) if compiled else model_rows)(
         h,

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -31,6 +32,7 @@ from estimator.compiled_rows import (
     kernel_model_input_rows,
     kernel_motion_sensitivity,
     kernel_rows,
+    model_constants,
     row_constants,
 )
 from estimator.elastic_tail import ELASTIC_TERMS
@@ -263,14 +265,18 @@ class RowAssembler:
         # the compiled rows (PTINERTIA_NUMBA=1; tests and benchmarks switch it per assembler)
         self.compiled = row_kernels.USE
         # the compiled rows' constants under the last linearisation (one per relinearisation)
-        self._constants: tuple[Linearisation, bool, tuple[np.ndarray, ...]] | None = None
+        self._constants: tuple[Linearisation, bool, tuple[Any, Any]] | None = None
 
-    def _row_constants(self, lin: Linearisation, measured: bool) -> tuple[np.ndarray, ...]:
-        """:func:`estimator.compiled_rows.row_constants`, kept while ``lin`` stays."""
+    def _constants_at(self, lin: Linearisation, measured: bool) -> tuple[Any, Any]:
+        """:func:`estimator.compiled_rows.row_constants` and
+        :func:`~estimator.compiled_rows.model_constants`, kept while ``lin`` stays."""
         kept = self._constants
         if kept is None or kept[0] is not lin or kept[1] != measured:
-            kept = (lin, measured, row_constants(self.setup, self.layout, lin, measured))
-            self._constants = kept
+            made = (
+                row_constants(self.setup, self.layout, lin, measured),
+                model_constants(self.setup, lin, not self.layout.mass),
+            )
+            kept = self._constants = (lin, measured, made)
         return kept[2]
 
     def _sensor_blocks(self, fit: RigidFit) -> SensorBlocks:
@@ -368,21 +374,18 @@ class RowAssembler:
             # the model inputs' columns (zero in dm_real: they do not touch the readings)
             if model_motion is not None:
                 signed = (sg[:, None] * model_motion[0], sg[:, None] * model_motion[1])
-            model = (kernel_model_input_rows if self.compiled else model_input_rows)(
-                self.setup,
-                lin,
-                not self.layout.mass,
-                *signed,
-                origin,
-                orders,
-                rpm,
-            )
+            model_args = (self.setup, lin, not self.layout.mass, *signed, origin, orders, rpm)
+            if self.compiled:
+                fixed = self._constants_at(lin, measured is not None)[1]
+                model = kernel_model_input_rows(*model_args, constants=fixed)
+            else:
+                model = model_input_rows(*model_args)
         if self.compiled and not self.layout.mount_scales:
             no_model = np.zeros((len(sg), 12, 0))
             H, y, dr = kernel_rows(
                 self.setup, self.layout, lin, *args, measured, dm_real[pick], sg,
                 no_model if model is None else model,
-                constants=self._row_constants(lin, measured is not None),
+                constants=self._constants_at(lin, measured is not None)[0],
             )  # fmt: skip
         else:
             r = frame_rows(self.setup, self.layout, lin, *args, measured_moment=measured)

@@ -17,16 +17,17 @@ from estimator import compiled_rows, row_kernels
 from estimator.equations import Linearisation
 from estimator.misfit import MisfitSample
 from estimator.pending_rows import FrameStack, RowAssembler
+from estimator.setup import ModelInput
 from estimator.streaming import InertiaEstimator
 from estimator.systematic import motion_sensitivity, sensor_blocks
 
 NUMBA = pytest.mark.skipif(not row_kernels.AVAILABLE, reason="numba not installed")
 
 
-def _queued(compiled: bool) -> InertiaEstimator:
+def _queued(compiled: bool, **setup_kw: object) -> InertiaEstimator:
     """An estimator with used frames queued (not flushed), under their linearisation."""
     body = Body(unbalance=4e-4 * np.exp(-1j * 0.7))
-    est = InertiaEstimator(make_setup(body))
+    est = InertiaEstimator(dataclasses.replace(make_setup(body), **setup_kw))
     est.rows.compiled = compiled
     rng = np.random.default_rng(3)
     data = [
@@ -130,18 +131,44 @@ def test_misfit_sample_of_consecutive_frames_is_the_per_frame_sample() -> None:
             assert np.array_equal(a, b) and a.flags.owndata  # copies, not views of the batch
 
 
-def test_kept_row_constants_are_the_ones_made_per_call() -> None:
-    """kernel_rows with the constants kept by the assembler: the same bits as made per
-    call, and made anew when the linearisation changes."""
-    est = _queued(compiled=False)
+# inputs whose constants are kept: a spin inertia and a mount's stiffness
+MODEL_INPUTS = (
+    ModelInput("spin_inertia", "spin_inertia", 0.01),
+    ModelInput("mount:m1", "mount", 0.15, mount=1),
+)
+
+
+@pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=NUMBA)])
+def test_kept_row_constants_are_the_ones_made_per_call(compiled: bool) -> None:
+    """The compiled rows' constants kept by the assembler: the same as made per call,
+    made anew when the linearisation changes, and (compiled) the same rows as a fresh
+    assembler's."""
+    est = _queued(compiled, model_inputs=MODEL_INPUTS)
     setup, layout = est.setup, est.layout
     lin = est.lin
     other = Linearisation(cog=lin.cog + 0.002, inertia=lin.inertia * 1.01, mass=lin.mass)
-    made = {id(x): compiled_rows.row_constants(setup, layout, x, False) for x in (lin, other)}
+
+    def made(x: Linearisation) -> tuple:
+        return (
+            compiled_rows.row_constants(setup, layout, x, False),
+            compiled_rows.model_constants(setup, x, not layout.mass),
+        )
+
+    batch = est.queue.frames
+    dm = est.rows.sensitivity(batch)
+    ones, every = np.ones(len(dm)), np.ones(len(dm), bool)
     for x in (lin, other, lin):
-        kept = est.rows._row_constants(x, False)
-        for a, b in zip(kept, made[id(x)], strict=True):
+        for got, want in zip(est.rows._constants_at(x, False), made(x), strict=True):
+            for a, b in zip(got, want, strict=True):
+                assert np.array_equal(a, b)
+        fresh = RowAssembler(setup, layout, est.rows.cal, est.rows.cal_cols)
+        fresh.compiled = compiled
+        for a, b in zip(
+            est.rows.rows(batch, ones, every, dm, x),
+            fresh.rows(batch, ones, every, dm, x),
+            strict=True,
+        ):
             assert np.array_equal(a, b)
-    assert est.rows._row_constants(other, False) is est.rows._row_constants(other, False)
+    assert est.rows._constants_at(other, False) is est.rows._constants_at(other, False)
     # measured gas moment: its column flag
-    assert est.rows._row_constants(other, True)[-1][-1] == 1
+    assert est.rows._constants_at(other, True)[0][-1][-1] == 1
