@@ -34,6 +34,7 @@ from estimator.equations import (
     parameter_scale,
 )
 from estimator.fitted_runs import FittedRun, Screened, fit_run, run_end
+from estimator.frame_stack import FrameStack, PendingFrame
 from estimator.gating import FrameLike, Judged, OrderGates, frame_gate, overlaps_previous
 from estimator.hypotheses import (
     DECIDE_AFTER_FRAMES,
@@ -46,7 +47,7 @@ from estimator.kinematics import RigidFit
 from estimator.misfit import MisfitSample, misfit_report, misfits
 from estimator.outcome import FrameOutcome
 from estimator.partial_pairs import PartialPairs
-from estimator.pending_rows import FrameQueue, FrameStack, PendingFrame, RowAssembler
+from estimator.pending_rows import FrameQueue, RowAssembler
 from estimator.redundancy import calibrated_names
 from estimator.relinearise import relinearise, relinearise_due
 from estimator.result import Estimate, EstimatorStats, build_estimate

@@ -15,8 +15,9 @@ from support.estimator_harness import Body, frames, make_setup
 
 from estimator import compiled_rows, row_kernels
 from estimator.equations import Linearisation
+from estimator.frame_stack import FrameStack
 from estimator.misfit import MisfitSample
-from estimator.pending_rows import FrameStack, RowAssembler
+from estimator.pending_rows import RowAssembler
 from estimator.setup import ModelInput
 from estimator.streaming import InertiaEstimator
 from estimator.systematic import motion_sensitivity, sensor_blocks
