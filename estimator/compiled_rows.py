@@ -50,6 +50,59 @@ from estimator.setup import EstimatorSetup
 from estimator.systematic import SensorBlocks
 
 
+def row_constants(
+    setup: EstimatorSetup, layout: ParameterLayout, lin: Linearisation, measured: bool
+) -> tuple[np.ndarray, ...]:
+    """:func:`pair_rows`' arguments that hold for every pair under one linearisation
+    ``lin`` (``measured``: a measured gas moment): ``lin`` (cog, mass, mass unknown),
+    the inertia, the mounts' positions and stiffness, the constants, ``c_it`` and the
+    columns. A flush's fixed cost: :class:`estimator.pending_rows.RowAssembler` keeps
+    them from one flush to the next while ``lin`` stays."""
+    corr = setup.corrections
+    bt = setup.frame_constants
+    mounts = corr.suspension and len(setup.mounts) > 0
+    names = set(layout.names)
+
+    def col(name: str) -> int:
+        return layout.index(name) if name in names else -1
+
+    cols = np.array(
+        [
+            col("inv_mass"),
+            col("unb_re"),
+            col("unb_im"),
+            col("unb_couple_re"),
+            col("unb_couple_im"),
+            col("crank_offset"),
+            1 if measured else 0,
+        ]
+    )
+    consts = np.concatenate(
+        [
+            setup.crank_axis,
+            [setup.spin_inertia if corr.gyroscopic else 0.0],
+            setup.reference_point,
+            setup.unbalance_point,
+        ]
+    ).astype(float)
+    return (
+        np.array([*lin.cog, lin.mass, 1.0 if layout.mass else 0.0], float),
+        np.ascontiguousarray(lin.inertia, float),
+        bt.mount_positions if mounts else np.zeros((0, 3)),
+        bt.mount_stiffness.astype(complex) if mounts else np.zeros((0, 3, 3), complex),
+        consts,
+        np.asarray(bt.c_it, complex),
+        cols,
+    )
+
+
+def _per_pair(a: np.ndarray, shape: tuple[int, ...], dtype: type) -> np.ndarray:
+    """``a`` as a contiguous (``shape``) array (broadcast only when not per pair already)."""
+    if np.shape(a) != shape:
+        a = np.broadcast_to(a, shape)
+    return np.ascontiguousarray(a, dtype)
+
+
 def kernel_rows(
     setup: EstimatorSetup,
     layout: ParameterLayout,
@@ -68,51 +121,28 @@ def kernel_rows(
     sign: np.ndarray,
     model: np.ndarray,
     compiled: bool = True,
+    constants: tuple[np.ndarray, ...] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Whitened rows H (P, 12, n), y (P, 12) and sensitivities ``dr`` (P, 12, n_sys) of
     :meth:`estimator.pending_rows.RowAssembler.rows` (before self-calibration) by the
     compiled :func:`pair_rows`; the arguments are :func:`estimator.equations.frame_rows`'
     (per pair), ``sens`` the pairs' d motion / d systematic parameters, ``sign`` the
-    sign their motion was multiplied by, ``model`` the model inputs' raw rows.
+    sign their motion was multiplied by, ``model`` the model inputs' raw rows,
+    ``constants`` :func:`row_constants` (None: made here).
     Not for layouts with estimated mount scales. ``compiled=False``: :func:`pair_rows`
     run by the interpreter (slow: for tests without numba)."""
     assert not layout.mount_scales
     n_p = len(orders)
-    corr = setup.corrections
-    bt = setup.frame_constants
-    mounts = corr.suspension and len(setup.mounts) > 0
-    names = set(layout.names)
-
-    def col(name: str) -> int:
-        return layout.index(name) if name in names else -1
-
-    cols = np.array(
-        [
-            col("inv_mass"),
-            col("unb_re"),
-            col("unb_im"),
-            col("unb_couple_re"),
-            col("unb_couple_im"),
-            col("crank_offset"),
-            0 if measured_moment is None else 1,
-        ]
-    )
-    consts = np.concatenate(
-        [
-            setup.crank_axis,
-            [setup.spin_inertia if corr.gyroscopic else 0.0],
-            setup.reference_point,
-            setup.unbalance_point,
-        ]
-    ).astype(float)
-    h = np.asarray(orders, float)
+    if constants is None:
+        constants = row_constants(setup, layout, lin, measured_moment is not None)
+    lin_c, inertia, mount_pos, mount_stiff, consts, c_it, cols = constants
     H = np.empty((n_p, 12, layout.size))
     y = np.empty((n_p, 12))
     dr = np.empty((n_p, 12, sens.shape[2]))
     (jit(pair_rows) if compiled else pair_rows)(
-        h,
-        np.broadcast_to(np.asarray(rpm, float) * 2 * np.pi / 60.0, (n_p,)).copy(),
-        np.ascontiguousarray(np.broadcast_to(origin, (n_p, 3)), float),
+        np.asarray(orders, float),
+        _per_pair(np.asarray(rpm, float) * 2 * np.pi / 60.0, (n_p,), float),
+        _per_pair(origin, (n_p, 3), float),
         np.ascontiguousarray(gamma_o, complex),
         np.ascontiguousarray(omega_dot, complex),
         np.ascontiguousarray(force, complex),
@@ -121,13 +151,13 @@ def kernel_rows(
         if measured_moment is None
         else np.ascontiguousarray(measured_moment, complex),
         np.asarray(noise_var, float),
-        np.ascontiguousarray(np.broadcast_to(cov_unit, (n_p, 6, 6)), float),
-        np.array([*lin.cog, lin.mass, 1.0 if layout.mass else 0.0], float),
-        np.ascontiguousarray(lin.inertia, float),
-        bt.mount_positions if mounts else np.zeros((0, 3)),
-        bt.mount_stiffness.astype(complex) if mounts else np.zeros((0, 3, 3), complex),
+        _per_pair(cov_unit, (n_p, 6, 6), float),
+        lin_c,
+        inertia,
+        mount_pos,
+        mount_stiff,
         consts,
-        np.asarray(bt.c_it, complex),
+        c_it,
         cols,
         np.ascontiguousarray(sens, float),
         np.asarray(sign, float),
@@ -213,6 +243,30 @@ def motion_sens(
                         row[bases[j] + c] += gain[i, j] * pose[c]
 
 
+def model_constants(
+    setup: EstimatorSetup, lin: Linearisation, mass_known: bool
+) -> tuple[np.ndarray, ...]:
+    """:func:`model_rows`' arguments that hold for every pair under one linearisation
+    ``lin``: each model input's kind (0 excitation, 1 spin inertia, 2 mount stiffness),
+    its mount's position and stiffness, the constants (kept like :func:`row_constants`)."""
+    inputs = setup.model_inputs
+    n_m = len(inputs)
+    kinds = np.zeros(n_m, np.int64)
+    mount_pos = np.zeros((n_m, 3))
+    mount_stiff = np.zeros((n_m, 3, 3), complex)
+    for j, inp in enumerate(inputs):
+        if inp.kind == "spin_inertia":
+            kinds[j] = 1
+        elif inp.kind != "excitation":
+            kinds[j] = 2
+            mount = setup.mounts[inp.mount]
+            mount_pos[j], mount_stiff[j] = mount.position, mount.stiffness
+    consts = np.concatenate(
+        [lin.cog, setup.reference_point, setup.crank_axis, [1.0 if mass_known else 1.0 / lin.mass]]
+    ).astype(float)
+    return kinds, mount_pos, mount_stiff, consts
+
+
 def kernel_model_input_rows(
     setup: EstimatorSetup,
     lin: Linearisation,
@@ -223,30 +277,23 @@ def kernel_model_input_rows(
     orders: np.ndarray,
     rpm: np.ndarray,
     compiled: bool = True,
+    constants: tuple[np.ndarray, ...] | None = None,
 ) -> np.ndarray:
     """:func:`estimator.model_inputs.model_input_rows` by the compiled :func:`model_rows`
-    (the excitation inputs' derivatives still come from their numpy functions)."""
+    (the excitation inputs' derivatives still come from their numpy functions);
+    ``constants``: :func:`model_constants` (None: made here)."""
     inputs = setup.model_inputs
     n_p, n_m = len(orders), len(inputs)
     h, rpm = np.asarray(orders, float), np.asarray(rpm, float)
-    kinds = np.zeros(n_m, np.int64)  # 0 excitation, 1 spin inertia, 2 mount stiffness
+    if constants is None:
+        constants = model_constants(setup, lin, mass_known)
+    kinds, mount_pos, mount_stiff, consts = constants
     d_exc = np.zeros((n_m, n_p, 6), complex)
-    mount_pos = np.zeros((n_m, 3))
-    mount_stiff = np.zeros((n_m, 3, 3), complex)
     for j, inp in enumerate(inputs):
         if inp.kind == "excitation":
             assert inp.d_excitation is not None
             df, dm = inp.d_excitation(rpm, h)
             d_exc[j, :, :3], d_exc[j, :, 3:] = df, dm
-        elif inp.kind == "spin_inertia":
-            kinds[j] = 1
-        else:
-            kinds[j] = 2
-            mount = setup.mounts[inp.mount]
-            mount_pos[j], mount_stiff[j] = mount.position, mount.stiffness
-    consts = np.concatenate(
-        [lin.cog, setup.reference_point, setup.crank_axis, [1.0 if mass_known else 1.0 / lin.mass]]
-    ).astype(float)
     out = np.empty((n_p, 12, n_m))
     (jit(model_rows) if compiled else model_rows)(
         h,

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from acquisition.stream import SourceEvent
-from estimator.hypotheses import Accumulator
+from estimator.hypotheses import Accumulator, add_frames, add_frames_redundant
 
 ELASTIC_F_REF_HZ = 100.0
 ELASTIC_TERMS = 9  # the six inertia terms and G, the first nine entries of theta
@@ -29,6 +29,28 @@ def with_tail(H: np.ndarray, f_hz: np.ndarray) -> np.ndarray:
     inertia and cog columns times ``(f / ELASTIC_F_REF_HZ)^2`` (``f_hz`` (P,) per pair)."""
     phi = ((f_hz / ELASTIC_F_REF_HZ) ** 2)[:, None, None]
     return np.concatenate([H, H[:, :, :ELASTIC_TERMS] * phi], axis=2)
+
+
+def add_with_tail(
+    acc: Accumulator,
+    H: np.ndarray,
+    y: np.ndarray,
+    dr: np.ndarray,
+    bounds: np.ndarray,
+    forgetting: float,
+    f_hz: np.ndarray,
+    compiled: bool = False,
+    redundancy: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> Accumulator:
+    """Consecutive frames' rows (:func:`estimator.hypotheses.add_frames`' arguments, H
+    without the tail) added, with their tail columns (:func:`with_tail`, ``f_hz`` per
+    pair), to a state over theta and the tail; with their ``redundancy`` rows when
+    self-calibrating. (Forming the tail inside the compiled sums instead of in a copy
+    of H was measured slower: the kernel's loops then read a row buffer.)"""
+    Ha = with_tail(H, f_hz)
+    if redundancy is not None:
+        return add_frames_redundant(acc, Ha, y, dr, bounds, forgetting, redundancy)
+    return add_frames(acc, Ha, y, dr, bounds, forgetting, compiled)
 
 
 def effective_state(acc: Accumulator, n: int, scale: np.ndarray, elastic: bool) -> Accumulator:

@@ -24,6 +24,8 @@ is equation j given the ones before it: the attribution is to that equation.
 
 from __future__ import annotations
 
+import functools
+import itertools
 from typing import Any
 
 import numpy as np
@@ -60,6 +62,11 @@ def likely_inputs(order: float, equation: str, crank_axis: np.ndarray) -> str:
     return inputs
 
 
+def _copied(orders: np.ndarray, H: np.ndarray, y: np.ndarray, at: slice) -> tuple[np.ndarray, ...]:
+    """A kept frame's rows ``at``, copied (views would keep the whole flush batch alive)."""
+    return np.array(orders[at], float), H[at].copy(), y[at].copy()
+
+
 class MisfitSample:
     """Rows of a sample of used frames, per half-order sign hypothesis."""
 
@@ -72,7 +79,18 @@ class MisfitSample:
         kept = self._rows.get(sign)
         if kept is None:  # (not setdefault: that would build a sample per frame)
             kept = self._rows[sign] = ThinnedSample(CAPACITY)
-        kept.add_made(lambda: (np.array(orders, float), H.copy(), y.copy()))
+        kept.add_made(functools.partial(_copied, orders, H, y, slice(None)))
+
+    def add_frames(
+        self, sign: int, orders: np.ndarray, H: np.ndarray, y: np.ndarray, bounds: np.ndarray
+    ) -> None:
+        """:meth:`add` of consecutive frames in stream order: frame f's rows are
+        ``H[bounds[f]:bounds[f + 1]]``, ``orders`` and ``y`` alike (only the kept ones cut)."""
+        kept = self._rows.get(sign)
+        if kept is None:
+            kept = self._rows[sign] = ThinnedSample(CAPACITY)
+        for a, b in itertools.pairwise(bounds.tolist()):
+            kept.add_made(functools.partial(_copied, orders, H, y, slice(a, b)))
 
     def copy(self) -> MisfitSample:
         """An independent copy (the samples are copied, their rows shared: never changed)."""

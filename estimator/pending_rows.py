@@ -1,7 +1,7 @@
 """Used frames waiting for their rows, and the assembly of those rows a batch at a time.
 
 The streaming estimator (:mod:`estimator.streaming`) queues each used frame as a
-:class:`PendingFrame` (its fitted motion and what the rows need, per order) and
+:class:`estimator.frame_stack.PendingFrame` (its fitted motion and what the rows need, per order) and
 assembles the whitened rows of a whole batch at once (:class:`RowAssembler`):
 the equations of motion (:func:`estimator.equations.frame_rows`), their
 sensitivity to the declared systematic sensor errors and, with
@@ -10,12 +10,14 @@ unseen motion (:mod:`estimator.partial_pairs`) builds its rows with the same
 assembler. With ``PTINERTIA_NUMBA=1`` the assembler builds the rows and both
 sensitivities with compiled loops (:mod:`estimator.compiled_rows`), within rounding of
 the numpy functions, which stay the default and the reference.
+
+A flush hands the assembler its frames stacked (:mod:`estimator.frame_stack`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -24,35 +26,17 @@ from estimator.compiled_rows import (
     kernel_model_input_rows,
     kernel_motion_sensitivity,
     kernel_rows,
+    model_constants,
+    row_constants,
 )
 from estimator.elastic_tail import ELASTIC_TERMS
 from estimator.equations import Linearisation, ParameterLayout, frame_rows
+from estimator.frame_stack import FrameStack, PendingFrame, stacked
 from estimator.kinematics import RigidFit, RigidMotion
 from estimator.model_inputs import model_input_rows
 from estimator.redundancy import redundancy_rows
 from estimator.setup import EstimatorSetup
 from estimator.systematic import SensorBlocks, motion_sensitivity, sensor_blocks
-
-
-@dataclass(frozen=True)
-class PendingFrame:
-    """A used frame waiting for its rows: its fitted motion and what the rows need, per order."""
-
-    gamma_o: np.ndarray  # (k, 3) complex
-    omega_dot: np.ndarray  # (k, 3) complex
-    origin: np.ndarray  # (3,)
-    cov_unit: np.ndarray  # (6, 6)
-    orders: np.ndarray  # (k,)
-    rpm: float
-    force: np.ndarray  # (k, 3) complex
-    moment: np.ndarray  # (k, 3) complex
-    var: np.ndarray  # (k,)
-    fit: RigidFit  # the channel geometry of the fit
-    amplitudes: np.ndarray  # (k, u) complex, the fitted readings
-    half: np.ndarray  # (k,) bool: a half order of a frame with an unknown 720 deg cycle
-    measured_moment: np.ndarray | None  # (k, 3) complex: the part of moment measured (gas)
-    # self-calibration: the pairs' redundancy rows before whitening, (k, 2r, n_sys) and (k, 2r)
-    redundancy: tuple[np.ndarray, np.ndarray] | None = None
 
 
 class FrameQueue:
@@ -206,6 +190,20 @@ class RowAssembler:
         self._blocks: tuple[RigidFit, SensorBlocks] | None = None
         # the compiled rows (PTINERTIA_NUMBA=1; tests and benchmarks switch it per assembler)
         self.compiled = row_kernels.USE
+        # the compiled rows' constants under the last linearisation (one per relinearisation)
+        self._constants: tuple[Linearisation, bool, tuple[Any, Any]] | None = None
+
+    def _constants_at(self, lin: Linearisation, measured: bool) -> tuple[Any, Any]:
+        """:func:`estimator.compiled_rows.row_constants` and
+        :func:`~estimator.compiled_rows.model_constants`, kept while ``lin`` stays."""
+        kept = self._constants
+        if kept is None or kept[0] is not lin or kept[1] != measured:
+            made = (
+                row_constants(self.setup, self.layout, lin, measured),
+                model_constants(self.setup, lin, not self.layout.mass),
+            )
+            kept = self._constants = (lin, measured, made)
+        return kept[2]
 
     def _sensor_blocks(self, fit: RigidFit) -> SensorBlocks:
         if self._blocks is None or self._blocks[0] is not fit:
@@ -213,24 +211,30 @@ class RowAssembler:
         return self._blocks[1]
 
     def sensitivity(
-        self, batch: list[PendingFrame], motion: tuple[np.ndarray, np.ndarray] | None = None
+        self,
+        batch: list[PendingFrame] | FrameStack,
+        motion: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> np.ndarray:
         """(P, 12, n_sys): d motion / d systematic parameters of every pair of ``batch``
         (at the pairs' motions, or at ``motion``: (P, 3) gamma_O and Omega' in pair order)."""
+        stack = stacked(batch)
+        frames = stack.frames
         if motion is None:
-            motion = (
-                np.concatenate([p.gamma_o for p in batch]),
-                np.concatenate([p.omega_dot for p in batch]),
-            )
-        bounds = np.cumsum([0] + [len(p.orders) for p in batch])
+            motion = (stack.cat("gamma_o"), stack.cat("omega_dot"))
+        bounds = stack.bounds
         out = []
         start = 0
-        for end in range(1, len(batch) + 1):
-            if end == len(batch) or batch[end].fit is not batch[start].fit:
-                run = batch[start:end]
+        for end in range(1, len(frames) + 1):
+            if end == len(frames) or frames[end].fit is not frames[start].fit:
                 a, b = bounds[start], bounds[end]
-                amplitudes = np.concatenate([p.amplitudes for p in run])
-                blocks = self._sensor_blocks(run[0].fit)
+                # (fits of other channels read other widths: one array per run of a fit)
+                run = frames[start:end]
+                amplitudes = (
+                    stack.cat("amplitudes")
+                    if len(run) == len(frames)
+                    else np.concatenate([p.amplitudes for p in run])
+                )
+                blocks = self._sensor_blocks(frames[start].fit)
                 if self.compiled:
                     out.append(
                         kernel_motion_sensitivity(
@@ -241,7 +245,7 @@ class RowAssembler:
                     out.append(
                         motion_sensitivity(
                             self.setup,
-                            run[0].fit,
+                            frames[start].fit,
                             amplitudes,
                             motion[0][a:b],
                             motion[1][a:b],
@@ -249,11 +253,11 @@ class RowAssembler:
                         )
                     )
                 start = end
-        return np.concatenate(out)
+        return out[0] if len(out) == 1 else np.concatenate(out)
 
     def rows(
         self,
-        batch: list[PendingFrame],
+        batch: list[PendingFrame] | FrameStack,
         sign: np.ndarray,
         sel: np.ndarray,
         dm_real: np.ndarray,
@@ -270,18 +274,18 @@ class RowAssembler:
         motion the model inputs' sensitivities are taken at (default: the rows')."""
         # every pair selected (the common case): the concatenations as they are, no copies
         pick: slice | np.ndarray = slice(None) if bool(np.all(sel)) else sel
-        cat = lambda name: np.concatenate([getattr(p, name) for p in batch])[pick]  # noqa: E731
+        stack = stacked(batch)
+        cat = lambda name: stack.cat(name)[pick]  # noqa: E731
         gamma_o, omega_dot = (cat("gamma_o"), cat("omega_dot")) if motion is None else motion
-        counts = [len(p.orders) for p in batch]
 
         def rep(name):
-            return np.repeat(np.array([getattr(p, name) for p in batch]), counts, axis=0)[pick]
+            return stack.per_pair(name)[pick]
 
         sg = sign[pick]
         origin, orders, rpm = rep("origin"), cat("orders"), rep("rpm")
+        signed = (sg[:, None] * gamma_o, sg[:, None] * omega_dot)
         args = (
-            sg[:, None] * gamma_o,
-            sg[:, None] * omega_dot,
+            *signed,
             origin,
             rep("cov_unit"),
             orders,
@@ -290,27 +294,24 @@ class RowAssembler:
             cat("moment"),
             cat("var"),
         )
-        measured = None if batch[0].measured_moment is None else cat("measured_moment")
+        measured = None if stack.frames[0].measured_moment is None else cat("measured_moment")
         model = None
         if self.setup.model_inputs:
             # the model inputs' columns (zero in dm_real: they do not touch the readings)
             if model_motion is not None:
-                gamma_o, omega_dot = model_motion
-            model = (kernel_model_input_rows if self.compiled else model_input_rows)(
-                self.setup,
-                lin,
-                not self.layout.mass,
-                sg[:, None] * gamma_o,
-                sg[:, None] * omega_dot,
-                origin,
-                orders,
-                rpm,
-            )
+                signed = (sg[:, None] * model_motion[0], sg[:, None] * model_motion[1])
+            model_args = (self.setup, lin, not self.layout.mass, *signed, origin, orders, rpm)
+            if self.compiled:
+                fixed = self._constants_at(lin, measured is not None)[1]
+                model = kernel_model_input_rows(*model_args, constants=fixed)
+            else:
+                model = model_input_rows(*model_args)
         if self.compiled and not self.layout.mount_scales:
             no_model = np.zeros((len(sg), 12, 0))
             H, y, dr = kernel_rows(
                 self.setup, self.layout, lin, *args, measured, dm_real[pick], sg,
                 no_model if model is None else model,
+                constants=self._constants_at(lin, measured is not None)[0],
             )  # fmt: skip
         else:
             r = frame_rows(self.setup, self.layout, lin, *args, measured_moment=measured)

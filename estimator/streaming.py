@@ -18,7 +18,6 @@ carried and the residuals decide between them (:mod:`estimator.hypotheses`).
 
 from __future__ import annotations
 
-import itertools
 from collections import Counter
 from collections.abc import Sequence
 from typing import Any
@@ -27,7 +26,7 @@ import numpy as np
 
 from acquisition.stream import SourceEvent
 from estimator.channel_fits import ChannelFits
-from estimator.elastic_tail import ELASTIC_TERMS, elastic_mode_event, with_tail
+from estimator.elastic_tail import ELASTIC_TERMS, add_with_tail, elastic_mode_event
 from estimator.equations import (
     Linearisation,
     ParameterLayout,
@@ -35,13 +34,12 @@ from estimator.equations import (
     parameter_scale,
 )
 from estimator.fitted_runs import FittedRun, Screened, fit_run, run_end
+from estimator.frame_stack import FrameStack, PendingFrame
 from estimator.gating import FrameLike, Judged, OrderGates, frame_gate, overlaps_previous
 from estimator.hypotheses import (
     DECIDE_AFTER_FRAMES,
     DECIDE_RATIO,
     Accumulator,
-    add_frames,
-    add_frames_redundant,
     better_sign,
     half_order_report,
 )
@@ -49,7 +47,7 @@ from estimator.kinematics import RigidFit
 from estimator.misfit import MisfitSample, misfit_report, misfits
 from estimator.outcome import FrameOutcome
 from estimator.partial_pairs import PartialPairs
-from estimator.pending_rows import FrameQueue, PendingFrame, RowAssembler
+from estimator.pending_rows import FrameQueue, RowAssembler
 from estimator.redundancy import calibrated_names
 from estimator.relinearise import relinearise, relinearise_due
 from estimator.result import Estimate, EstimatorStats, build_estimate
@@ -249,46 +247,39 @@ class InertiaEstimator:
 
     def _flush_measured(self, batch: list[PendingFrame]) -> None:
         """:meth:`_flush` for the frames whose motion is fully measured."""
-        half = np.concatenate([p.half for p in batch])
+        stack = FrameStack(batch)  # (the frames' arrays concatenated once for every call)
+        half = stack.cat("half")
         flip = np.where(half, -1.0, 1.0)
         everything = np.ones(len(half), dtype=bool)
-        dm = self.rows.sensitivity(batch)
+        dm = self.rows.sensitivity(stack)
         if self.decided_sign is not None:
             sign = flip if self.decided_sign < 0 else np.ones(len(half))
-            hyp = {self.decided_sign: self.rows.rows(batch, sign, everything, dm, self.lin)}
+            hyp = {self.decided_sign: self.rows.rows(stack, sign, everything, dm, self.lin)}
         elif self.stats.ambiguous_frames == 0:
             # No frame without a 720 deg reference yet: both hypotheses are the same
             # sums; keep one, and copy it when the first ambiguous frame arrives.
-            hyp = {1: self.rows.rows(batch, np.ones(len(half)), everything, dm, self.lin)}
+            hyp = {1: self.rows.rows(stack, np.ones(len(half)), everything, dm, self.lin)}
             self._hypotheses_equal = True
         else:
             if self._hypotheses_equal:
                 self.acc[-1] = Accumulator(state=self.acc[1].state, sens=self.acc[1].sens)
                 self.misfit.copy_sign(1, -1)
                 self._hypotheses_equal = False
-            H, y, dr = self.rows.rows(batch, np.ones(len(half)), everything, dm, self.lin)
+            H, y, dr = self.rows.rows(stack, np.ones(len(half)), everything, dm, self.lin)
             hyp = {1: (H, y, dr), -1: (H, y, dr)}
             if np.any(half):
                 Hf, yf, drf = H.copy(), y.copy(), dr.copy()
-                Hf[half], yf[half], drf[half] = self.rows.rows(batch, flip, half, dm, self.lin)
+                Hf[half], yf[half], drf[half] = self.rows.rows(stack, flip, half, dm, self.lin)
                 hyp[-1] = (Hf, yf, drf)
-        bounds = np.cumsum([0] + [len(p.orders) for p in batch])
+        bounds, orders = stack.bounds, stack.cat("orders")
         kin = self.rows.redundancy(batch) if self._cal else None
-        orders = np.concatenate([p.orders for p in batch])
-        f_hz = orders * np.repeat([p.rpm for p in batch], np.diff(bounds)) / 60.0
         for sign_, (Hs, ys, drs) in hyp.items():
-            Ha = with_tail(Hs, f_hz)
             # one update per frame, in stream order: the same sums whatever the batch
-            for a, b in itertools.pairwise(bounds):
-                self.misfit.add(sign_, orders[a:b], Hs[a:b], ys[a:b])
-            if kin is None:
-                self.acc[sign_] = add_frames(
-                    self.acc[sign_], Ha, ys, drs, bounds, self.forgetting, self.rows.compiled
-                )
-                continue
-            self.acc[sign_] = add_frames_redundant(
-                self.acc[sign_], Ha, ys, drs, bounds, self.forgetting, kin
-            )
+            self.misfit.add_frames(sign_, orders, Hs, ys, bounds)
+            self.acc[sign_] = add_with_tail(
+                self.acc[sign_], Hs, ys, drs, bounds, self.forgetting, stack.f_hz,
+                self.rows.compiled, kin,
+            )  # fmt: skip
 
     @within_one_call
     def _relinearise(self) -> None:
