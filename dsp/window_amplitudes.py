@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from dsp import angle as ang
+from dsp import kernels
 from dsp.gap_fit import refit
 from dsp.state import TWO_PI, TrackerState
 from dsp.sum_rows import window_sums
@@ -57,7 +58,8 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
         if not g.track_rows:
             continue
         cols = _columns(g.track_cols)
-        s, w, msg, clipped = window_sums(
+        sums = kernels.window_sums if kernels.USE else window_sums  # the same bits
+        s, w, msg, clipped = sums(
             st.groups[gi].acc, int(js[0]), int(js[-1]), n, len(g.track_rows), n_int
         )
         with np.errstate(invalid="ignore", divide="ignore"):
