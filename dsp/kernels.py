@@ -6,7 +6,7 @@ sends the tracker through numba instead, for: the segment sums (:func:`compiled_
 orders of each set, sums them, and packs each segment's row), the cutting of the pieces
 into segments (:func:`segment_cuts`), the angle lookup of the samples
 (:func:`cubic_values`), the times of the frames' window ends (:func:`cubic_times`), the
-frames' window sums (:func:`window_sums`, :func:`dsp.sum_rows.add_windows`) and the
+frames' window sums and amplitudes (:func:`window_sums`, :func:`group_amplitudes`) and the
 leakage correction's ramps (:func:`ramp_slopes`, :mod:`dsp.ramp_slopes`). Every
 compiled function releases the GIL (``nogil=True``).
 
@@ -36,14 +36,16 @@ compiled from a filled numba cache (as before), 7.8 s from an empty one (the fir
 after an install; 6.1 s before this pass: the vectorised kernel compiles in about 3 s).
 
 Fifth pass: the window sums of a step's frames in one call (the 2 fpr + 1 rows of each
-window added element by element in numpy's order: the same bits): 21 us -> 12 us a call,
-240 calls per minute of the run's log (a tracked group and the spectrum's every 0.5 s).
-Profile of the run's dsp stage compiled after it (cProfile and per-function CPU, load 3-5;
-60 s, 2997 frames, 120 steps): frame assembly (:func:`dsp.assemble.emit`) is about half
-of the time, some 0.55 ms a step in a hundred-odd small numpy operations (window
-amplitudes and flags 0.13 ms, frame objects 0.12, spectrum 0.1, correction 0.07 with
-matrix products BLAS does faster than a loop: a compiled correction with them was no
-faster, measured), the sums kernel a fifth.
+window added element by element in numpy's order: the same bits), and for a group without
+holes its amplitudes ``2 s / w`` and flags in a second (numpy's complex-by-real quotient
+step by step: the same bits); :func:`dsp.window_amplitudes.window_amplitudes` 82 us a
+step with numpy, 56 with the compiled sums, 36 with both (120 steps a minute of the run's
+log). Profile of the run's dsp stage compiled (cProfile and per-function CPU, load 3-8;
+60 s, 2997 frames in 120 steps): frame assembly (:func:`dsp.assemble.emit`) is about half
+of the time, some 0.5 ms a step in a hundred-odd small numpy operations (frame objects
+0.12 ms, spectrum 0.1, window amplitudes 0.04 now, correction 0.05: its matrix products
+BLAS does faster than a compiled loop, measured, so they stay numpy's), the sums kernel a
+fifth.
 
 What stays identical and what does not: the base ``exp(-i delta / 2)`` is made by numpy
 in single precision in both paths (its SIMD ``cos``/``sin`` round differently from
@@ -70,7 +72,13 @@ import numpy as np
 
 from dsp.frames import RISE_GRID, RISE_SLOPE, RISE_TABLE
 from dsp.ramp_slopes import ramp_slopes as slopes_loops
-from dsp.sum_rows import add_windows, plain_block, row_size, window_rows
+from dsp.sum_rows import (
+    add_windows,
+    amplitudes_of_windows,
+    plain_block,
+    row_size,
+    window_rows,
+)
 from dsp.sum_sets import POWER_STRIDE, Segments, SumSet, base_parts
 
 # numba is optional and imported on first use only: its import and the cached machine
@@ -128,6 +136,36 @@ def window_sums(
     _jit(add_windows)(rows_w, n, h, n_ch, total, mean_square)
     s, w, _, _ = plain_block(total[:, :h], n_ch, no)
     return s, w, mean_square, total[:, h:] > 0
+
+
+def group_amplitudes(
+    rows: dict[int, np.ndarray],
+    js: np.ndarray,
+    n: int,
+    no: int,
+    usable: np.ndarray,
+    cols: np.ndarray,
+    x: np.ndarray,
+    ms: np.ndarray,
+    ok: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A group's window sums, amplitudes and flags of frames ``js`` in two compiled calls
+    (:func:`dsp.sum_rows.add_windows`, :func:`dsp.sum_rows.amplitudes_of_windows`: the
+    numpy path's bits); returns the frames with a non-finite amplitude and with clipped
+    samples (f,) bool. Arguments as there; the group must have no holes."""
+    n_ch = cols.size
+    rows_w = window_rows(rows, int(js[0]), int(js[-1]), n, n_ch, no)
+    h = (rows_w.shape[1] - n_ch) // 2
+    f = js.size
+    total = np.empty((f, h + n_ch))
+    mean_square = np.empty((f, n_ch))
+    _jit(add_windows)(rows_w, n, h, n_ch, total, mean_square)
+    nan_rows = np.empty(f, bool)
+    clip_rows = np.empty(f, bool)
+    _jit(amplitudes_of_windows)(
+        total, mean_square, h, no, usable, cols, x, ms, ok, nan_rows, clip_rows
+    )
+    return nan_rows, clip_rows
 
 
 def cubic_times(*args: Any) -> None:

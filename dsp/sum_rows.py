@@ -8,7 +8,8 @@ The window of frame ``j`` (``c_j +- 360 deg``, ``n = frames_per_rev``) is
 so an hour-long tacho dropout costs nothing. A row is one float64 vector holding all
 of a segment's sums (:func:`unpack` gives named views), so that adding two partial
 rows, or stacking a window's rows, is one array operation; rows are never modified.
-The compiled path adds a window's rows in :func:`add_windows` (the same bits).
+The compiled path adds a window's rows in :func:`add_windows` and makes a group's
+amplitudes in :func:`amplitudes_of_windows` (the same bits).
 """
 
 from __future__ import annotations
@@ -132,6 +133,72 @@ def add_windows(
                 mean_square[i, c] = np.nan
             else:
                 mean_square[i, c] = np.inf if p > 0.0 else -np.inf
+
+
+def amplitudes_of_windows(
+    total: np.ndarray,
+    mean_square: np.ndarray,
+    h: int,
+    no: int,
+    usable: np.ndarray,
+    cols: np.ndarray,
+    x: np.ndarray,
+    ms: np.ndarray,
+    ok: np.ndarray,
+    nan_rows: np.ndarray,
+    clip_rows: np.ndarray,
+) -> None:
+    """A group's amplitudes ``2 s / w`` from :func:`add_windows`'s sums, with its flags, as
+    :func:`dsp.window_amplitudes.window_amplitudes` makes them without holes (plain loops
+    for the compiled path, :func:`dsp.kernels.group_amplitudes`).
+
+    ``total`` (f, h + n_ch) and ``mean_square`` (f, n_ch) as :func:`add_windows` writes
+    them, ``usable`` (f,) the frames whose tacho and group are good, ``cols`` (n_ch,) the
+    group's columns among all channels; writes those columns of ``x`` (f, no, n_all)
+    complex, ``ms`` and ``ok`` (f, n_all), and ``nan_rows``, ``clip_rows`` (f,): a usable
+    channel of the frame had a non-finite amplitude, clipped samples. The division is
+    numpy's ``(2.0 * s) / w`` of a complex by a real, step by step (``w`` made complex:
+    Smith's quotient with a zero imaginary part), so the same bits.
+    """
+    f = total.shape[0]
+    n_ch = cols.size
+    k = h - n_ch - 2  # offset of wa in the plain block
+    for i in range(f):
+        w = total[i, k]
+        nan_rows[i] = False
+        clip_rows[i] = False
+        for c in range(n_ch):
+            col = cols[c]
+            if not usable[i]:
+                for o in range(no):
+                    x[i, o, col] = complex(np.nan, 0.0)
+                ms[i, col] = np.nan
+                ok[i, col] = False
+                continue
+            finite = True
+            for o in range(no):
+                sr = total[i, 2 * (c * no + o)]
+                si = total[i, 2 * (c * no + o) + 1]
+                tr = 2.0 * sr - 0.0 * si
+                ti = 2.0 * si + 0.0 * sr
+                if w != w:
+                    xr = np.nan
+                    xi = np.nan
+                elif w == 0.0:  # numpy divides by |w|: inf or nan, not an error
+                    xr = np.nan if tr != tr or tr == 0.0 else (np.inf if tr > 0.0 else -np.inf)
+                    xi = np.nan if ti != ti or ti == 0.0 else (np.inf if ti > 0.0 else -np.inf)
+                else:
+                    rat = 0.0 / w
+                    scl = 1.0 / (w + 0.0 * rat)
+                    xr = (tr + ti * rat) * scl
+                    xi = (ti - tr * rat) * scl
+                x[i, o, col] = complex(xr, xi)
+                finite = finite and np.isfinite(xr) and np.isfinite(xi)
+            ms[i, col] = mean_square[i, c]
+            clipped = total[i, h + c] > 0
+            ok[i, col] = finite and not clipped
+            nan_rows[i] = nan_rows[i] or not finite
+            clip_rows[i] = clip_rows[i] or clipped
 
 
 def drop_before(rows: dict[int, Row], m: int) -> dict[int, Row]:

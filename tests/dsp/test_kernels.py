@@ -8,8 +8,9 @@ import os
 import numpy as np
 import pytest
 
+from acquisition.stream import EdgeBlock, SampleBlock
 from dsp import angle as ang
-from dsp import kernels
+from dsp import assemble, kernels
 from dsp.config import OrderTrackerConfig
 from dsp.driver import track_items
 from dsp.frames import OrderFrame
@@ -20,6 +21,7 @@ from dsp.sum_sets import SumSet
 from dsp.sums import add_sample_sets
 from dsp.synthetic import Ramp, SyntheticBench, random_content
 from dsp.tacho import TachoConfig
+from dsp.window_amplitudes import window_amplitudes
 
 pytestmark = pytest.mark.skipif(not kernels.AVAILABLE, reason="numba is not installed")
 
@@ -176,6 +178,52 @@ def test_compiled_window_sums_give_the_numpy_bits(fpr, monkeypatch):
         got = kernels.window_sums(rows, j0, j1, fpr, n_ch, k2.size)
         for w, g in zip(want, got, strict=True):
             np.testing.assert_array_equal(g, w)
+
+
+def test_compiled_window_amplitudes_give_the_numpy_bits(monkeypatch):
+    """A group's amplitudes, mean squares and flags from the compiled window sums
+    (dsp.kernels.group_amplitudes) against the numpy path's on the same tracker states:
+    the same bits, through clipped samples, a tacho dropout (unusable frames) and a lost
+    block (holes: the numpy path's refit for both)."""
+    rng = np.random.default_rng(11)
+    contents = [random_content(rng) for _ in range(3)]
+    bench = SyntheticBench(Ramp(3000.0, 3000.0, 3.0), contents, tdc_after_gap_deg=84.0)
+    config = OrderTrackerConfig(
+        tacho=TachoConfig(tdc_after_gap_deg=84.0), orders=(1.0, 1.5, 2.0), clip_level=100.0
+    )
+
+    def spoiled():
+        for item in bench.items(3.0, block_s=0.1):
+            if isinstance(item, EdgeBlock) and 1.0 < item.times_s[0] < 1.35:
+                continue  # a tacho dropout
+            if isinstance(item, SampleBlock) and item.first_index == 512 * 5:
+                data = item.data.copy()
+                data[2, 200] = 1e3  # clipped
+                item = SampleBlock(item.group, item.first_index, data)
+            if isinstance(item, SampleBlock) and item.first_index == 512 * 20:
+                continue  # a lost block
+            yield item
+
+    calls = []
+
+    def capture(st, js):
+        calls.append((st, js))
+        return window_amplitudes(st, js)
+
+    monkeypatch.setattr(assemble, "window_amplitudes", capture)
+    monkeypatch.setattr(kernels, "USE", False)
+    assert [x for x in track_items(bench.layout, spoiled(), config) if isinstance(x, OrderFrame)]
+    seen = set()
+    for st, js in calls:
+        want = window_amplitudes(st, js)
+        monkeypatch.setattr(kernels, "USE", True)
+        got = window_amplitudes(st, js)
+        monkeypatch.setattr(kernels, "USE", False)
+        for name, value in want.items():
+            np.testing.assert_array_equal(got[name], value, err_msg=name)
+        seen |= {f for flags in want["flags"] for f in flags}
+        seen |= {"unusable"} if want["tacho_bad"].any() else set()
+    assert {"clipped", "unusable", "no_tacho"} <= seen, seen
 
 
 def test_compiled_frames_agree_with_numpy_in_any_blocks(monkeypatch):
