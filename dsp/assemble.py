@@ -231,19 +231,9 @@ def _finish(
     tc = cfg.tacho
     spacing = TWO_PI / cfg.frames_per_rev
     times, omegas = raw["times"], raw["omegas"]
-    duration = times[:, 2] - times[:, 0]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rpm = 120.0 / duration  # 720 deg over the window's duration
-        rpm_change = (omegas[:, 2] - omegas[:, 0]) * duration / (4.0 * math.pi)
-        out = x[:, plan.out, :]  # (f, n_orders, n_ch)
-        # what can leak: the internal orders unless corrected for (their amplitudes add in
-        # the worst case), plus whatever power the internal orders do not explain
-        absx = np.abs(x)
-        explained = 0.5 * np.sum(absx**2, axis=1)
-        rest = np.sqrt(2.0 * np.maximum(raw["ms"] - explained, 0.0))
-        known = np.where(corrected, 0.0, absx.sum(axis=1))
-        strongest = np.max(absx[:, plan.out, :], axis=1)  # of the output orders
-        leak = np.abs(rpm_change)[:, None] / math.pi * (known + rest) / strongest
+    out = x[:, plan.out, :]  # (f, n_orders, n_ch)
+    figures = kernels.frame_figures if kernels.USE else frame_figures  # the same bits
+    rpm, rpm_change, leak = figures(times, omegas, x, raw["ms"], corrected, plan.out)
     # from the wheel angle to the crank angle: half orders flip with the cycle; with N pulses
     # per revolution every order turns by the offset the cam found (cycle.offset_rotation)
     steps = cycle.offset_steps(tc.kind, tc.teeth)
@@ -318,6 +308,33 @@ def _finish(
         )
         frames.append(frame)
     return frames
+
+
+def frame_figures(
+    times: np.ndarray,
+    omegas: np.ndarray,
+    x: np.ndarray,
+    ms: np.ndarray,
+    corrected: np.ndarray,
+    out: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """rpm, rpm change (f,) and leakage figure (f, n_ch) of frames with window start,
+    centre and end ``times``, ``omegas`` (f, 3), corrected amplitudes ``x`` (f, n_int,
+    n_ch), mean squares ``ms`` (f, n_ch), output orders ``out`` (the reference of
+    :func:`dsp.frame_figures.frame_figures`)."""
+    duration = times[:, 2] - times[:, 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rpm = 120.0 / duration  # 720 deg over the window's duration
+        rpm_change = (omegas[:, 2] - omegas[:, 0]) * duration / (4.0 * math.pi)
+        # what can leak: the internal orders unless corrected for (their amplitudes add in
+        # the worst case), plus whatever power the internal orders do not explain
+        absx = np.abs(x)
+        explained = 0.5 * np.sum(absx**2, axis=1)
+        rest = np.sqrt(2.0 * np.maximum(ms - explained, 0.0))
+        known = np.where(corrected, 0.0, absx.sum(axis=1))
+        strongest = np.max(absx[:, out, :], axis=1)  # of the output orders
+        leak = np.abs(rpm_change)[:, None] / math.pi * (known + rest) / strongest
+    return rpm, rpm_change, leak
 
 
 def _forget(st: TrackerState, j_next: int) -> TrackerState:

@@ -6,7 +6,8 @@ sends the tracker through numba instead, for: the segment sums (:func:`compiled_
 orders of each set, sums them, and packs each segment's row), the cutting of the pieces
 into segments (:func:`segment_cuts`), the angle lookup of the samples
 (:func:`cubic_values`), the times of the frames' window ends (:func:`cubic_times`), the
-frames' window sums and amplitudes (:func:`window_sums`, :func:`group_amplitudes`) and the
+frames' window sums and amplitudes (:func:`window_sums`, :func:`group_amplitudes`), their
+speed and leakage figures (:func:`frame_figures`) and the
 leakage correction's ramps (:func:`ramp_slopes`, :mod:`dsp.ramp_slopes`). Every
 compiled function releases the GIL (``nogil=True``).
 
@@ -35,17 +36,18 @@ and tacho decoding. ``ptinertia run --duration 5``: 0.9 s of CPU with numpy, 1.3
 compiled from a filled numba cache (as before), 7.8 s from an empty one (the first run
 after an install; 6.1 s before this pass: the vectorised kernel compiles in about 3 s).
 
-Fifth pass: the window sums of a step's frames in one call (the 2 fpr + 1 rows of each
-window added element by element in numpy's order: the same bits), and for a group without
-holes its amplitudes ``2 s / w`` and flags in a second (numpy's complex-by-real quotient
-step by step: the same bits); :func:`dsp.window_amplitudes.window_amplitudes` 82 us a
-step with numpy, 56 with the compiled sums, 36 with both (120 steps a minute of the run's
-log). Profile of the run's dsp stage compiled (cProfile and per-function CPU, load 3-8;
-60 s, 2997 frames in 120 steps): frame assembly (:func:`dsp.assemble.emit`) is about half
-of the time, some 0.5 ms a step in a hundred-odd small numpy operations (frame objects
-0.12 ms, spectrum 0.1, window amplitudes 0.04 now, correction 0.05: its matrix products
-BLAS does faster than a compiled loop, measured, so they stay numpy's), the sums kernel a
-fifth.
+Fifth pass (frame assembly): the window sums of a step's frames in one call (the
+2 fpr + 1 rows of each window added element by element in numpy's order), and for a group
+without holes its amplitudes ``2 s / w`` and flags in a second (numpy's complex-by-real
+quotient step by step); the frames' rpm, rpm change and leakage figure in one call after
+numpy's magnitudes (:mod:`dsp.frame_figures`). All three give the numpy path's bits.
+Per step (120 a minute of the run's log): window amplitudes 82 us with numpy, 56 with the
+compiled sums, 36 with both; :func:`dsp.assemble._finish` 74 -> 54 us. Profile of the
+run's dsp stage compiled before it (cProfile and per-function CPU, load 3-8; 60 s, 2997
+frames in 120 steps): frame assembly (:func:`dsp.assemble.emit`) about half of the time,
+some 0.55 ms a step in a hundred-odd small numpy operations (window amplitudes 0.14 ms,
+frame objects 0.12, spectrum 0.1, correction 0.05: its matrix products BLAS does faster
+than a compiled loop, measured, so they stay numpy's), the sums kernel a fifth.
 
 What stays identical and what does not: the base ``exp(-i delta / 2)`` is made by numpy
 in single precision in both paths (its SIMD ``cos``/``sin`` round differently from
@@ -70,6 +72,7 @@ from typing import Any
 
 import numpy as np
 
+from dsp.frame_figures import frame_figures as figures_loops
 from dsp.frames import RISE_GRID, RISE_SLOPE, RISE_TABLE
 from dsp.ramp_slopes import ramp_slopes as slopes_loops
 from dsp.sum_rows import (
@@ -166,6 +169,22 @@ def group_amplitudes(
         total, mean_square, h, no, usable, cols, x, ms, ok, nan_rows, clip_rows
     )
     return nan_rows, clip_rows
+
+
+def frame_figures(
+    times: np.ndarray,
+    omegas: np.ndarray,
+    x: np.ndarray,
+    ms: np.ndarray,
+    corrected: np.ndarray,
+    out: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The frames' rpm, rpm change (f,) and leakage figures (f, n_ch) in one compiled call
+    after numpy's magnitudes (:func:`dsp.frame_figures.frame_figures`: the numpy path's bits)."""
+    f, _, n_ch = x.shape
+    rpm, rpm_change, leak = np.empty(f), np.empty(f), np.empty((f, n_ch))
+    _jit(figures_loops)(times, omegas, np.abs(x), ms, corrected, out, rpm, rpm_change, leak)
+    return rpm, rpm_change, leak
 
 
 def cubic_times(*args: Any) -> None:

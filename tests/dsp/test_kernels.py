@@ -226,6 +226,39 @@ def test_compiled_window_amplitudes_give_the_numpy_bits(monkeypatch):
     assert {"clipped", "unusable", "no_tacho"} <= seen, seen
 
 
+@pytest.mark.parametrize("compiled", [True, False])
+def test_compiled_frame_figures_give_the_numpy_bits(compiled, monkeypatch):
+    """rpm, rpm change and leakage figure (dsp.frame_figures through dsp.kernels, compiled
+    and as plain loops) against dsp.assemble.frame_figures: the same bits, also where
+    numpy divides by zero (a window of no duration, channels with nothing in the output
+    orders), where NaN comes in (a time, amplitudes) and where the orders explain more
+    than the mean square."""
+    rng = np.random.default_rng(21)
+    f, n_int, n_ch = 40, 8, 5
+    times = np.sort(rng.uniform(0.0, 1.0, (f, 3)), axis=1)
+    times[3, 2] = times[3, 0]  # no duration: rpm inf
+    times[4, 0] = np.nan
+    omegas = rng.uniform(100.0, 400.0, (f, 3))
+    x = rng.standard_normal((f, n_int, n_ch)) + 1j * rng.standard_normal((f, n_int, n_ch))
+    out = np.array([2, 3, 4])
+    x[5, :, 1] = 0.0  # nothing at all: 0 / 0
+    x[6, out, 2] = 0.0  # nothing in the output orders: inf
+    x[7, 1, 3] = np.nan
+    ms = 0.5 * np.sum(np.abs(x) ** 2, axis=1) * rng.uniform(0.9, 1.3, (f, n_ch))
+    corrected = rng.random((f, n_ch)) < 0.6
+    corrected[6, 2] = False  # the internal orders count: x / 0
+    corrected[7, 3] = True  # only the unexplained power (NaN) counts
+    want = assemble.frame_figures(times, omegas, x, ms, corrected, out)
+    if not compiled:
+        monkeypatch.setattr(kernels, "_jit", lambda fn: fn)
+    got = kernels.frame_figures(times, omegas, x, ms, corrected, out)
+    for w, g in zip(want, got, strict=True):
+        np.testing.assert_array_equal(g, w)
+    leak = want[2]
+    assert np.isinf(want[0]).any() and np.isnan(leak[5, 1]) and np.isinf(leak[6, 2])
+    assert (ms < 0.5 * np.sum(np.abs(x) ** 2, axis=1)).any()
+
+
 def test_compiled_frames_agree_with_numpy_in_any_blocks(monkeypatch):
     """Whole frames, the compiled path (every kernel: sums, lookup, window times, window
     sums, ramps) against the numpy path on the same blocks: times, speeds, flags and
