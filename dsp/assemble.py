@@ -196,17 +196,26 @@ def _spectrum(
     tw = math.radians(cfg.taper_deg)
     sk2 = plan.spectrum_k2
     gs = st.groups[gi]
-    sums = kernels.window_sums if kernels.USE else window_sums  # the same bits
-    s, w, _, _ = sums(gs.spec, int(js[0]), int(js[-1]), n, 1, sk2.size)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        x = 2.0 * s / w[:, None, None]  # (f, 1, n_spec)
-    x[:, :, 0] *= 0.5
-    x = x.transpose(0, 2, 1)  # (f, n_spec, 1), as the tracked channels' (f, n_int, n_ch)
     # a window that begins before the channel's first sample (its group may start later
     # than the tracked ones) has missing sums, not zeros
     lo_phi = (js - n) * spacing - 0.5 * tw
     usable = ~(raw["tacho_bad"] | raw["bad_group"][:, gi]) & (lo_phi >= gs.first_phi)
-    usable &= np.isfinite(x).all(axis=(1, 2))
+    if kernels.USE:
+        # sums and 2 s / w in two compiled calls, as the tracked groups': the same bits
+        x = np.empty((js.size, sk2.size, 1), complex)  # as the tracked channels' (f, n_int, n_ch)
+        scratch = np.empty((js.size, 1)), np.empty((js.size, 1), bool)
+        nan_rows, _ = kernels.group_amplitudes(
+            gs.spec, js, n, sk2.size, usable, np.zeros(1, np.int64), x, *scratch
+        )
+        x[:, 0, 0] *= 0.5
+        usable &= ~nan_rows  # the halved mean keeps finite what was
+    else:
+        s, w, _, _ = window_sums(gs.spec, int(js[0]), int(js[-1]), n, 1, sk2.size)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            x = 2.0 * s / w[:, None, None]  # (f, 1, n_spec)
+        x[:, :, 0] *= 0.5
+        x = x.transpose(0, 2, 1)  # (f, n_spec, 1), as the tracked channels' (f, n_int, n_ch)
+        usable &= np.isfinite(x).all(axis=(1, 2))
     x[~usable] = np.nan
     history, x, _ = ramp_correction(
         st.spec_history, js, chains, x, raw["tacho_bad"], plan.spectrum_same,

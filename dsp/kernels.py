@@ -38,11 +38,12 @@ after an install; 6.1 s before this pass: the vectorised kernel compiles in abou
 
 Fifth pass (frame assembly): the window sums of a step's frames in one call (the
 2 fpr + 1 rows of each window added element by element in numpy's order), and for a group
-without holes its amplitudes ``2 s / w`` and flags in a second (numpy's complex-by-real
-quotient step by step); the frames' rpm, rpm change and leakage figure in one call after
+without holes, and the spectrum channel, its amplitudes ``2 s / w`` and flags in a second
+(numpy's complex-by-real quotient step by step); the frames' rpm, rpm change and leakage figure in one call after
 numpy's magnitudes (:mod:`dsp.frame_figures`). All three give the numpy path's bits.
 Per step (120 a minute of the run's log): window amplitudes 82 us with numpy, 56 with the
-compiled sums, 36 with both; :func:`dsp.assemble._finish` 74 -> 54 us. Profile of the
+compiled sums, 36 with both; spectrum (before its correction) 50 -> 36 us;
+:func:`dsp.assemble._finish` 74 -> 54 us. Profile of the
 run's dsp stage compiled before it (cProfile and per-function CPU, load 3-8; 60 s, 2997
 frames in 120 steps): frame assembly (:func:`dsp.assemble.emit`) about half of the time,
 some 0.55 ms a step in a hundred-odd small numpy operations (window amplitudes 0.14 ms,
