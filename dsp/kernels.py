@@ -48,7 +48,12 @@ run's dsp stage compiled before it (cProfile and per-function CPU, load 3-8; 60 
 frames in 120 steps): frame assembly (:func:`dsp.assemble.emit`) about half of the time,
 some 0.55 ms a step in a hundred-odd small numpy operations (window amplitudes 0.14 ms,
 frame objects 0.12, spectrum 0.1, correction 0.05: its matrix products BLAS does faster
-than a compiled loop, measured, so they stay numpy's), the sums kernel a fifth.
+than a compiled loop, measured, so they stay numpy's), the sums kernel a fifth. After
+it (CPU, best of 5, before and after interleaved, load 3): the run's dsp stage compiled
+0.138-0.141 s -> 0.126 s a minute (425-433x -> 476x; bench_pipeline's figure 470x at load
+6.4 -> 486x at load 3.8), the issue's order-tracking load compiled 613-621x -> 631-693x,
+numpy unchanged (231-236x, 352-364x); ``PTINERTIA_NUMBA=1 ptinertia run --duration 5``
+1.07-1.22 s of CPU before, 1.10-1.11 after.
 
 What stays identical and what does not: the base ``exp(-i delta / 2)`` is made by numpy
 in single precision in both paths (its SIMD ``cos``/``sin`` round differently from
