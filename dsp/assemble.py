@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 from dsp import angle as ang
-from dsp import cycle
+from dsp import cycle, kernels
 from dsp.frames import OrderFrame
 from dsp.gap_fit import forget_holes
 from dsp.immutable import evolve
@@ -196,16 +196,26 @@ def _spectrum(
     tw = math.radians(cfg.taper_deg)
     sk2 = plan.spectrum_k2
     gs = st.groups[gi]
-    s, w, _, _ = window_sums(gs.spec, int(js[0]), int(js[-1]), n, 1, sk2.size)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        x = 2.0 * s / w[:, None, None]  # (f, 1, n_spec)
-    x[:, :, 0] *= 0.5
-    x = x.transpose(0, 2, 1)  # (f, n_spec, 1), as the tracked channels' (f, n_int, n_ch)
     # a window that begins before the channel's first sample (its group may start later
     # than the tracked ones) has missing sums, not zeros
     lo_phi = (js - n) * spacing - 0.5 * tw
     usable = ~(raw["tacho_bad"] | raw["bad_group"][:, gi]) & (lo_phi >= gs.first_phi)
-    usable &= np.isfinite(x).all(axis=(1, 2))
+    if kernels.USE:
+        # sums and 2 s / w in two compiled calls, as the tracked groups': the same bits
+        x = np.empty((js.size, sk2.size, 1), complex)  # as the tracked channels' (f, n_int, n_ch)
+        scratch = np.empty((js.size, 1)), np.empty((js.size, 1), bool)
+        nan_rows, _ = kernels.group_amplitudes(
+            gs.spec, js, n, sk2.size, usable, np.zeros(1, np.int64), x, *scratch
+        )
+        x[:, 0, 0] *= 0.5
+        usable &= ~nan_rows  # the halved mean keeps finite what was
+    else:
+        s, w, _, _ = window_sums(gs.spec, int(js[0]), int(js[-1]), n, 1, sk2.size)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            x = 2.0 * s / w[:, None, None]  # (f, 1, n_spec)
+        x[:, :, 0] *= 0.5
+        x = x.transpose(0, 2, 1)  # (f, n_spec, 1), as the tracked channels' (f, n_int, n_ch)
+        usable &= np.isfinite(x).all(axis=(1, 2))
     x[~usable] = np.nan
     history, x, _ = ramp_correction(
         st.spec_history, js, chains, x, raw["tacho_bad"], plan.spectrum_same,
@@ -230,19 +240,9 @@ def _finish(
     tc = cfg.tacho
     spacing = TWO_PI / cfg.frames_per_rev
     times, omegas = raw["times"], raw["omegas"]
-    duration = times[:, 2] - times[:, 0]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rpm = 120.0 / duration  # 720 deg over the window's duration
-        rpm_change = (omegas[:, 2] - omegas[:, 0]) * duration / (4.0 * math.pi)
-        out = x[:, plan.out, :]  # (f, n_orders, n_ch)
-        # what can leak: the internal orders unless corrected for (their amplitudes add in
-        # the worst case), plus whatever power the internal orders do not explain
-        absx = np.abs(x)
-        explained = 0.5 * np.sum(absx**2, axis=1)
-        rest = np.sqrt(2.0 * np.maximum(raw["ms"] - explained, 0.0))
-        known = np.where(corrected, 0.0, absx.sum(axis=1))
-        strongest = np.max(absx[:, plan.out, :], axis=1)  # of the output orders
-        leak = np.abs(rpm_change)[:, None] / math.pi * (known + rest) / strongest
+    out = x[:, plan.out, :]  # (f, n_orders, n_ch)
+    figures = kernels.frame_figures if kernels.USE else frame_figures  # the same bits
+    rpm, rpm_change, leak = figures(times, omegas, x, raw["ms"], corrected, plan.out)
     # from the wheel angle to the crank angle: half orders flip with the cycle; with N pulses
     # per revolution every order turns by the offset the cam found (cycle.offset_rotation)
     steps = cycle.offset_steps(tc.kind, tc.teeth)
@@ -317,6 +317,33 @@ def _finish(
         )
         frames.append(frame)
     return frames
+
+
+def frame_figures(
+    times: np.ndarray,
+    omegas: np.ndarray,
+    x: np.ndarray,
+    ms: np.ndarray,
+    corrected: np.ndarray,
+    out: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """rpm, rpm change (f,) and leakage figure (f, n_ch) of frames with window start,
+    centre and end ``times``, ``omegas`` (f, 3), corrected amplitudes ``x`` (f, n_int,
+    n_ch), mean squares ``ms`` (f, n_ch), output orders ``out`` (the reference of
+    :func:`dsp.frame_figures.frame_figures`)."""
+    duration = times[:, 2] - times[:, 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rpm = 120.0 / duration  # 720 deg over the window's duration
+        rpm_change = (omegas[:, 2] - omegas[:, 0]) * duration / (4.0 * math.pi)
+        # what can leak: the internal orders unless corrected for (their amplitudes add in
+        # the worst case), plus whatever power the internal orders do not explain
+        absx = np.abs(x)
+        explained = 0.5 * np.sum(absx**2, axis=1)
+        rest = np.sqrt(2.0 * np.maximum(ms - explained, 0.0))
+        known = np.where(corrected, 0.0, absx.sum(axis=1))
+        strongest = np.max(absx[:, out, :], axis=1)  # of the output orders
+        leak = np.abs(rpm_change)[:, None] / math.pi * (known + rest) / strongest
+    return rpm, rpm_change, leak
 
 
 def _forget(st: TrackerState, j_next: int) -> TrackerState:

@@ -5,8 +5,10 @@ sends the tracker through numba instead, for: the segment sums (:func:`compiled_
 :mod:`dsp.fused_sums`, one vectorised pass per piece that makes the carriers of the
 orders of each set, sums them, and packs each segment's row), the cutting of the pieces
 into segments (:func:`segment_cuts`), the angle lookup of the samples
-(:func:`cubic_values`), the times of the frames' window ends (:func:`cubic_times`) and
-the leakage correction's ramps (:func:`ramp_slopes`, :mod:`dsp.ramp_slopes`). Every
+(:func:`cubic_values`), the times of the frames' window ends (:func:`cubic_times`), the
+frames' window sums and amplitudes (:func:`window_sums`, :func:`group_amplitudes`), their
+speed and leakage figures (:func:`frame_figures`) and the
+leakage correction's ramps (:func:`ramp_slopes`, :mod:`dsp.ramp_slopes`). Every
 compiled function releases the GIL (``nogil=True``).
 
 Why numba, and why off by default. numba (well kept, NumPy's release cadence) over
@@ -34,6 +36,25 @@ and tacho decoding. ``ptinertia run --duration 5``: 0.9 s of CPU with numpy, 1.3
 compiled from a filled numba cache (as before), 7.8 s from an empty one (the first run
 after an install; 6.1 s before this pass: the vectorised kernel compiles in about 3 s).
 
+Fifth pass (frame assembly): the window sums of a step's frames in one call (the
+2 fpr + 1 rows of each window added element by element in numpy's order), and for a group
+without holes, and the spectrum channel, its amplitudes ``2 s / w`` and flags in a second
+(numpy's complex-by-real quotient step by step); the frames' rpm, rpm change and leakage figure in one call after
+numpy's magnitudes (:mod:`dsp.frame_figures`). All three give the numpy path's bits.
+Per step (120 a minute of the run's log): window amplitudes 82 us with numpy, 56 with the
+compiled sums, 36 with both; spectrum (before its correction) 50 -> 36 us;
+:func:`dsp.assemble._finish` 74 -> 54 us. Profile of the
+run's dsp stage compiled before it (cProfile and per-function CPU, load 3-8; 60 s, 2997
+frames in 120 steps): frame assembly (:func:`dsp.assemble.emit`) about half of the time,
+some 0.55 ms a step in a hundred-odd small numpy operations (window amplitudes 0.14 ms,
+frame objects 0.12, spectrum 0.1, correction 0.05: its matrix products BLAS does faster
+than a compiled loop, measured, so they stay numpy's), the sums kernel a fifth. After
+it (CPU, best of 5, before and after interleaved, load 3): the run's dsp stage compiled
+0.138-0.141 s -> 0.126 s a minute (425-433x -> 476x; bench_pipeline's figure 470x at load
+6.4 -> 486x at load 3.8), the issue's order-tracking load compiled 613-621x -> 631-693x,
+numpy unchanged (231-236x, 352-364x); ``PTINERTIA_NUMBA=1 ptinertia run --duration 5``
+1.07-1.22 s of CPU before, 1.10-1.11 after.
+
 What stays identical and what does not: the base ``exp(-i delta / 2)`` is made by numpy
 in single precision in both paths (its SIMD ``cos``/``sin`` round differently from
 libm's); segments, angles, taper weights, carriers, lookups and window times are the
@@ -57,9 +78,16 @@ from typing import Any
 
 import numpy as np
 
+from dsp.frame_figures import frame_figures as figures_loops
 from dsp.frames import RISE_GRID, RISE_SLOPE, RISE_TABLE
 from dsp.ramp_slopes import ramp_slopes as slopes_loops
-from dsp.sum_rows import row_size
+from dsp.sum_rows import (
+    add_windows,
+    amplitudes_of_windows,
+    plain_block,
+    row_size,
+    window_rows,
+)
 from dsp.sum_sets import POWER_STRIDE, Segments, SumSet, base_parts
 
 # numba is optional and imported on first use only: its import and the cached machine
@@ -101,6 +129,68 @@ def cubic_values(*args: Any) -> None:
 def ramp_slopes(*args: Any) -> None:
     """:func:`dsp.ramp_slopes.ramp_slopes` compiled (on the first call, as :func:`piece_sums`)."""
     _jit(slopes_loops)(*args)
+
+
+def window_sums(
+    rows: dict[int, np.ndarray], j0: int, j1: int, n: int, n_ch: int, no: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`dsp.sum_rows.window_sums` with its sums in one compiled pass
+    (:func:`dsp.sum_rows.add_windows`): the same bits, a fifth of the numpy operations."""
+    rows_w = window_rows(rows, j0, j1, n, n_ch, no)
+    h = rows_w.shape[1] - n_ch
+    h //= 2
+    f = j1 - j0 + 1
+    total = np.empty((f, h + n_ch))
+    mean_square = np.empty((f, n_ch))
+    _jit(add_windows)(rows_w, n, h, n_ch, total, mean_square)
+    s, w, _, _ = plain_block(total[:, :h], n_ch, no)
+    return s, w, mean_square, total[:, h:] > 0
+
+
+def group_amplitudes(
+    rows: dict[int, np.ndarray],
+    js: np.ndarray,
+    n: int,
+    no: int,
+    usable: np.ndarray,
+    cols: np.ndarray,
+    x: np.ndarray,
+    ms: np.ndarray,
+    ok: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A group's window sums, amplitudes and flags of frames ``js`` in two compiled calls
+    (:func:`dsp.sum_rows.add_windows`, :func:`dsp.sum_rows.amplitudes_of_windows`: the
+    numpy path's bits); returns the frames with a non-finite amplitude and with clipped
+    samples (f,) bool. Arguments as there; the group must have no holes."""
+    n_ch = cols.size
+    rows_w = window_rows(rows, int(js[0]), int(js[-1]), n, n_ch, no)
+    h = (rows_w.shape[1] - n_ch) // 2
+    f = js.size
+    total = np.empty((f, h + n_ch))
+    mean_square = np.empty((f, n_ch))
+    _jit(add_windows)(rows_w, n, h, n_ch, total, mean_square)
+    nan_rows = np.empty(f, bool)
+    clip_rows = np.empty(f, bool)
+    _jit(amplitudes_of_windows)(
+        total, mean_square, h, no, usable, cols, x, ms, ok, nan_rows, clip_rows
+    )
+    return nan_rows, clip_rows
+
+
+def frame_figures(
+    times: np.ndarray,
+    omegas: np.ndarray,
+    x: np.ndarray,
+    ms: np.ndarray,
+    corrected: np.ndarray,
+    out: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The frames' rpm, rpm change (f,) and leakage figures (f, n_ch) in one compiled call
+    after numpy's magnitudes (:func:`dsp.frame_figures.frame_figures`: the numpy path's bits)."""
+    f, _, n_ch = x.shape
+    rpm, rpm_change, leak = np.empty(f), np.empty(f), np.empty((f, n_ch))
+    _jit(figures_loops)(times, omegas, np.abs(x), ms, corrected, out, rpm, rpm_change, leak)
+    return rpm, rpm_change, leak
 
 
 def cubic_times(*args: Any) -> None:

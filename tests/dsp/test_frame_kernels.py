@@ -1,0 +1,199 @@
+"""The compiled frame assembly (dsp.kernels: window sums, amplitudes, speed and leakage
+figures) against the numpy path: the same bits, and whole frames within 1e-12."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from acquisition.stream import EdgeBlock, SampleBlock
+from dsp import assemble, kernels
+from dsp.config import OrderTrackerConfig
+from dsp.driver import track_items
+from dsp.frames import OrderFrame
+from dsp.sum_rows import window_sums
+from dsp.sum_sets import SumSet
+from dsp.sums import add_sample_sets
+from dsp.synthetic import Ramp, SyntheticBench, random_content
+from dsp.tacho import TachoConfig
+from dsp.window_amplitudes import window_amplitudes
+
+pytestmark = pytest.mark.skipif(not kernels.AVAILABLE, reason="numba is not installed")
+
+
+def _rows(fpr: int) -> tuple[dict[int, np.ndarray], int]:
+    """Segment rows (dsp.sums, numpy) of 4 channels with clipped samples, and n_ch."""
+    rng = np.random.default_rng(7)
+    n = 12_000
+    phi = 50.0 + np.cumsum(rng.uniform(0.004, 0.02, n))
+    omega = rng.uniform(150.0, 500.0, n)
+    x = rng.standard_normal((4, n)) * 2.0
+    x[:, rng.integers(0, n, 5)] = 9.0
+    k2 = np.array([1, 2, 3, 4])
+    sets = [SumSet({}, [x[:, :5000], x[:, 5000:]], k2, 8.5)]
+    return add_sample_sets(sets, phi, omega, 1001, 25_600.0, fpr, 45.0, compiled=False)[0], 4
+
+
+@pytest.mark.parametrize("fpr", [1, 2, 4])
+def test_compiled_window_sums_give_the_numpy_bits(fpr, monkeypatch):
+    """The window sums of consecutive frames (dsp.kernels.window_sums: the loops of
+    dsp.sum_rows.add_windows, compiled and as plain Python) against dsp.sum_rows.window_sums:
+    the same bits, with missing segments (a dropout), windows past the data (no samples:
+    NaN mean square) and segments whose count was zeroed (a positive power over no
+    samples: inf, as numpy divides)."""
+    rows, n_ch = _rows(fpr)
+    k2 = np.array([1, 2, 3, 4])
+    ms = sorted(rows)
+    a = len(ms) // 3
+    gap = (ms[a], ms[a + 2 * fpr + 2])  # a dropout longer than a window
+    rows = {m: r for m, r in rows.items() if not gap[0] <= m < gap[1]}
+    h = (next(iter(rows.values())).size - n_ch) // 2
+    for m in ms[-3 * fpr :]:
+        rows[m] = rows[m].copy()
+        rows[m][h - 1] = 0.0  # n2: no samples counted, s2 > 0 stays
+    j0, j1 = ms[0] + fpr, ms[-1] + 2
+    want = window_sums(rows, j0, j1, fpr, n_ch, k2.size)
+    assert np.isnan(want[2]).any() and np.isinf(want[2]).any() and want[3].any()
+    for compiled in (True, False):
+        if not compiled:
+            monkeypatch.setattr(kernels, "_jit", lambda fn: fn)
+        got = kernels.window_sums(rows, j0, j1, fpr, n_ch, k2.size)
+        for w, g in zip(want, got, strict=True):
+            np.testing.assert_array_equal(g, w)
+
+
+def test_compiled_window_amplitudes_give_the_numpy_bits(monkeypatch):
+    """A group's amplitudes, mean squares and flags from the compiled window sums
+    (dsp.kernels.group_amplitudes) against the numpy path's on the same tracker states,
+    and the spectrum channel's amplitudes: the same bits, through clipped samples, a tacho
+    dropout (unusable frames) and a lost block (holes: the numpy path's refit for both)."""
+    rng = np.random.default_rng(11)
+    contents = [random_content(rng) for _ in range(3)]
+    bench = SyntheticBench(Ramp(3000.0, 3000.0, 3.0), contents, tdc_after_gap_deg=84.0)
+    # the spectrum's too, uncorrected (the compiled ramps round their own way)
+    config = OrderTrackerConfig(
+        tacho=TachoConfig(tdc_after_gap_deg=84.0),
+        orders=(1.0, 1.5, 2.0),
+        clip_level=100.0,
+        spectrum_channel="a2",
+        leakage_correction=False,
+    )
+
+    def spoiled():
+        for item in bench.items(3.0, block_s=0.1):
+            if isinstance(item, EdgeBlock) and 1.0 < item.times_s[0] < 1.35:
+                continue  # a tacho dropout
+            if isinstance(item, SampleBlock) and item.first_index == 512 * 5:
+                data = item.data.copy()
+                data[2, 200] = 1e3  # clipped
+                item = SampleBlock(item.group, item.first_index, data)
+            if isinstance(item, SampleBlock) and item.first_index == 512 * 20:
+                continue  # a lost block
+            yield item
+
+    calls, spectra = [], []
+
+    def capture(st, js):
+        calls.append((st, js))
+        return window_amplitudes(st, js)
+
+    def capture_spectrum(*args):
+        spectra.append(args)
+        return spectrum(*args)
+
+    spectrum = assemble._spectrum
+    monkeypatch.setattr(assemble, "window_amplitudes", capture)
+    monkeypatch.setattr(assemble, "_spectrum", capture_spectrum)
+    monkeypatch.setattr(kernels, "USE", False)
+    assert [x for x in track_items(bench.layout, spoiled(), config) if isinstance(x, OrderFrame)]
+    seen = set()
+    for st, js in calls:
+        want = window_amplitudes(st, js)
+        monkeypatch.setattr(kernels, "USE", True)
+        got = window_amplitudes(st, js)
+        monkeypatch.setattr(kernels, "USE", False)
+        for name, value in want.items():
+            np.testing.assert_array_equal(got[name], value, err_msg=name)
+        seen |= {f for flags in want["flags"] for f in flags}
+        seen |= {"unusable"} if want["tacho_bad"].any() else set()
+    assert {"clipped", "unusable", "no_tacho"} <= seen, seen
+    nan_frames = 0
+    for args in spectra:
+        want = spectrum(*args)[1]
+        monkeypatch.setattr(kernels, "USE", True)
+        got = spectrum(*args)[1]
+        monkeypatch.setattr(kernels, "USE", False)
+        assert want.tobytes() == got.tobytes()  # NaN's bits too: NaN + 0j where unusable
+        nan_frames += np.isnan(want).all(axis=(1, 2)).sum()
+    assert 0 < nan_frames < sum(args[1].size for args in spectra)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_compiled_frame_figures_give_the_numpy_bits(compiled, monkeypatch):
+    """rpm, rpm change and leakage figure (dsp.frame_figures through dsp.kernels, compiled
+    and as plain loops) against dsp.assemble.frame_figures: the same bits, also where
+    numpy divides by zero (a window of no duration, channels with nothing in the output
+    orders), where NaN comes in (a time, amplitudes) and where the orders explain more
+    than the mean square."""
+    rng = np.random.default_rng(21)
+    f, n_int, n_ch = 40, 8, 5
+    times = np.sort(rng.uniform(0.0, 1.0, (f, 3)), axis=1)
+    times[3, 2] = times[3, 0]  # no duration: rpm inf
+    times[4, 0] = np.nan
+    omegas = rng.uniform(100.0, 400.0, (f, 3))
+    x = rng.standard_normal((f, n_int, n_ch)) + 1j * rng.standard_normal((f, n_int, n_ch))
+    out = np.array([2, 3, 4])
+    x[5, :, 1] = 0.0  # nothing at all: 0 / 0
+    x[6, out, 2] = 0.0  # nothing in the output orders: inf
+    x[7, 1, 3] = np.nan
+    ms = 0.5 * np.sum(np.abs(x) ** 2, axis=1) * rng.uniform(0.9, 1.3, (f, n_ch))
+    corrected = rng.random((f, n_ch)) < 0.6
+    corrected[6, 2] = False  # the internal orders count: x / 0
+    corrected[7, 3] = True  # only the unexplained power (NaN) counts
+    want = assemble.frame_figures(times, omegas, x, ms, corrected, out)
+    if not compiled:
+        monkeypatch.setattr(kernels, "_jit", lambda fn: fn)
+    got = kernels.frame_figures(times, omegas, x, ms, corrected, out)
+    for w, g in zip(want, got, strict=True):
+        np.testing.assert_array_equal(g, w)
+    leak = want[2]
+    assert np.isinf(want[0]).any() and np.isnan(leak[5, 1]) and np.isinf(leak[6, 2])
+    assert (ms < 0.5 * np.sum(np.abs(x) ** 2, axis=1)).any()
+
+
+def test_compiled_frames_agree_with_numpy_in_any_blocks(monkeypatch):
+    """Whole frames, the compiled path (every kernel: sums, lookup, window times, window
+    sums, ramps) against the numpy path on the same blocks: times, speeds, flags and
+    channel flags the same, amplitudes, spectrum and leakage figure within 1e-12 of the
+    frame's largest; and the compiled frames of random blocks as those of 0.1 s blocks."""
+    rng = np.random.default_rng(5)
+    contents = [random_content(rng) for _ in range(3)]
+    bench = SyntheticBench(Ramp(1500.0, 3000.0, 2.0), contents, tdc_after_gap_deg=84.0)
+    config = OrderTrackerConfig(
+        tacho=TachoConfig(tdc_after_gap_deg=84.0), orders=(1.0, 1.5, 2.0), spectrum_channel="a2"
+    )
+
+    def frames(compiled, items):
+        monkeypatch.setattr(kernels, "USE", compiled)
+        return [x for x in track_items(bench.layout, items, config) if isinstance(x, OrderFrame)]
+
+    want = frames(False, bench.items(3.0, block_s=0.1))
+    got = frames(True, bench.items(3.0, block_s=0.1))
+    split = frames(True, bench.items(3.0, block_s=0.03, rng_blocks=np.random.default_rng(8)))
+    assert len(want) > 30 and len(got) == len(want) == len(split)
+    for w, g in zip(want, got, strict=True):
+        assert (g.time_s, g.rpm, g.crank_angle_rad, g.flags) == (
+            w.time_s,
+            w.rpm,
+            w.crank_angle_rad,
+            w.flags,
+        )
+        np.testing.assert_array_equal(g.channel_ok, w.channel_ok)
+        for name in ("amplitudes", "spectrum", "leakage"):
+            ref = getattr(w, name)
+            scale = np.abs(ref).max()
+            np.testing.assert_allclose(getattr(g, name), ref, rtol=0, atol=1e-12 * scale)
+    for g, s in zip(got, split, strict=True):
+        assert (s.crank_angle_rad, s.flags) == (g.crank_angle_rad, g.flags)
+        scale = np.abs(g.amplitudes).max()
+        np.testing.assert_allclose(s.amplitudes, g.amplitudes, rtol=0, atol=1e-9 * scale)
