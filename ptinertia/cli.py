@@ -17,6 +17,7 @@ import platform
 import re
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 # The numerical work is many small matrices per frame: BLAS threads only add
 # overhead there (and compete with the acquisition thread). This module loads no
@@ -165,6 +166,35 @@ def _version() -> str:
     return "\n".join(lines)
 
 
+def announce_compiling(command: str) -> Any:
+    """One line on stderr when numba starts compiling a kernel (numba broadcasts the event
+    after a cache miss only, so loading from its cache says nothing): the first compiled run
+    after an install or an update spends 15-20 s there before its first progress line,
+    which would look like a hang. Returns the registered listener."""
+    # numba is imported here only: the compiled kernels were asked for, so it loads anyway
+    from numba.core import event
+
+    class FirstCompile(event.Listener):
+        said = False
+
+        def on_start(self, ev: event.Event) -> None:
+            if not self.said:
+                self.said = True
+                print(
+                    f"ptinertia {command}: compiling the numba kernels (once after an install "
+                    "or an update, 15-20 s; later runs load them from numba's cache)",
+                    file=sys.stderr,
+                    flush=True,
+                )
+
+        def on_end(self, ev: event.Event) -> None:
+            pass
+
+    listener = FirstCompile()
+    event.register("numba:compile", listener)
+    return listener
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser, _ = build_parser(argv)
@@ -173,13 +203,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     module = importlib.import_module(COMMANDS[args.command][0])
-    if os.environ.get("PTINERTIA_NUMBA") == "1" and importlib.util.find_spec("numba") is None:
-        # asked for the compiled kernels without numba: the numpy ones run (same results)
-        print(
-            f"ptinertia {args.command}: PTINERTIA_NUMBA=1 but numba is not installed "
-            "(pip install 'ptinertia[fast]'): running the numpy kernels",
-            file=sys.stderr,
-        )
+    if os.environ.get("PTINERTIA_NUMBA") == "1":
+        if importlib.util.find_spec("numba") is None:
+            # asked for the compiled kernels without numba: the numpy ones run (same results)
+            print(
+                f"ptinertia {args.command}: PTINERTIA_NUMBA=1 but numba is not installed "
+                "(pip install 'ptinertia[fast]'): running the numpy kernels",
+                file=sys.stderr,
+            )
+        else:
+            announce_compiling(args.command)
     try:
         return int(module.run(args) or 0)
     except user_error_types() as err:

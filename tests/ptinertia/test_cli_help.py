@@ -77,3 +77,24 @@ def test_compiled_kernels_asked_for_without_numba_say_so_in_one_line(monkeypatch
     err = capsys.readouterr().err
     assert "PTINERTIA_NUMBA=1 but numba is not installed" in err
     assert len(err.strip().splitlines()) == 1
+
+
+def test_a_numba_compile_is_announced_once_and_a_cache_load_is_not(capsys) -> None:
+    """PTINERTIA_NUMBA=1: the first compile of a run says so in one line (15-20 s without
+    a word looked like a hang); later compiles say nothing."""
+    numba = pytest.importorskip("numba")
+    from numba.core import event
+
+    from ptinertia.cli import announce_compiling
+
+    listener = announce_compiling("run")
+    try:
+        numba.njit(cache=False)(lambda x: x + 1)(1)
+        numba.njit(cache=False)(lambda x: x * 2.0)(1.0)
+    finally:
+        event.unregister("numba:compile", listener)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [
+        "ptinertia run: compiling the numba kernels (once after an install or an update, "
+        "15-20 s; later runs load them from numba's cache)"
+    ]
