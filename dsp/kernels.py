@@ -136,15 +136,23 @@ def window_sums(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`dsp.sum_rows.window_sums` with its sums in one compiled pass
     (:func:`dsp.sum_rows.add_windows`): the same bits, a fifth of the numpy operations."""
-    rows_w = window_rows(rows, j0, j1, n, n_ch, no)
-    h = rows_w.shape[1] - n_ch
-    h //= 2
-    f = j1 - j0 + 1
-    total = np.empty((f, h + n_ch))
-    mean_square = np.empty((f, n_ch))
-    _jit(add_windows)(rows_w, n, h, n_ch, total, mean_square)
+    total, mean_square, h = _window_totals(rows, j0, j1, n, n_ch, no)
     s, w, _, _ = plain_block(total[:, :h], n_ch, no)
     return s, w, mean_square, total[:, h:] > 0
+
+
+def _window_totals(
+    rows: dict[int, np.ndarray], j0: int, j1: int, n: int, n_ch: int, no: int
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Frames ``j0 .. j1``'s window sums as :func:`dsp.sum_rows.add_windows` writes them
+    (plain block and clip counts (f, h + n_ch), mean squares (f, n_ch)) and ``h``, the
+    length of a plain block."""
+    rows_w = window_rows(rows, j0, j1, n, n_ch, no)
+    h = (rows_w.shape[1] - n_ch) // 2
+    total = np.empty((j1 - j0 + 1, h + n_ch))
+    mean_square = np.empty((j1 - j0 + 1, n_ch))
+    _jit(add_windows)(rows_w, n, h, n_ch, total, mean_square)
+    return total, mean_square, h
 
 
 def group_amplitudes(
@@ -162,15 +170,9 @@ def group_amplitudes(
     (:func:`dsp.sum_rows.add_windows`, :func:`dsp.sum_rows.amplitudes_of_windows`: the
     numpy path's bits); returns the frames with a non-finite amplitude and with clipped
     samples (f,) bool. Arguments as there; the group must have no holes."""
-    n_ch = cols.size
-    rows_w = window_rows(rows, int(js[0]), int(js[-1]), n, n_ch, no)
-    h = (rows_w.shape[1] - n_ch) // 2
-    f = js.size
-    total = np.empty((f, h + n_ch))
-    mean_square = np.empty((f, n_ch))
-    _jit(add_windows)(rows_w, n, h, n_ch, total, mean_square)
-    nan_rows = np.empty(f, bool)
-    clip_rows = np.empty(f, bool)
+    total, mean_square, h = _window_totals(rows, int(js[0]), int(js[-1]), n, cols.size, no)
+    nan_rows = np.empty(js.size, bool)
+    clip_rows = np.empty(js.size, bool)
     _jit(amplitudes_of_windows)(
         total, mean_square, h, no, usable, cols, x, ms, ok, nan_rows, clip_rows
     )
