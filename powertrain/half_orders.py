@@ -8,6 +8,7 @@ part does not depend on speed.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,6 +58,15 @@ class OrderExcitation:
     def at(self, rpm: float) -> tuple[np.ndarray, np.ndarray]:
         """Force (N) and moment (N m) per order at ``rpm`` rev/min."""
         w2 = float(rpm_to_omega(rpm)) ** 2
+        return (
+            self.gas_force + w2 * self.unit_inertia_force,
+            self.gas_moment + w2 * self.unit_inertia_moment,
+        )
+
+    def at_many(self, rpm: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`at` at each of the speeds ``rpm`` (n,): force and moment (n, n_orders, 3),
+        each speed's the bits of its own call (omega^2 squared as a Python float, as there)."""
+        w2 = np.array([w**2 for w in rpm_to_omega(rpm).tolist()])[:, None, None]
         return (
             self.gas_force + w2 * self.unit_inertia_force,
             self.gas_moment + w2 * self.unit_inertia_moment,

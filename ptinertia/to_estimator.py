@@ -22,7 +22,7 @@ from estimator.setup import (
     Tolerances,
 )
 from powertrain.engine import Engine
-from powertrain.half_orders import OrderExcitation, rpm_to_omega
+from powertrain.half_orders import OrderExcitation
 from powertrain.model import BenchModel
 from powertrain.pressure_torque import PressureTorqueMap, pressure_torque_map
 from ptinertia import config
@@ -126,13 +126,8 @@ class ExcitationAt:
 
     def many(self, rpm: list[float], orders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Force and moment (n, n_orders, 3) at the crank speeds ``rpm`` (n,), each frame's
-        the bits of :meth:`OrderExcitation.at` (omega^2 squared as a Python float there)."""
-        exc = self.of_orders(orders)
-        w2 = np.array([w**2 for w in rpm_to_omega(rpm).tolist()])[:, None, None]
-        return (
-            exc.gas_force + w2 * exc.unit_inertia_force,
-            exc.gas_moment + w2 * exc.unit_inertia_moment,
-        )
+        the bits of its own call (:meth:`OrderExcitation.at_many`)."""
+        return self.of_orders(orders).at_many(rpm)
 
 
 def mount_stiffness(model: BenchModel) -> tuple[MountStiffness, ...]:
