@@ -73,21 +73,15 @@ class MisfitSample:
     def __init__(self) -> None:
         self._rows: dict[int, ThinnedSample] = {}
 
-    def add(self, sign: int, orders: np.ndarray, H: np.ndarray, y: np.ndarray) -> None:
-        """One frame's whitened rows: orders (p,), H (p, 12, n), y (p, 12). They are
-        copied: views would keep the whole flush batch they were cut from alive."""
-        kept = self._rows.get(sign)
-        if kept is None:  # (not setdefault: that would build a sample per frame)
-            kept = self._rows[sign] = ThinnedSample(CAPACITY)
-        kept.add_made(functools.partial(_copied, orders, H, y, slice(None)))
-
     def add_frames(
         self, sign: int, orders: np.ndarray, H: np.ndarray, y: np.ndarray, bounds: np.ndarray
     ) -> None:
-        """:meth:`add` of consecutive frames in stream order: frame f's rows are
-        ``H[bounds[f]:bounds[f + 1]]``, ``orders`` and ``y`` alike (only the kept ones cut)."""
+        """Consecutive frames' whitened rows in stream order: frame f's are
+        ``H[bounds[f]:bounds[f + 1]]`` (p, 12, n), ``orders`` (p,) and ``y`` (p, 12) alike.
+        The kept frames' rows are cut and copied: views would keep the whole flush batch
+        alive."""
         kept = self._rows.get(sign)
-        if kept is None:
+        if kept is None:  # (not setdefault: that would build a sample per call)
             kept = self._rows[sign] = ThinnedSample(CAPACITY)
         for a, b in itertools.pairwise(bounds.tolist()):
             kept.add_made(functools.partial(_copied, orders, H, y, slice(a, b)))

@@ -119,7 +119,7 @@ def test_misfit_sample_of_consecutive_frames_is_the_per_frame_sample() -> None:
     H, y = rng.normal(size=(bounds[-1], 12, 6)), rng.normal(size=(bounds[-1], 12))
     each, batched = MisfitSample(), MisfitSample()
     for a, b in itertools.pairwise(bounds):
-        each.add(1, orders[a:b], H[a:b], y[a:b])
+        each.add_frames(1, orders[a:b], H[a:b], y[a:b], np.array([0, b - a]))  # one frame
     for a, b in itertools.pairwise([0, 40, 41, 190, 300]):
         # blocks of frames, bounds from the block's first pair
         at = bounds[a : b + 1]
