@@ -188,10 +188,8 @@ class OrderGates:
             if w:
                 reason: str | None = ORDER_REASONS[w]
             elif relative[k] <= top and (limit := limits.get(h)) is not None:
-                # :meth:`residual` once the order's baseline is set (the rule), inline
-                flagged = beyond[k] > limit
-                self._note_non_rigid(h, h * rpm / 60.0, flagged)
-                reason = "non_rigid" if flagged else None
+                # :meth:`residual` once the order's baseline is set (the rule), directly
+                reason = self._past_limit(h, rpm, beyond[k], limit)
             else:
                 reason = self.residual(h, rpm, relative[k], share[k], beyond[k])
             if reason:
@@ -286,7 +284,12 @@ class OrderGates:
                     gates.residual_growth * float(np.median(base)) + gates.residual_margin
                 )
             return None
-        flagged = res > self.residual_limit[h]
+        return self._past_limit(h, rpm, res, self.residual_limit[h])
+
+    def _past_limit(self, h: float, rpm: float, excess: float, limit: float) -> str | None:
+        """The residual gate once order ``h``'s baseline is set: "non_rigid" when its
+        ``excess`` has grown past the ``limit`` (noted towards an elastic mode), else None."""
+        flagged = excess > limit
         self._note_non_rigid(h, h * rpm / 60.0, flagged)
         return "non_rigid" if flagged else None
 
