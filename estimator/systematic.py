@@ -37,24 +37,15 @@ def systematic_stds(setup: EstimatorSetup) -> np.ndarray:
     return np.array([tol.gain_rel] * n_ch + per_sensor * setup.n_sensors + model)
 
 
-def _pose_sensitivity(
-    setup: EstimatorSetup, fit: RigidFit, gamma_o: np.ndarray, omega_dot: np.ndarray
-) -> tuple[np.ndarray, int, np.ndarray, np.ndarray]:
-    """What the two sensitivities below share: the used channels (u,), n_sys, where each
-    used channel's sensor block starts among the systematic parameters (u,), and
-    d reading / d(alignment, position) of its sensor, (P, u, 6) complex."""
-    n_ch = len(setup.channels)
+def _sensor_columns(setup: EstimatorSetup, fit: RigidFit) -> tuple[np.ndarray, int, np.ndarray]:
+    """The fit's used channels (u,), the number of systematic parameters, and where each
+    used channel's sensor block (alignment, then position) starts among them (u,)."""
     assert fit.channels is not None
     used = np.asarray(fit.channels)
-    # (the model inputs' columns stay zero: they do not touch the readings)
+    n_ch = len(setup.channels)
+    # (the model inputs' columns, last, stay zero: they do not touch the readings)
     n_sys = n_ch + 6 * setup.n_sensors + len(setup.model_inputs)
-    n = setup.directions[used]  # (u, 3)
-    r = setup.positions[used] - fit.origin  # (u, 3)
-    gamma_p = gamma_o[:, None, :] + cross(omega_dot[:, None, :], r[None])  # (P, u, 3)
-    d_pose = np.concatenate(
-        [cross(n[None], gamma_p), cross(n[None], omega_dot[:, None, :])], axis=2
-    )
-    return used, n_sys, n_ch + 6 * setup.sensor_of_channel[used], d_pose
+    return used, n_sys, n_ch + 6 * setup.sensor_of_channel[used]
 
 
 def reading_sensitivity(
@@ -74,7 +65,13 @@ def reading_sensitivity(
     ``e x n``, so the reading by ``e . (n x gamma_P)``; moving it along e
     changes ``gamma_P`` by ``Omega' x e``, so the reading by ``e . (n x Omega')``.
     """
-    used, n_sys, bases, d_pose = _pose_sensitivity(setup, fit, gamma_o, omega_dot)
+    used, n_sys, bases = _sensor_columns(setup, fit)
+    n = setup.directions[used]  # (u, 3)
+    r = setup.positions[used] - fit.origin  # (u, 3)
+    gamma_p = gamma_o[:, None, :] + cross(omega_dot[:, None, :], r[None])  # (P, u, 3)
+    d_pose = np.concatenate(
+        [cross(n[None], gamma_p), cross(n[None], omega_dot[:, None, :])], axis=2
+    )  # (P, u, 6)
     out = np.zeros((len(gamma_o), len(used), n_sys), complex)
     # every channel at once (the same elementwise products as one channel at a time);
     # row j's alignment columns start at its sensor's block, its position ones 3 later
@@ -87,10 +84,8 @@ def reading_sensitivity(
 def sensor_blocks(setup: EstimatorSetup, fit: RigidFit) -> SensorBlocks:
     """What :func:`motion_sensitivity` takes from the fit's channel geometry (the same for
     every frame fitted with ``fit``: callers keep it per fit)."""
-    assert fit.channels is not None
-    used = np.asarray(fit.channels)
-    n_sys = len(setup.channels) + 6 * setup.n_sensors + len(setup.model_inputs)
-    bases = (len(setup.channels) + 6 * setup.sensor_of_channel[used]).tolist()
+    used, n_sys, base_array = _sensor_columns(setup, fit)
+    bases = base_array.tolist()
     sensors = list(dict.fromkeys(bases))  # in order of their first channel
     members: list[list[int]] = [[j for j, b in enumerate(bases) if b == s] for s in sensors]
     width = max(len(m) for m in members)
@@ -110,7 +105,7 @@ def sensor_blocks(setup: EstimatorSetup, fit: RigidFit) -> SensorBlocks:
         idx=idx,
         gain_by_place=[gain[:, idx[:, q]][:, :, None] for q in range(width)],  # (6, S, 1)
         cols=cols,
-        bases=np.array(bases),
+        bases=base_array,
     )
 
 
