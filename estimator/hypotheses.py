@@ -162,12 +162,7 @@ def add_frames(
         info_total, vec_total, yty_total, sens_total = kernel_frame_sums(
             st.info, st.vec, st.yty, acc.sens, H, y, dr, bounds, forgetting
         )
-        rows = st.rows
-        if forgetting == 1.0:
-            rows = rows + 12 * float(np.sum(sizes))
-        else:
-            for k in sizes.tolist():
-                rows = forgetting * rows + 12 * k
+        rows = _rows_after(st.rows, sizes, forgetting)
         return Accumulator(RlsState(info_total, vec_total, yty_total, rows), sens_total)
     n_f = len(sizes)
     info, vec = np.empty((n_f, n, n)), np.empty((n_f, n))
@@ -193,20 +188,28 @@ def add_frames(
                 info=np.add.reduce(np.concatenate([state.info[None], info]), axis=0),
                 vec=np.add.reduce(np.concatenate([state.vec[None], vec]), axis=0),
                 yty=float(np.add.accumulate(np.concatenate([[state.yty], yty]))[-1]),
-                rows=state.rows + 12 * float(np.sum(sizes)),
+                rows=_rows_after(state.rows, sizes, lam),
             ),
             np.add.reduce(np.concatenate([total[None], sens]), axis=0),
         )
+    info_t, vec_t, yty_t = state.info, state.vec, state.yty
     for f in range(n_f):
         # Lambda <- lam Lambda + H^T H ;  S <- lam S + H^T dr  (rows already whitened)
-        state = RlsState(
-            info=lam * state.info + info[f],
-            vec=lam * state.vec + vec[f],
-            yty=lam * state.yty + float(yty[f]),
-            rows=lam * state.rows + 12 * int(sizes[f]),
-        )
+        info_t = lam * info_t + info[f]
+        vec_t = lam * vec_t + vec[f]
+        yty_t = lam * yty_t + float(yty[f])
         total = forgetting * total + sens[f]
-    return Accumulator(state, total)
+    return Accumulator(RlsState(info_t, vec_t, yty_t, _rows_after(state.rows, sizes, lam)), total)
+
+
+def _rows_after(rows: float, sizes: np.ndarray, lam: float) -> float:
+    """The state's row count after frames of ``sizes`` pairs (12 rows each), discounted
+    by ``lam`` once per frame, as :func:`add_frame` counts them one frame at a time."""
+    if lam == 1.0:
+        return rows + 12 * float(np.sum(sizes))
+    for k in sizes.tolist():
+        rows = lam * rows + 12 * k
+    return rows
 
 
 def kernel_frame_sums(
