@@ -54,8 +54,10 @@ TRACKED_ITEMS = 4
 # of a replay's CPU (perf by thread), and the hand-overs cost more than the overlap gains:
 # replay of the 60 s 10 x 25.6 kHz log on a quiet 2-core machine, interleaved, 4 runs each:
 # 65-78x wall with the dsp on the processing thread, 59-73x on its own (CPU 62-75x against
-# 52-64x); with PTINERTIA_NUMBA=1 95-98x against 89-91x. So the dsp runs on the processing
-# thread; the threaded arrangement stays (tested) for stages that release the GIL.
+# 52-64x); with PTINERTIA_NUMBA=1 95-98x against 89-91x, and again once the dsp's sums and
+# frame assembly and the estimator's rows were compiled: 144-145x against 137-142x (load 3,
+# benchmarks/bench_pipeline.py compiled_chain). So the dsp runs on the processing thread;
+# the threaded arrangement stays (tested) for stages that release the GIL.
 DSP_THREAD = False
 # How long a stopped run waits for the dsp thread to end the item it is in (a 0.5 s block
 # takes milliseconds; a wait this long means the dsp hangs, and a stop must not).
