@@ -146,14 +146,20 @@ def write(
 ) -> McapRecorder:
     rec = McapRecorder(path, compression=compression)
     rec.start(RecordingInfo(layout=layout, bench_text="[bench]\n", source="bench_mcap"))
+    block: list[Any] = []  # the frames between two items, handed over as the pipeline does
     for item in items:
+        if isinstance(item, tuple) and item[0] == "frame":
+            block.append(item)
+            continue
+        if block:
+            rec.on_frames([b[1] for b in block], [b[2] for b in block])
+            block = []
         if isinstance(item, tuple):
-            if item[0] == "frame":
-                rec.on_frame(item[1], item[2])
-            else:
-                rec.on_estimate(item[1])
+            rec.on_estimate(item[1])
         else:
             rec.on_item(item)
+    if block:
+        rec.on_frames([b[1] for b in block], [b[2] for b in block])
     rec.close(None)
     return rec
 

@@ -18,6 +18,7 @@ exactly once, also after an error or Ctrl-C, so a recording is always finished.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -72,6 +73,12 @@ class Sink(Protocol):
         """An order frame (``dsp.frames.OrderFrame``) and what the estimator did with it."""
         return None
 
+    def on_frames(self, frames: Sequence[Any], outcomes: Sequence[FrameOutcome]) -> None:
+        """A block's frames and outcomes, in stream order: :meth:`on_frame` of each unless
+        the sink does better with the block at once (the recorder encodes it together)."""
+        for frame, outcome in zip(frames, outcomes, strict=True):
+            self.on_frame(frame, outcome)
+
     def on_estimate(self, update: EstimateUpdate) -> None:
         """The running estimate after a used frame."""
         return None
@@ -87,3 +94,13 @@ class Sink(Protocol):
     def close(self, final: Estimate | None) -> None:
         """Called exactly once at the end (normal end, error or Ctrl-C)."""
         return None
+
+
+def on_frames(sink: Any, frames: Sequence[Any], outcomes: Sequence[FrameOutcome]) -> None:
+    """``sink.on_frames``, or ``on_frame`` of each frame for a sink that has only that
+    (a sink satisfies :class:`Sink` by shape and need not define every hook)."""
+    if hasattr(sink, "on_frames"):
+        sink.on_frames(frames, outcomes)
+    else:
+        for frame, outcome in zip(frames, outcomes, strict=True):
+            sink.on_frame(frame, outcome)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -27,13 +28,31 @@ from replay.schemas import PARAMETERS, wire_class
 
 def encode_frame(frame: OrderFrame) -> bytes:
     """``/orders``: a ``dsp.frames.OrderFrame`` (from a byte template, see :mod:`replay.wire`)."""
+    return encode_frames([frame])[0]
+
+
+def encode_frames(frames: Sequence[OrderFrame]) -> list[bytes]:
+    """:func:`encode_frame` of each frame; consecutive frames of one layout (a block's)
+    encoded together (:meth:`replay.wire.FrameWire.encode_many`)."""
+    out: list[bytes] = []
+    start = 0
+    while start < len(frames):
+        layout = _wire_of(frames[start])
+        end = start + 1
+        while end < len(frames) and _wire_of(frames[end]) is layout:
+            end += 1
+        out += layout.encode_many(frames[start:end])
+        start = end
+    return out
+
+
+def _wire_of(frame: OrderFrame) -> wire.FrameWire:
     spectrum = getattr(frame, "spectrum", None)
     if spectrum is None:
-        return wire.frame_wire(tuple(frame.orders), tuple(frame.channels)).encode(frame)
-    layout = wire.frame_wire(
+        return wire.frame_wire(tuple(frame.orders), tuple(frame.channels))
+    return wire.frame_wire(
         tuple(frame.orders), tuple(frame.channels), frame.spectrum_channel, len(spectrum)
     )
-    return layout.encode(frame)
 
 
 def encode_frame_reference(frame: OrderFrame) -> bytes:

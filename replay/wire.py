@@ -24,6 +24,7 @@ copies of 0.5 MB for a 0.5 s block of 10 channels at 25.6 kHz).
 from __future__ import annotations
 
 import struct
+from collections.abc import Sequence
 from functools import lru_cache
 from typing import Any
 
@@ -211,14 +212,64 @@ class FrameWire:
 
     def encode(self, frame: Any) -> bytes:
         """The serialised message of a ``dsp.frames.OrderFrame`` with these orders and channels."""
-        amp = np.asarray(frame.amplitudes, dtype=complex)
-        ok = np.asarray(frame.channel_ok, dtype=bool)
-        leakage = np.asarray(frame.leakage, dtype=float)
+        return self.encode_many([frame])[0]
+
+    def encode_many(self, frames: Sequence[Any]) -> list[bytes]:
+        """:meth:`encode` of each of ``frames`` (all with these orders and channels), the
+        numbers of all of them scattered into copies of the template at once: a block's
+        frames cost about what one did frame by frame (the same bytes)."""
         n_o, n_ch = self.shape
-        if amp.shape != self.shape or ok.shape != (n_ch,) or leakage.shape != (n_ch,):
+        k = len(frames)
+        try:
+            amp = np.array([f.amplitudes for f in frames], dtype=complex)
+            ok = np.array([f.channel_ok for f in frames], dtype=bool)
+            leakage = np.array([f.leakage for f in frames], dtype=float)
+            spectra = [getattr(f, "spectrum", None) for f in frames]
+            spectrum = np.array(spectra, dtype=complex) if self.n_spectrum else None
+            fits = amp.shape == (k, n_o, n_ch) and ok.shape == leakage.shape == (k, n_ch)
+            fits = fits and (
+                spectrum.shape == (k, self.n_spectrum)
+                if spectrum is not None
+                else all(x is None for x in spectra)
+            )
+        except (ValueError, TypeError):  # (ragged)
+            fits = False
+        if not fits:
+            for frame in frames:
+                self._check(frame)  # names the frame that does not fit
+        values = np.empty((k, self.n_f64))
+        values[:, :3] = [(f.time_s, f.rpm, f.crank_angle_rad) for f in frames]
+        values[:, self._rest] = [f.rpm_change for f in frames]
+        values[:, self._rest + 1 : self._pairs] = leakage
+        if spectrum is not None:
+            values[:, self._spectrum : self._spectrum + self.n_spectrum] = spectrum.real
+            values[:, self._spectrum + self.n_spectrum :] = spectrum.imag
+        flat = amp.reshape(k, n_o * n_ch)
+        values[:, self._re] = flat.real
+        values[:, self._im] = flat.imag
+        pairs = values[:, self._pairs : self._spectrum].reshape(k, n_o, n_ch, 2)
+        pairs[..., 0] = np.abs(amp)
+        pairs[..., 1] = np.degrees(np.angle(amp))
+        buf = np.tile(self.template, (k, 1))
+        buf[:, self.f64_index] = values.astype("<f8", copy=False).view(np.uint8)
+        buf[:, self.bool_index] = ok[:, None, :]
+        out = []
+        for k, frame in enumerate(frames):
+            if not frame.flags:
+                out.append(buf[k].tobytes())
+                continue
+            flags = b"".join(element(11, f.encode()) for f in sorted(frame.flags))
+            out.append(buf[k, : self.split].tobytes() + flags + buf[k, self.split :].tobytes())
+        return out
+
+    def _check(self, frame: Any) -> None:
+        """A clear error for a frame that does not fit this layout."""
+        n_ch = self.shape[1]
+        shapes = np.shape(frame.amplitudes), np.shape(frame.channel_ok), np.shape(frame.leakage)
+        if shapes != (self.shape, (n_ch,), (n_ch,)):
             raise ValueError(
                 f"order frame at {frame.time_s} s: expected amplitudes of shape {self.shape} and "
-                f"{n_ch} channel_ok and leakage values, got {amp.shape}, {ok.shape}, {leakage.shape}"
+                f"{n_ch} channel_ok and leakage values, got {shapes[0]}, {shapes[1]}, {shapes[2]}"
             )
         spectrum = getattr(frame, "spectrum", None)
         got = None if spectrum is None else np.shape(spectrum)
@@ -227,26 +278,6 @@ class FrameWire:
             raise ValueError(
                 f"order frame at {frame.time_s} s: expected a spectrum of shape {want}, got {got}"
             )
-        values = np.empty(self.n_f64)
-        values[:3] = (frame.time_s, frame.rpm, frame.crank_angle_rad)
-        values[self._re] = amp.real.ravel()
-        values[self._im] = amp.imag.ravel()
-        values[self._rest] = frame.rpm_change
-        values[self._rest + 1 : self._pairs] = leakage
-        pairs = values[self._pairs : self._spectrum].reshape(n_o, n_ch, 2)
-        pairs[..., 0] = np.abs(amp)
-        pairs[..., 1] = np.degrees(np.angle(amp))
-        if spectrum is not None:
-            spec = np.asarray(spectrum, dtype=complex)
-            values[self._spectrum : self._spectrum + self.n_spectrum] = spec.real
-            values[self._spectrum + self.n_spectrum :] = spec.imag
-        buf = self.template.copy()
-        buf[self.f64_index] = values.astype("<f8", copy=False).view(np.uint8)
-        buf[self.bool_index] = ok
-        if not frame.flags:
-            return buf.tobytes()
-        flags = b"".join(element(11, f.encode()) for f in sorted(frame.flags))
-        return buf[: self.split].tobytes() + flags + buf[self.split :].tobytes()
 
 
 @lru_cache(maxsize=16)

@@ -9,6 +9,7 @@ from both, bit for bit.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -83,6 +84,26 @@ def test_order_frame_of_the_wrong_shape_is_refused() -> None:
     bad = frame(f.orders, f.channels, np.ones((3, 3), complex))
     with pytest.raises(ValueError, match=r"expected amplitudes of shape \(3, 4\)"):
         results_codec.encode_frame(bad)
+
+
+def test_a_block_of_frames_is_encoded_as_each_frame_alone() -> None:
+    # runs of one layout (the recorder's blocks) and changes of layout between them;
+    # each frame alone is checked against the protobuf classes above
+    rng = np.random.default_rng(5)
+    frames = [make_frame(0.1 * k, rng) for k in range(6)] + corner_frames() * 2
+    frames += [make_frame(9.0 + k, rng) for k in range(3)]
+    alone = [results_codec.encode_frame(f) for f in frames]
+    assert results_codec.encode_frames(frames) == alone
+    assert results_codec.encode_frames(frames[:1]) == alone[:1]
+    assert results_codec.encode_frames([]) == []
+
+
+def test_a_frame_of_the_wrong_shape_in_a_block_is_named() -> None:
+    rng = np.random.default_rng(1)
+    good = [make_frame(t, rng) for t in (0.1, 0.2)]
+    bad = dataclasses.replace(good[1], time_s=0.15, leakage=np.zeros(3))
+    with pytest.raises(ValueError, match=r"order frame at 0.15 s: .* got \(3, 4\), \(4,\), \(3,\)"):
+        results_codec.encode_frames([good[0], bad, good[1]])
 
 
 @pytest.mark.parametrize(
