@@ -250,6 +250,13 @@ class Engine:
         force : (n, 3) N per (rad/s)^2.
         moment : (n, 3) N m per (rad/s)^2 about Q, including ``-T_inertia s``.
         """
+        return self._inertia_parts(phi, about)[:2]
+
+    def _inertia_parts(
+        self, phi: npt.ArrayLike, about: npt.ArrayLike
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`inertia_loads` and :meth:`inertia_torque` at 1 rad/s from one evaluation
+        of each cylinder's kinematics (the same sums, in the same order)."""
         phi = np.asarray(phi, dtype=float)
         q = np.asarray(about, dtype=float)
         s, c, t = self.frame
@@ -258,6 +265,7 @@ class Engine:
         force = np.zeros((phi.size, 3))
         moment = np.zeros((phi.size, 3))
         roll = np.zeros(phi.size)  # moment about s, N m
+        torque = np.zeros_like(phi)
         for k in range(self.cylinders):
             kin = sc.kinematics(phi - self.throw_angles[k])
             arm = self.crank_centres[k] - q
@@ -268,13 +276,15 @@ class Engine:
             force += f_piston + f_rod
             moment += np.cross(arm, f_piston) + np.cross(rod_cog, f_rod)
             # -d(J psi_dot)/dt of the rod's own rotation, then minus the inertia torque on the crank.
-            roll += -j_r * kin.psi_tt - sc.inertia_torque(kin.theta)
+            torque_k = sc.inertia_torque_of(kin)
+            roll += -j_r * kin.psi_tt - torque_k
+            torque += torque_k
         add_balancing_loads(
             force, moment, self.unbalances, self.balance_shafts, phi, self.frame,
             self.reference_point, q,
         )  # fmt: skip
         moment += np.outer(roll, s)
-        return force, moment
+        return force, moment, torque
 
     def block_loads(
         self, phi: npt.ArrayLike, rpm: float, about: npt.ArrayLike
@@ -293,8 +303,7 @@ class Engine:
     @cached_property
     def _unit_inertia_spectra(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """FFT at unit speed of force, moment about the reference point, inertia torque."""
-        f, m = self.inertia_loads(self._grid, self.reference_point)
-        torque = self.inertia_torque(self._grid, omega=1.0)
+        f, m, torque = self._inertia_parts(self._grid, self.reference_point)
         return half_order_spectrum(f), half_order_spectrum(m), half_order_spectrum(torque)
 
     @cached_property

@@ -161,7 +161,10 @@ class SliderCrank:
         (``-sum m a . dx/dtheta``), which is the same thing without a numerical
         derivative.
         """
-        k = self.kinematics(theta)
+        return self.inertia_torque_of(self.kinematics(theta), omega)
+
+    def inertia_torque_of(self, k: CylinderKinematics, omega: float = 1.0) -> np.ndarray:
+        """:meth:`inertia_torque` from kinematics at hand (an engine's loads reuse theirs)."""
         return -(omega**2) * (
             self.piston_mass * k.x_tt * k.x_t
             + self.conrod_mass * (k.gc_tt * k.gc_t + k.gt_tt * k.gt_t)

@@ -344,6 +344,23 @@ def test_inertia_torque_is_minus_rate_of_kinetic_energy_of_all_cylinders():
 # -- order decomposition ---------------------------------------------------------------------
 
 
+def test_inertia_torque_orders_are_the_spectrum_of_the_time_signal():
+    # the orders come from the loads' pass over the cylinders, the time signal from
+    # inertia_torque's own: the same torque, bit for bit on the engine's grid
+    e = inline4(conrod_inertia=0.002)
+    n = e.samples_per_cycle
+    phis = np.arange(n) * 4 * np.pi / n
+    torque = e.inertia_torque(phis, omega=1.0)
+    assert e._inertia_parts(phis, e.reference_point)[2].tobytes() == torque.tobytes()
+    spec = np.fft.rfft(torque) * 2 / n
+    w2 = float(rpm_to_omega(2500.0)) ** 2
+    np.testing.assert_allclose(
+        e.inertia_torque_orders(2500.0, [2, 4, 6]),
+        w2 * spec[[4, 8, 12]],
+        atol=1e-12 * w2 * np.abs(spec).max(),
+    )
+
+
 def test_orders_rebuild_the_time_signal_and_scale_with_speed():
     e = inline3(tilt=12 * DEG, unbalances=(Unbalance(0.012, 0.3, 0.05),))
     about = np.array([0.03, -0.08, 0.1])
