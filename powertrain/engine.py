@@ -214,7 +214,7 @@ class Engine:
         area = self.geometry.area
         total = np.zeros_like(phi)
         for k in range(self.cylinders):
-            x_t = self.slider_crank.kinematics(phi - self.throw_angles[k]).x_t
+            x_t = self.slider_crank.piston_motion(phi - self.throw_angles[k])[1]
             p = cycle(phi - self.firing_angles[k])
             # Virtual work: the piston force -(p - p_cc) A c moves by x_t dtheta along c.
             total -= (p - self.crankcase_pressure) * area * x_t

@@ -24,7 +24,7 @@ from scipy.integrate import cumulative_simpson
 from scipy.interpolate import CubicSpline
 
 from powertrain.errors import PhysicsError
-from powertrain.slider_crank import kinematics
+from powertrain.slider_crank import piston_motion
 
 CYCLE = 4.0 * np.pi  # one four-stroke cycle, rad
 
@@ -63,9 +63,9 @@ class CylinderGeometry:
         dV/dtheta : m^3/rad.
         """
         r = 0.5 * self.stroke
-        k = kinematics(theta, r, self.conrod_length)
+        x, x_t = piston_motion(theta, r, self.conrod_length)
         clearance = self.displacement / (compression_ratio - 1.0)
-        return clearance + self.area * (r + self.conrod_length - k.x), -self.area * k.x_t
+        return clearance + self.area * (r + self.conrod_length - x), -self.area * x_t
 
 
 class PressureCycle:

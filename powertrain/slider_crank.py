@@ -141,6 +141,10 @@ class SliderCrank:
             theta, self.crank_radius, self.conrod_length, self.conrod_cog_from_big_end
         )
 
+    def piston_motion(self, theta: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """Piston position ``x`` (m) and ``dx/dtheta`` (m/rad) at ``theta`` (:func:`piston_motion`)."""
+        return piston_motion(theta, self.crank_radius, self.conrod_length)
+
     def kinetic_energy(self, theta: npt.ArrayLike, omega: float = 1.0) -> np.ndarray:
         """J: kinetic energy of piston and rod (the crank-pin-fixed masses excluded: it is constant)."""
         k = self.kinematics(theta)
@@ -184,10 +188,7 @@ def kinematics(theta: npt.ArrayLike, r: float, length: float, a: float = 0.0) ->
     """
     th = np.asarray(theta, dtype=float)
     lam = r / length
-    s, c = np.sin(th), np.cos(th)
-    root = np.sqrt(1.0 - (lam * s) ** 2)  # cos(beta), beta the rod obliquity
-    x = r * c + length * root
-    x_t = -r * s * (1.0 + lam * c / root)
+    s, c, root, x, x_t = _piston(th, r, length)
     x_tt = -r * (c + lam * (np.cos(2 * th) + lam**2 * s**4) / root**3)
     # beta = arcsin(lambda sin theta) leans the rod towards -t; psi = -beta.
     psi = -np.arcsin(lam * s)
@@ -205,6 +206,23 @@ def kinematics(theta: npt.ArrayLike, r: float, length: float, a: float = 0.0) ->
         theta=th, x=x, x_t=x_t, x_tt=x_tt, psi=psi, psi_t=psi_t, psi_tt=psi_tt,
         gc=gc, gc_t=gc_t, gc_tt=gc_tt, gt=gt, gt_t=gt_t, gt_tt=gt_tt, pc=r * c, pt=r * s,
     )  # fmt: skip
+
+
+def piston_motion(theta: npt.ArrayLike, r: float, length: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`kinematics`' piston position ``x`` and ``dx/dtheta`` alone (the same bits),
+    for the cylinder volume and the gas torque, which need nothing else."""
+    _, _, _, x, x_t = _piston(np.asarray(theta, dtype=float), r, length)
+    return x, x_t
+
+
+def _piston(
+    th: np.ndarray, r: float, length: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """sin, cos, ``cos(beta)`` (beta the rod obliquity), ``x``, ``dx/dtheta`` at ``th``."""
+    lam = r / length
+    s, c = np.sin(th), np.cos(th)
+    root = np.sqrt(1.0 - (lam * s) ** 2)
+    return s, c, root, r * c + length * root, -r * s * (1.0 + lam * c / root)
 
 
 def piston_position_coefficients(lam: float, max_order: int, rtol: float = 1e-17) -> np.ndarray:

@@ -10,6 +10,7 @@ from powertrain.slider_crank import (
     SliderCrank,
     kinematics,
     piston_acceleration_coefficients,
+    piston_motion,
     piston_position_coefficients,
 )
 
@@ -47,6 +48,15 @@ def test_derivatives_match_spectral_differentiation(name):
     scale = np.abs(y - y.mean()).max()
     np.testing.assert_allclose(getattr(k, name + "_t"), d1, atol=1e-10 * scale)
     np.testing.assert_allclose(getattr(k, name + "_tt"), d2, atol=1e-9 * scale)
+
+
+def test_piston_motion_alone_is_the_kinematics_piston_and_its_derivative():
+    # the volume and the gas torque take x and dx/dtheta alone: the kinematics' bits
+    # (the derivative itself is checked against spectral differentiation above)
+    k = kinematics(THETA, R, L, A)
+    x, x_t = piston_motion(THETA, R, L)
+    assert (x.tobytes(), x_t.tobytes()) == (k.x.tobytes(), k.x_t.tobytes())
+    np.testing.assert_allclose(x_t, spectral_derivative(x), atol=1e-10 * np.ptp(x))
 
 
 @pytest.mark.parametrize("lam", [0.1, 0.316, 0.45])
