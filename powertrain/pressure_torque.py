@@ -90,7 +90,7 @@ def pressure_torque_map(
     area = engine.geometry.area
     # lever[c] = -A x_t of cylinder c, pressure angle of cylinder c, both on the grid
     lever = np.stack(
-        [-area * engine.slider_crank.kinematics(phi - a).x_t for a in engine.throw_angles]
+        [-area * engine.slider_crank.piston_motion(phi - a)[1] for a in engine.throw_angles]
     )
     half_angle = 0.5 * (phi[None, :] - engine.firing_angles[:, None])  # (n_cyl, n)
     k = np.arange(n_half)[:, None, None]
