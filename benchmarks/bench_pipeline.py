@@ -19,9 +19,10 @@ Prints:
 3. a paced (real-time) run, MCAP recording on: the largest delay from a block's arrival to the estimate it
    produced being in every sink;
 4. each stage on its own, per minute of data (simulator, MCAP reader, dsp, estimator): CPU
-   seconds (the simulator best of three, numpy and with its compiled kernels), and the best
-   real-time factor live and replay could reach if the stages overlapped perfectly on two
-   cores (the budget against the 100x / 300x targets); the issue's order-tracking
+   seconds (the simulator best of three, numpy and with its compiled kernels), the set-up
+   of dsp and estimator a run pays once (``processing_chain``), and the best real-time
+   factor live and replay could reach if the stages overlapped perfectly on two cores (the
+   budget against the 100x / 300x targets); the issue's order-tracking
    load (10 ch at 25.6 kHz, orders 1, 1.5, 2: bench_order_tracking.issue_load), numpy and compiled;
    one run of a study (5120 Hz, realistic) with 0.1 s and 0.5 s blocks, and the simulator's share;
 5. RSS over a long sweep (``--hours``, default 1 h at 5120 Hz, recording on): growth;

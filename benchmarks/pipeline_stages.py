@@ -23,7 +23,9 @@ def stage_budget(log: Path) -> None:
     sim, sim_compiled = simulator_alone()
     # as the pipeline reads a recording: its samples are float32 already, not rounded again
     reader, items = _cpu_s(lambda: list(McapSource(log)))
-    tracker, estimator = processing_chain(bench, source.layout)  # as run_source sets it up
+    # as run_source sets it up (once a run, before the first item: in series with the rest)
+    setup = min(_cpu_s(lambda: processing_chain(bench, source.layout))[0] for _ in range(3))
+    tracker, estimator = processing_chain(bench, source.layout)
     batches = []
 
     def track() -> None:
@@ -53,17 +55,18 @@ def stage_budget(log: Path) -> None:
     print("each stage alone, CPU seconds per minute of data (10 ch at 25.6 kHz):")
     print(
         f"  simulator {sim:.2f}  MCAP reader {reader:.2f}  dsp {dsp:.2f}  estimator {est:.2f}"
-        f" ({1e3 * est / max(used, 1):.2f} ms per used frame, {used} frames)"
+        f" ({1e3 * est / max(used, 1):.2f} ms per used frame, {used} frames); set-up of dsp "
+        f"and estimator {setup:.3f} (once a run)"
     )
     # The stages' CPU shared perfectly over two cores is the bound for any arrangement
     # of these stages (threads, processes). The pipeline runs source, dsp and estimator
     # on three threads (ptinertia.pipeline): with no GIL, the busiest stage would bound it;
     # with the GIL, the time each stage holds it adds up (the estimator holds it most of
     # its time, the dsp about half of its time: perf samples, see the docstring).
-    live_cores = 60 / max(sim, dsp, est, (sim + dsp + est) / 2)
-    replay_cores = 60 / max(reader, dsp, est, (reader + dsp + est) / 2)
-    live_serial = 60 / max(sim, dsp + est)
-    replay_serial = 60 / max(reader, dsp + est)
+    live_cores = 60 / (setup + max(sim, dsp, est, (sim + dsp + est) / 2))
+    replay_cores = 60 / (setup + max(reader, dsp, est, (reader + dsp + est) / 2))
+    live_serial = 60 / (setup + max(sim, dsp + est))
+    replay_serial = 60 / (setup + max(reader, dsp + est))
     print(
         f"  best case on two cores, stages on their own threads, GIL aside: live "
         f"{live_cores:.0f}x, replay {replay_cores:.0f}x; with dsp and estimator one after the "
