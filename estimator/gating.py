@@ -267,7 +267,7 @@ class OrderGates:
             # a residual this large makes the frame unusable whatever its cause; it
             # counts towards an elastic mode only if the noise cannot explain it
             if h in self.residual_limit:
-                self._note_non_rigid(h, h * rpm / 60.0, res > self.residual_limit[h])
+                self._note_non_rigid(h, rpm, res > self.residual_limit[h])
             return "non_rigid"
         # Elastic-mode detection: sensor errors leave a residual that is a fixed
         # share of the signal along the mass line, an approaching elastic mode one
@@ -290,11 +290,12 @@ class OrderGates:
         """The residual gate once order ``h``'s baseline is set: "non_rigid" when its
         ``excess`` has grown past the ``limit`` (noted towards an elastic mode), else None."""
         flagged = excess > limit
-        self._note_non_rigid(h, h * rpm / 60.0, flagged)
+        self._note_non_rigid(h, rpm, flagged)
         return "non_rigid" if flagged else None
 
-    def _note_non_rigid(self, h: float, f_hz: float, flagged: bool) -> None:
-        """Confirm an elastic mode once one order keeps failing the residual gate."""
+    def _note_non_rigid(self, h: float, rpm: float, flagged: bool) -> None:
+        """Confirm an elastic mode once order ``h`` (at ``rpm``) keeps failing the
+        residual gate."""
         recent = self._non_rigid_recent.get(h)
         if recent is None:
             recent = self._non_rigid_recent[h] = collections.deque(maxlen=ELASTIC_WINDOW)
@@ -302,7 +303,7 @@ class OrderGates:
         # (only a flagged frame can confirm: while no mode is, the window held fewer than
         # ELASTIC_CONFIRM after every earlier frame, and a rigid one adds none)
         if flagged and self.elastic is None and sum(recent) >= ELASTIC_CONFIRM:
-            self.elastic = {"order": h, "frequency_hz": f_hz}
+            self.elastic = {"order": h, "frequency_hz": h * rpm / 60.0}
 
 
 # Share of another order's uncorrected change that leaks into an order n half orders
@@ -346,7 +347,10 @@ def overlaps_previous(frame: FrameLike) -> bool:
     angle = getattr(frame, "crank_angle_rad", None)
     if angle is None or not math.isfinite(angle):
         return False
-    return round(float(angle) / (2 * np.pi)) % 2 == 1
+    return round(float(angle) / _TWO_PI) % 2 == 1
+
+
+_TWO_PI = 2 * np.pi  # (revolution's divisor, the same float, not made again per frame)
 
 
 # An order with no known load sets the scale of the inertia through the mount reactions

@@ -318,15 +318,23 @@ def build_estimate(
     tolerances; the rest is reported as given."""
     n = len(names)
     obs = sol.observable
-    cov_rand = sol.cov.copy()
     factor = max(1.0, sol.rss / sol.dof) if sol.dof > 0 else 1.0
-    block = np.ix_(obs, obs)
-    cov_rand[block] *= factor
-    cov_sys = np.zeros((n, n))
-    if np.any(obs):
-        inv = sol.cov[block]
-        dtheta = -inv @ acc.sens[obs]  # (n_obs, n_sys): d theta / d p
-        cov_sys[block] = (dtheta * sys_std**2) @ dtheta.T
+    if obs.all():
+        # every parameter observable (the common case): the products below on the
+        # arrays the blocks would copy, as they are (C order: the same bits)
+        cov_rand = sol.cov * factor
+        inv = np.ascontiguousarray(sol.cov)
+        dtheta = -inv @ np.ascontiguousarray(acc.sens)  # (n, n_sys): d theta / d p
+        cov_sys = (dtheta * sys_std**2) @ dtheta.T
+    else:
+        cov_rand = sol.cov.copy()
+        block = np.ix_(obs, obs)
+        cov_rand[block] *= factor
+        cov_sys = np.zeros((n, n))
+        if np.any(obs):
+            inv = sol.cov[block]
+            dtheta = -inv @ acc.sens[obs]  # (n_obs, n_sys): d theta / d p
+            cov_sys[block] = (dtheta * sys_std**2) @ dtheta.T
     return Estimate(
         names=names,
         theta=sol.theta,
