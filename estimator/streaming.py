@@ -256,25 +256,25 @@ class InertiaEstimator:
         """:meth:`_flush` for the frames whose motion is fully measured."""
         stack = FrameStack(batch)  # (the frames' arrays concatenated once for every call)
         half = stack.cat("half")
-        flip = np.where(half, -1.0, 1.0)
-        everything = np.ones(len(half), dtype=bool)
         dm = self.rows.sensitivity(stack)
+        # (sign None: the motions as measured; sel None: every pair)
         if self.decided_sign is not None:
-            sign = flip if self.decided_sign < 0 else np.ones(len(half))
-            hyp = {self.decided_sign: self.rows.rows(stack, sign, everything, dm, self.lin)}
+            sign = np.where(half, -1.0, 1.0) if self.decided_sign < 0 else None
+            hyp = {self.decided_sign: self.rows.rows(stack, sign, None, dm, self.lin)}
         elif self.stats.ambiguous_frames == 0:
             # No frame without a 720 deg reference yet: both hypotheses are the same
             # sums; keep one, and copy it when the first ambiguous frame arrives.
-            hyp = {1: self.rows.rows(stack, np.ones(len(half)), everything, dm, self.lin)}
+            hyp = {1: self.rows.rows(stack, None, None, dm, self.lin)}
             self._hypotheses_equal = True
         else:
             if self._hypotheses_equal:
                 self.acc[-1] = Accumulator(state=self.acc[1].state, sens=self.acc[1].sens)
                 self.misfit.copy_sign(1, -1)
                 self._hypotheses_equal = False
-            H, y, dr = self.rows.rows(stack, np.ones(len(half)), everything, dm, self.lin)
+            H, y, dr = self.rows.rows(stack, None, None, dm, self.lin)
             hyp = {1: (H, y, dr), -1: (H, y, dr)}
             if np.any(half):
+                flip = np.where(half, -1.0, 1.0)
                 Hf, yf, drf = H.copy(), y.copy(), dr.copy()
                 Hf[half], yf[half], drf[half] = self.rows.rows(stack, flip, half, dm, self.lin)
                 hyp[-1] = (Hf, yf, drf)
