@@ -87,10 +87,16 @@ class EstimatorStats:
         """One more used frame at ``rpm``; ``tested``: its half-order sign judged by the
         residual test, ``referenced``: with a 720 deg reference the test checks."""
         self.used += 1
-        self.ambiguous_frames += int(tested)
-        self.referenced_frames += int(referenced)
-        self.rpm_lo = min(self.rpm_lo, rpm)
-        self.rpm_hi = max(self.rpm_hi, rpm)
+        # (comparisons, not int(), min() and max(): four builtin calls a frame; a used
+        # frame's rpm is finite, so the range is the same)
+        if tested:
+            self.ambiguous_frames += 1
+        if referenced:
+            self.referenced_frames += 1
+        if rpm < self.rpm_lo:
+            self.rpm_lo = rpm
+        if rpm > self.rpm_hi:
+            self.rpm_hi = rpm
 
 
 @dataclass(frozen=True)
