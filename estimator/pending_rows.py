@@ -90,17 +90,11 @@ class FrameQueue:
             raw = self._raw_noise_var(motion, ks, redundancy)
         else:  # (without self-calibration: what the rigid fit leaves)
             redundancy, raw = None, motion.noise_var
-        var = self._noise_var(raw, ks, orders, floor)
-        gamma_o, omega_dot, h, dsp_h = motion.gamma_o, motion.omega_dot, orders, dsp_var
+        var = self._noise_var(raw, ks, orders, floor, dsp_var)
+        gamma_o, omega_dot, h = motion.gamma_o, motion.omega_dot, orders
         if len(ks) < len(orders):  # (every order used, the common case: the arrays as they are)
             at = np.array(ks)
-            gamma_o, omega_dot, h, dsp_h, half = (
-                gamma_o[at],
-                omega_dot[at],
-                h[at],
-                dsp_h[at],
-                half[at],
-            )
+            gamma_o, omega_dot, h, half = gamma_o[at], omega_dot[at], h[at], half[at]
             force, moment, readings = force[at], moment[at], readings[at]
             gas = None if gas is None else gas[at]
         self.frames.append(
@@ -113,7 +107,7 @@ class FrameQueue:
                 float(rpm),
                 force,
                 moment,
-                np.maximum(var, dsp_h),  # var
+                np.array(var),
                 fit,
                 readings,  # amplitudes
                 half,
@@ -153,18 +147,26 @@ class FrameQueue:
         return raw
 
     def _noise_var(
-        self, raw_var: np.ndarray, ks: list[int], orders: np.ndarray, floor: float
+        self,
+        raw_var: np.ndarray,
+        ks: list[int],
+        orders: np.ndarray,
+        floor: float,
+        dsp_var: np.ndarray,
     ) -> list[float]:
-        """Per-order channel noise variance, smoothed over frames (3 dof per frame is noisy),
-        floored so noise-free data keep finite weights."""
+        """Per-order channel noise variance of the orders ``ks``, smoothed over frames (3
+        dof per frame is noisy), floored so noise-free data keep finite weights, and at
+        least what the dsp errs by (``dsp_var``, per order)."""
         out = []
         smoothed = self.noise_var
-        hs, raws = orders.tolist(), raw_var.tolist()
+        hs, raws, dsps = orders.tolist(), raw_var.tolist(), dsp_var.tolist()
         for k in ks:
-            h, raw = hs[k], raws[k]
+            h, raw, dsp = hs[k], raws[k], dsps[k]
             var = 0.8 * smoothed[h] + 0.2 * raw if h in smoothed else raw
             smoothed[h] = var
-            out.append(max(var, floor))
+            var = max(var, floor)
+            # np.maximum on floats: the larger, NaN if either is (max() would drop a NaN dsp)
+            out.append(var if var >= dsp or var != var else dsp)
         return out
 
 
