@@ -183,13 +183,14 @@ class OrderGates:
         residuals = dict(zip(orders, relative, strict=True))
         used: list[int] = []
         limits, top = self.residual_limit, self.setup.gates.max_relative_residual
+        past_limit = self._past_limit
         for k, h in enumerate(orders):
             w = why[k]
             if w:
                 reason: str | None = ORDER_REASONS[w]
             elif relative[k] <= top and (limit := limits.get(h)) is not None:
                 # :meth:`residual` once the order's baseline is set (the rule), directly
-                reason = self._past_limit(h, rpm, beyond[k], limit)
+                reason = past_limit(h, rpm, beyond[k], limit)
             else:
                 reason = self.residual(h, rpm, relative[k], share[k], beyond[k])
             if reason:
@@ -266,8 +267,8 @@ class OrderGates:
         if relative > gates.max_relative_residual:
             # a residual this large makes the frame unusable whatever its cause; it
             # counts towards an elastic mode only if the noise cannot explain it
-            if h in self.residual_limit:
-                self._note_non_rigid(h, h * rpm / 60.0, res > self.residual_limit[h])
+            if (limit := self.residual_limit.get(h)) is not None:
+                self._past_limit(h, rpm, res, limit)  # (noted; non-rigid whatever it says)
             return "non_rigid"
         # Elastic-mode detection: sensor errors leave a residual that is a fixed
         # share of the signal along the mass line, an approaching elastic mode one
@@ -288,21 +289,22 @@ class OrderGates:
 
     def _past_limit(self, h: float, rpm: float, excess: float, limit: float) -> str | None:
         """The residual gate once order ``h``'s baseline is set: "non_rigid" when its
-        ``excess`` has grown past the ``limit`` (noted towards an elastic mode), else None."""
+        ``excess`` has grown past the ``limit``, else None; either way noted in the
+        order's last ``ELASTIC_WINDOW`` frames, and an elastic mode confirmed (at
+        ``rpm``) once one order keeps failing the gate. (One method, not two: it runs
+        for every gated order of every frame.)"""
         flagged = excess > limit
-        self._note_non_rigid(h, h * rpm / 60.0, flagged)
-        return "non_rigid" if flagged else None
-
-    def _note_non_rigid(self, h: float, f_hz: float, flagged: bool) -> None:
-        """Confirm an elastic mode once one order keeps failing the residual gate."""
         recent = self._non_rigid_recent.get(h)
         if recent is None:
             recent = self._non_rigid_recent[h] = collections.deque(maxlen=ELASTIC_WINDOW)
         recent.append(flagged)
+        if not flagged:
+            return None
         # (only a flagged frame can confirm: while no mode is, the window held fewer than
         # ELASTIC_CONFIRM after every earlier frame, and a rigid one adds none)
-        if flagged and self.elastic is None and sum(recent) >= ELASTIC_CONFIRM:
-            self.elastic = {"order": h, "frequency_hz": f_hz}
+        if self.elastic is None and sum(recent) >= ELASTIC_CONFIRM:
+            self.elastic = {"order": h, "frequency_hz": h * rpm / 60.0}
+        return "non_rigid"
 
 
 # Share of another order's uncorrected change that leaks into an order n half orders
@@ -346,7 +348,10 @@ def overlaps_previous(frame: FrameLike) -> bool:
     angle = getattr(frame, "crank_angle_rad", None)
     if angle is None or not math.isfinite(angle):
         return False
-    return round(float(angle) / (2 * np.pi)) % 2 == 1
+    return round(float(angle) / _TWO_PI) % 2 == 1
+
+
+_TWO_PI = 2 * np.pi  # (revolution's divisor, the same float, not made again per frame)
 
 
 # An order with no known load sets the scale of the inertia through the mount reactions

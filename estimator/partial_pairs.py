@@ -94,7 +94,7 @@ class PartialPairs:
         # The unseen direction is projected out with each pair's w; give it a finite
         # variance in the row weighting (any value gives the same projected rows) so
         # that the whitening stays well conditioned.
-        batch = [replace(p, cov_unit=p.cov_unit + _unseen_variance(p)) for p in batch]
+        batch = [p._replace(cov_unit=p.cov_unit + _unseen_variance(p)) for p in batch]
         self.unseen, self.origin = batch[-1].fit.null, batch[-1].origin
         self.has_half = self.has_half or any(bool(np.any(p.half)) for p in batch)
         count = sum(len(p.orders) for p in batch)

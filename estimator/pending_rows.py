@@ -85,36 +85,34 @@ class FrameQueue:
         near modes), ``gas`` the measured gas moment in ``moment``.
         """
         floor = max(1e-16 * (power_sum / len(orders)), 1e-30)  # of the mean square
-        redundancy = self._redundancy_raw(fit, motion, readings, ks)
-        var = self._noise_var(self._raw_noise_var(motion, ks, redundancy), ks, orders, floor)
-        gamma_o, omega_dot, h, dsp_h = motion.gamma_o, motion.omega_dot, orders, dsp_var
+        if self.cal:
+            redundancy = self._redundancy_raw(fit, motion, readings, ks)
+            raw = self._raw_noise_var(motion, ks, redundancy)
+        else:  # (without self-calibration: what the rigid fit leaves)
+            redundancy, raw = None, motion.noise_var
+        var = self._noise_var(raw, ks, orders, floor, dsp_var)
+        gamma_o, omega_dot, h = motion.gamma_o, motion.omega_dot, orders
         if len(ks) < len(orders):  # (every order used, the common case: the arrays as they are)
             at = np.array(ks)
-            gamma_o, omega_dot, h, dsp_h, half = (
-                gamma_o[at],
-                omega_dot[at],
-                h[at],
-                dsp_h[at],
-                half[at],
-            )
+            gamma_o, omega_dot, h, half = gamma_o[at], omega_dot[at], h[at], half[at]
             force, moment, readings = force[at], moment[at], readings[at]
             gas = None if gas is None else gas[at]
         self.frames.append(
-            PendingFrame(
-                gamma_o=gamma_o,
-                omega_dot=omega_dot,
-                origin=motion.origin,
-                cov_unit=motion.cov_unit,
-                orders=h,
-                rpm=float(rpm),
-                force=force,
-                moment=moment,
-                var=np.maximum(var, dsp_h),
-                fit=fit,
-                amplitudes=readings,
-                half=half,
-                measured_moment=gas,
-                redundancy=redundancy,
+            PendingFrame(  # (by position, in field order: 0.4 us a frame less than by name)
+                gamma_o,
+                omega_dot,
+                motion.origin,
+                motion.cov_unit,
+                h,  # orders
+                float(rpm),
+                force,
+                moment,
+                np.array(var),
+                fit,
+                readings,  # amplitudes
+                half,
+                gas,  # measured_moment
+                redundancy,
             )
         )
 
@@ -149,18 +147,26 @@ class FrameQueue:
         return raw
 
     def _noise_var(
-        self, raw_var: np.ndarray, ks: list[int], orders: np.ndarray, floor: float
+        self,
+        raw_var: np.ndarray,
+        ks: list[int],
+        orders: np.ndarray,
+        floor: float,
+        dsp_var: np.ndarray,
     ) -> list[float]:
-        """Per-order channel noise variance, smoothed over frames (3 dof per frame is noisy),
-        floored so noise-free data keep finite weights."""
+        """Per-order channel noise variance of the orders ``ks``, smoothed over frames (3
+        dof per frame is noisy), floored so noise-free data keep finite weights, and at
+        least what the dsp errs by (``dsp_var``, per order)."""
         out = []
         smoothed = self.noise_var
-        hs, raws = orders.tolist(), raw_var.tolist()
+        hs, raws, dsps = orders.tolist(), raw_var.tolist(), dsp_var.tolist()
         for k in ks:
-            h, raw = hs[k], raws[k]
+            h, raw, dsp = hs[k], raws[k], dsps[k]
             var = 0.8 * smoothed[h] + 0.2 * raw if h in smoothed else raw
             smoothed[h] = var
-            out.append(max(var, floor))
+            var = max(var, floor)
+            # np.maximum on floats: the larger, NaN if either is (max() would drop a NaN dsp)
+            out.append(var if var >= dsp or var != var else dsp)
         return out
 
 
@@ -258,8 +264,8 @@ class RowAssembler:
     def rows(
         self,
         batch: list[PendingFrame] | FrameStack,
-        sign: np.ndarray,
-        sel: np.ndarray,
+        sign: np.ndarray | None,
+        sel: np.ndarray | None,
         dm_real: np.ndarray,
         lin: Linearisation,
         motion: tuple[np.ndarray, np.ndarray] | None = None,
@@ -267,13 +273,14 @@ class RowAssembler:
         model_motion: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, ...]:
         """Whitened rows (k, 12, n), (k, 12) and sensitivities (k, 12, n_sys) of the
-        selected (frame, order) pairs of ``batch``, motions multiplied by ``sign``
+        selected (frame, order) pairs of ``batch`` (``sel`` (P,) bool; None: every
+        pair), motions multiplied by ``sign`` (P,) (None: +1, the motions as they are)
         (the pairs' own motions, or ``motion``: (P, 3) gamma_O and Omega' in pair
         order), linearised at ``lin``. ``calibrate=False``: the self-calibrated
         sensor errors stay systematic errors in these rows. ``model_motion``: the
         motion the model inputs' sensitivities are taken at (default: the rows')."""
         # every pair selected (the common case): the concatenations as they are, no copies
-        pick: slice | np.ndarray = slice(None) if bool(np.all(sel)) else sel
+        pick: slice | np.ndarray = slice(None) if sel is None or bool(np.all(sel)) else sel
         stack = stacked(batch)
         cat = lambda name: stack.cat(name)[pick]  # noqa: E731
         gamma_o, omega_dot = (cat("gamma_o"), cat("omega_dot")) if motion is None else motion
@@ -281,9 +288,14 @@ class RowAssembler:
         def rep(name):
             return stack.per_pair(name)[pick]
 
-        sg = sign[pick]
         origin, orders, rpm = rep("origin"), cat("orders"), rep("rpm")
-        signed = (sg[:, None] * gamma_o, sg[:, None] * omega_dot)
+        # (sign None: the motions as they are, which times +1 they are bit for bit)
+        sg = np.ones(len(orders)) if sign is None else sign[pick]
+        signed: tuple[np.ndarray, np.ndarray] = (
+            (gamma_o, omega_dot)
+            if sign is None
+            else (sg[:, None] * gamma_o, sg[:, None] * omega_dot)
+        )
         args = (
             *signed,
             origin,
@@ -299,7 +311,11 @@ class RowAssembler:
         if self.setup.model_inputs:
             # the model inputs' columns (zero in dm_real: they do not touch the readings)
             if model_motion is not None:
-                signed = (sg[:, None] * model_motion[0], sg[:, None] * model_motion[1])
+                signed = (
+                    model_motion
+                    if sign is None
+                    else (sg[:, None] * model_motion[0], sg[:, None] * model_motion[1])
+                )
             model_args = (self.setup, lin, not self.layout.mass, *signed, origin, orders, rpm)
             if self.compiled:
                 fixed = self._constants_at(lin, measured is not None)[1]
@@ -316,7 +332,8 @@ class RowAssembler:
         else:
             r = frame_rows(self.setup, self.layout, lin, *args, measured_moment=measured)
             H, y = r.H, r.y
-            dr = r.whiten @ r.d_meas @ (sg[:, None, None] * dm_real[pick])
+            dm = dm_real[pick] if sign is None else sg[:, None, None] * dm_real[pick]
+            dr = r.whiten @ r.d_meas @ dm
             if model is not None:
                 dr[:, :, -model.shape[2] :] += r.whiten @ model
         if self.cal and calibrate:

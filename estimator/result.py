@@ -87,10 +87,16 @@ class EstimatorStats:
         """One more used frame at ``rpm``; ``tested``: its half-order sign judged by the
         residual test, ``referenced``: with a 720 deg reference the test checks."""
         self.used += 1
-        self.ambiguous_frames += int(tested)
-        self.referenced_frames += int(referenced)
-        self.rpm_lo = min(self.rpm_lo, rpm)
-        self.rpm_hi = max(self.rpm_hi, rpm)
+        # (comparisons, not int(), min() and max(): four builtin calls a frame; a used
+        # frame's rpm is finite, so the range is the same)
+        if tested:
+            self.ambiguous_frames += 1
+        if referenced:
+            self.referenced_frames += 1
+        if rpm < self.rpm_lo:
+            self.rpm_lo = rpm
+        if rpm > self.rpm_hi:
+            self.rpm_hi = rpm
 
 
 @dataclass(frozen=True)
@@ -318,15 +324,23 @@ def build_estimate(
     tolerances; the rest is reported as given."""
     n = len(names)
     obs = sol.observable
-    cov_rand = sol.cov.copy()
     factor = max(1.0, sol.rss / sol.dof) if sol.dof > 0 else 1.0
-    block = np.ix_(obs, obs)
-    cov_rand[block] *= factor
-    cov_sys = np.zeros((n, n))
-    if np.any(obs):
-        inv = sol.cov[block]
-        dtheta = -inv @ acc.sens[obs]  # (n_obs, n_sys): d theta / d p
-        cov_sys[block] = (dtheta * sys_std**2) @ dtheta.T
+    if obs.all():
+        # every parameter observable (the common case): the products below on the
+        # arrays the blocks would copy, as they are (C order: the same bits)
+        cov_rand = sol.cov * factor
+        inv = np.ascontiguousarray(sol.cov)
+        dtheta = -inv @ np.ascontiguousarray(acc.sens)  # (n, n_sys): d theta / d p
+        cov_sys = (dtheta * sys_std**2) @ dtheta.T
+    else:
+        cov_rand = sol.cov.copy()
+        block = np.ix_(obs, obs)
+        cov_rand[block] *= factor
+        cov_sys = np.zeros((n, n))
+        if np.any(obs):
+            inv = sol.cov[block]
+            dtheta = -inv @ acc.sens[obs]  # (n_obs, n_sys): d theta / d p
+            cov_sys[block] = (dtheta * sys_std**2) @ dtheta.T
     return Estimate(
         names=names,
         theta=sol.theta,

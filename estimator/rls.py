@@ -128,8 +128,15 @@ def rls_solve(
         inv, observable, kept = _anchored_inverse(info, np.asarray(anchored, int), rcond)
     else:
         evals, evecs, keep, observable, _ = rank_decision(info, rcond)
-        inv = (evecs[:, keep] / evals[keep]) @ evecs[:, keep].T
-        kept = int(np.count_nonzero(keep))
+        if n and keep[0]:
+            # every direction kept (evals ascend; the common case once the sweep is in):
+            # the arrays ``evecs[:, keep]`` would copy, as they are (C order, the same bits)
+            e = np.ascontiguousarray(evecs)
+            inv = (e / evals) @ e.T
+            kept = n
+        else:
+            inv = (evecs[:, keep] / evals[keep]) @ evecs[:, keep].T
+            kept = int(np.count_nonzero(keep))
     theta_s = inv @ vec
     theta = theta_s * s
     cov = inv * ss
@@ -137,7 +144,7 @@ def rls_solve(
         eye = np.eye(n, dtype=bool)
         cov[~observable, :] = np.where(eye[~observable, :], np.inf, 0.0)
         cov[:, ~observable] = np.where(eye[:, ~observable], np.inf, 0.0)
-    theta = np.where(observable, theta, 0.0)
+        theta = np.where(observable, theta, 0.0)
     rss = max(state.yty - float(vec @ theta_s), 0.0)
     dof = max(state.rows - kept, 1.0)
     return RlsSolution(theta=theta, cov=cov, observable=observable, rss=rss, dof=dof)
@@ -152,6 +159,9 @@ def rank_decision(
     evals, evecs = np.linalg.eigh(info)
     top = float(evals[-1]) if len(evals) and evals[-1] > 0 else 0.0
     keep = evals > rcond * top if top > 0 else np.zeros(len(evals), dtype=bool)
+    if len(keep) and keep[0]:
+        # every direction kept (evals ascend): no parameter has weight on a discarded one
+        return evals, evecs, keep, np.ones(len(keep), dtype=bool), top
     # A parameter is observable when it has no weight on a discarded direction.
     observable = np.sum(evecs[:, ~keep] ** 2, axis=1) < 1e-6
     return evals, evecs, keep, observable, top

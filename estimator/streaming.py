@@ -134,12 +134,14 @@ class InertiaEstimator:
         outcomes: list[FrameOutcome | None] = [None] * len(frames)
         elastic_before = self.elastic
         gated: list[int] = []
+        gates = self.setup.gates
+        independent = gates.independent_frames
         for i, frame in enumerate(frames):
-            if self.setup.gates.independent_frames and overlaps_previous(frame):
+            if independent and overlaps_previous(frame):
                 self.stats.skipped += 1
                 outcomes[i] = FrameOutcome(frame.time_s, frame.rpm, (), {}, "overlapping", {})
                 continue
-            if (reason := frame_gate(frame, self.setup.gates)) is None:
+            if (reason := frame_gate(frame, gates)) is None:
                 gated.append(i)
             else:
                 outcomes[i] = self._reject(frame, reason)
@@ -172,17 +174,22 @@ class InertiaEstimator:
         history = self.gates.motion_history.copy()
         r = fit_run(self.setup, self.gates, fit, frames, run)
         order_list = r.order_list
-        generation = self.channels.generation
+        channels = self.channels
+        generation = channels.generation
+        # (per run, not per frame: the bound methods and what every frame reads)
+        release, judge = channels.channel_noise.release, self.gates.judge
+        gas_known, gas = self.setup.gas_moment is not None, r.gas
         for j, i in enumerate(r.index):
             if j:
-                self.channels.again(fit)  # counts how long a sensor has been missing
-            self.channels.channel_noise.release(run[j].estimates)  # weights: frames so far
-            if self.setup.gas_moment is not None and r.gas[j] is None:
-                outcomes[i] = self._reject(frames[i], "no_pressure")
+                channels.again(fit)  # counts how long a sensor has been missing
+            release(run[j].estimates)  # weights: frames so far
+            frame = frames[i]
+            if gas_known and gas[j] is None:
+                outcomes[i] = self._reject(frame, "no_pressure")
                 continue
-            judged = self.gates.judge(frames[i].rpm, order_list, *r.gate_inputs(j))
-            outcomes[i] = self._use(frames[i], fit, r, j, judged)
-            if self.channels.generation != generation and j + 1 < len(run):
+            judged = judge(frame.rpm, order_list, *r.gate_inputs(j))
+            outcomes[i] = self._use(frame, fit, r, j, judged)
+            if channels.generation != generation and j + 1 < len(run):
                 # the next frames are fitted with the new weights: the curvature
                 # history must hold this run's motions only up to here
                 self.gates.motion_history = history
@@ -202,8 +209,8 @@ class InertiaEstimator:
         """Queue the usable orders of frame ``j`` of a fitted run (``judged``: the order
         gates' verdict, :meth:`OrderGates.judge`), and relinearise when due."""
         rejected, residuals, ks = judged
-        for why in rejected.values():
-            self.stats.orders_rejected[why] += 1
+        if rejected:
+            self.stats.orders_rejected.update(rejected.values())
         if not ks:
             counts = Counter(rejected.values())
             return self._reject(frame, counts.most_common(1)[0][0] if counts else "no_orders")
@@ -249,25 +256,25 @@ class InertiaEstimator:
         """:meth:`_flush` for the frames whose motion is fully measured."""
         stack = FrameStack(batch)  # (the frames' arrays concatenated once for every call)
         half = stack.cat("half")
-        flip = np.where(half, -1.0, 1.0)
-        everything = np.ones(len(half), dtype=bool)
         dm = self.rows.sensitivity(stack)
+        # (sign None: the motions as measured; sel None: every pair)
         if self.decided_sign is not None:
-            sign = flip if self.decided_sign < 0 else np.ones(len(half))
-            hyp = {self.decided_sign: self.rows.rows(stack, sign, everything, dm, self.lin)}
+            sign = np.where(half, -1.0, 1.0) if self.decided_sign < 0 else None
+            hyp = {self.decided_sign: self.rows.rows(stack, sign, None, dm, self.lin)}
         elif self.stats.ambiguous_frames == 0:
             # No frame without a 720 deg reference yet: both hypotheses are the same
             # sums; keep one, and copy it when the first ambiguous frame arrives.
-            hyp = {1: self.rows.rows(stack, np.ones(len(half)), everything, dm, self.lin)}
+            hyp = {1: self.rows.rows(stack, None, None, dm, self.lin)}
             self._hypotheses_equal = True
         else:
             if self._hypotheses_equal:
                 self.acc[-1] = Accumulator(state=self.acc[1].state, sens=self.acc[1].sens)
                 self.misfit.copy_sign(1, -1)
                 self._hypotheses_equal = False
-            H, y, dr = self.rows.rows(stack, np.ones(len(half)), everything, dm, self.lin)
+            H, y, dr = self.rows.rows(stack, None, None, dm, self.lin)
             hyp = {1: (H, y, dr), -1: (H, y, dr)}
             if np.any(half):
+                flip = np.where(half, -1.0, 1.0)
                 Hf, yf, drf = H.copy(), y.copy(), dr.copy()
                 Hf[half], yf[half], drf[half] = self.rows.rows(stack, flip, half, dm, self.lin)
                 hyp[-1] = (Hf, yf, drf)

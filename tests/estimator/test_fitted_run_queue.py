@@ -3,10 +3,14 @@ masks and power sums it makes once per run are each frame's own."""
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 import pytest
 
 from estimator.fitted_runs import FittedRun
+from estimator.pending_rows import FrameQueue
+from estimator.setup import EstimatorSetup
 
 
 def _run(orders: list[float], n: int, seed: int) -> FittedRun:
@@ -37,3 +41,29 @@ def test_each_frame_gets_its_own_half_orders_and_power_sum(orders: list[float]) 
     assert half.any() and not half.all()
     with pytest.raises(ValueError):
         half[0] = not half[0]
+
+
+def test_queued_noise_variance_is_the_smoothed_one_floored_as_np_maximum_floors_it() -> None:
+    """FrameQueue._noise_var floors the smoothed variance by the dsp's in plain floats:
+    np.maximum's values, NaN wherever either side is NaN."""
+    queue = FrameQueue(cast(EstimatorSetup, None), [])
+    orders = np.array([1.0, 1.5, 2.0, 3.0])
+    rng = np.random.default_rng(4)
+    for frame in range(6):
+        raw = rng.lognormal(size=4) * 1e-6
+        dsp = rng.lognormal(size=4) * 1e-6
+        dsp[frame % 4] = raw[frame % 4] = 3e-7  # (a tie)
+        if frame == 4:
+            dsp[1] = np.nan
+        if frame == 5:
+            raw[3] = np.nan  # (a NaN smoothed variance)
+        ks = [0, 1, 3] if frame % 2 else [0, 1, 2, 3]
+        before = dict(queue.noise_var)
+        got = queue._noise_var(raw, ks, orders, 1e-12, dsp)
+        smoothed = [
+            0.8 * before[h] + 0.2 * raw[k] if h in before else raw[k]
+            for k, h in zip(ks, orders[ks].tolist(), strict=True)
+        ]
+        want = np.maximum(np.maximum(smoothed, 1e-12), dsp[ks])
+        assert np.array_equal(np.array(got), want, equal_nan=True)
+        assert np.isnan(got[1]) == (frame == 4) and np.isnan(got[-1]) == (frame == 5)

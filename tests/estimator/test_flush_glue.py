@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ from support.estimator_harness import Body, frames, make_setup
 
 from estimator import compiled_rows, row_kernels
 from estimator.equations import Linearisation
-from estimator.frame_stack import FrameStack
+from estimator.frame_stack import FrameStack, PendingFrame
 from estimator.misfit import MisfitSample
 from estimator.pending_rows import RowAssembler
 from estimator.setup import ModelInput
@@ -61,6 +62,12 @@ def test_stacked_frames_give_the_rows_of_the_frame_list(compiled: bool) -> None:
             got = est.rows.rows(stack, sign, sel, dm, est.lin)
             for g, w in zip(got, want, strict=True):
                 assert np.array_equal(g, w)
+    # every pair (sel None) and the motions as measured (sign None): the bits of
+    # selecting every pair and multiplying by +1
+    want = est.rows.rows(stack, np.ones(n_p), np.ones(n_p, bool), dm, est.lin)
+    got = est.rows.rows(stack, None, None, dm, est.lin)
+    for g, w in zip(got, want, strict=True):
+        assert np.array_equal(g, w)
 
 
 def test_sensitivity_of_a_batch_fitted_with_fits_of_other_widths() -> None:
@@ -82,18 +89,23 @@ def test_sensitivity_of_a_batch_fitted_with_fits_of_other_widths() -> None:
         for ch in ([0, 2, 4], [0, 1, 2, 3, 5])
     ]
 
-    def frame(fit: SimpleNamespace, k: int) -> SimpleNamespace:
+    def frame(fit: SimpleNamespace, k: int) -> PendingFrame:
         c = lambda *s: rng.normal(size=s) + 1j * rng.normal(size=s)  # noqa: E731
         u = len(fit.channels)
-        return SimpleNamespace(
-            fit=fit, orders=np.ones(k), gamma_o=c(k, 3), omega_dot=c(k, 3), amplitudes=c(k, u)
+        # (a queued frame with only what the sensitivity reads)
+        unread: dict[str, Any] = dict.fromkeys(PendingFrame._fields)
+        return PendingFrame(
+            **unread
+            | dict(
+                fit=fit, orders=np.ones(k), gamma_o=c(k, 3), omega_dot=c(k, 3), amplitudes=c(k, u)
+            )
         )
 
     batch = [frame(fits[i], k) for i, k in ((0, 3), (0, 2), (1, 3), (1, 1), (0, 3))]
     rows = RowAssembler(setup, None, [], [])  # type: ignore[arg-type]
     for compiled in (False, True) if row_kernels.AVAILABLE else (False,):
         rows.compiled = compiled
-        got = rows.sensitivity(FrameStack(batch))  # type: ignore[arg-type]
+        got = rows.sensitivity(FrameStack(batch))
         want = np.concatenate(
             [
                 motion_sensitivity(
