@@ -70,6 +70,7 @@ blocks beyond the pieces themselves (replay = live).
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import math
 import os
@@ -88,7 +89,7 @@ from dsp.sum_rows import (
     row_size,
     window_rows,
 )
-from dsp.sum_sets import POWER_STRIDE, Segments, SumSet, base_parts
+from dsp.sum_sets import POWER_STRIDE, Cut, SumSet
 
 # numba is optional and imported on first use only: its import and the cached machine
 # code cost about 0.5 s of CPU per process, more than the kernel saves on a short run
@@ -241,21 +242,13 @@ def _cubic_values(
 
 
 def compiled_rows(
-    sets: Sequence[SumSet],
-    seg: Segments,
-    phi: np.ndarray,
-    q: np.ndarray,
-    delta: np.ndarray,
-    first_index: int,
-    frames_per_rev: int,
+    sets: Sequence[SumSet], cut: Cut, first_index: int, frames_per_rev: int
 ) -> list[np.ndarray]:
     """Every set's rows (seg, :func:`dsp.sum_rows.row_size`), packed by :func:`piece_sums`."""
-    base_re, base_im = base_parts(delta)
+    seg = cut.seg
+    phi, q, base_re, base_im = cut.phi, cut.q, cut.base_re, cut.base_im
     c_lo = seg.c - seg.half
-    period = 2 * frames_per_rev
-    # the rotations exp(-i h c_m) as dsp.sums computes them, one per integer turn
-    turn = np.exp(-2j * np.pi * np.arange(period) / period)
-    turn_re, turn_im = turn.real.copy(), turn.imag.copy()
+    turn_re, turn_im = _turns(2 * frames_per_rev)
     out = []
     for st in sets:
         w = np.zeros((seg.mu.size, row_size(st.x[0].shape[0], st.k2.size)))
@@ -273,6 +266,14 @@ def compiled_rows(
             i += count
         out.append(w)
     return out
+
+
+@functools.cache
+def _turns(period: int) -> tuple[np.ndarray, np.ndarray]:
+    """The rotations ``exp(-i h c_m)`` as :mod:`dsp.sums` computes them, one per integer
+    turn of ``period``: real and imaginary parts (period,), never modified."""
+    turn = np.exp(-2j * np.pi * np.arange(period) / period)
+    return turn.real.copy(), turn.imag.copy()
 
 
 def _cubic_times(

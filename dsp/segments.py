@@ -16,6 +16,7 @@ import numpy as np
 
 from acquisition.stream import SourceEvent
 from dsp import angle as ang
+from dsp import kernels
 from dsp.config import GroupPlan
 from dsp.gap_fit import fill_holes
 from dsp.immutable import evolve
@@ -28,14 +29,19 @@ from dsp.state import (
     last_complete_frame,
     set_group,
 )
-from dsp.sum_sets import SumSet
-from dsp.sums import add_sample_sets
+from dsp.sum_sets import Cut, SumSet
+from dsp.sums import add_sample_sets, cut_samples
 
 CHUNK = 16384
 
 
-# (t0_s, rate_hz, spans) -> (indices, times, ok, phi, omega, run), spans as (first index, count)
-Angles = dict[tuple[float, float, tuple[tuple[int, int], ...]], tuple[np.ndarray, ...]]
+# (t0_s, rate_hz, spans) -> (indices, times, ok, phi, omega, run), spans as (first index, count),
+# and the cuts of those samples (dsp.sums.cut_samples) by (first, end) sample: what groups on
+# one sample clock share in a step
+Shared = dict[tuple[int, int], Cut]
+Angles = dict[
+    tuple[float, float, tuple[tuple[int, int], ...]], tuple[tuple[np.ndarray, ...], Shared]
+]
 
 
 def process_groups(st: TrackerState, events: list[SourceEvent]) -> TrackerState:
@@ -92,8 +98,8 @@ def process_group(
     # The tacho stops a few teeth short of a block's end, so a step usually finds the
     # previous block's last samples and the new block: one pass over both, not two.
     for batch in _batches(spans):
-        looked = _look_up(st, g, batch, angles)
-        st, gs = accumulate(st, gi, gs, looked, [rows for _, rows in batch], events)
+        looked, shared = _look_up(st, g, batch, angles)
+        st, gs = accumulate(st, gi, gs, looked, [rows for _, rows in batch], events, shared)
     if dropped is not None:
         if not gs.starved:
             events.append(
@@ -156,20 +162,21 @@ def _batches(spans: list[tuple[int, np.ndarray]]) -> list[list[tuple[int, np.nda
 
 def _look_up(
     st: TrackerState, g: GroupPlan, batch: list[tuple[int, np.ndarray]], angles: Angles
-) -> tuple[np.ndarray, ...]:
-    """Grid indices, times and :func:`dsp.angle.lookup` of the samples of ``batch``."""
+) -> tuple[tuple[np.ndarray, ...], Shared]:
+    """Grid indices, times and :func:`dsp.angle.lookup` of the samples of ``batch``, and
+    their cuts so far."""
     spans = tuple((first, r.shape[1]) for first, r in batch)
     key = (g.t0_s, g.rate_hz, spans)
-    looked = angles.get(key)
-    if looked is None:
+    found = angles.get(key)
+    if found is None:
         (first, _), (last, count) = spans[0], spans[-1]
         if last + count - first == sum(n for _, n in spans):  # no sample missing in between
             idx = np.arange(first, last + count, dtype=np.int64)
         else:
             idx = np.concatenate([np.arange(f, f + n, dtype=np.int64) for f, n in spans])
         t = g.t0_s + idx / g.rate_hz
-        looked = angles[key] = (idx, t, *ang.lookup(st.table, t))
-    return looked
+        found = angles[key] = ((idx, t, *ang.lookup(st.table, t)), {})
+    return found
 
 
 def _count_before(first: int, n: int, t0: float, rate: float, t_lim: float) -> int:
@@ -192,12 +199,15 @@ def accumulate(
     looked: tuple[np.ndarray, ...],
     pieces: list[np.ndarray],
     events: list[SourceEvent],
+    shared: Shared | None = None,
 ) -> tuple[TrackerState, GroupState]:
     """Add samples to group ``gi``'s sums.
 
     ``looked`` = (grid indices, times, ok, phi, omega, run) of the samples, which come
     in ``pieces`` (kept rows, (n_keep, n_i)), the blocks they arrived in: the sums are
     split where pieces meet, so they round exactly as they would block by block.
+    ``shared``: the cuts of these samples (:func:`dsp.sums.cut_samples`) that other
+    groups on the same samples made in this step, and where this one leaves its own.
     """
     g = st.plan.groups[gi]
     cfg = st.plan.config
@@ -210,13 +220,14 @@ def accumulate(
             for p in pieces:
                 p1 = p0 + p.shape[1]
                 one = tuple(v[p0:p1] for v in looked)
-                st, gs = accumulate(st, gi, gs, one, [p], events)
+                st, gs = accumulate(st, gi, gs, one, [p], events)  # no cut shared
                 p0 = p1
             return st, gs
         sel = np.flatnonzero(ok)
         if sel.size == 0:
             return st, gs
         pieces = [pieces[0][:, sel]]
+        shared = None  # other samples than the looked-up ones
         idx, t = idx[sel], t[sel]
         phi, omega, run = phi[sel], omega[sel], run[sel]
     # breaks against the previous sample with an angle: a sample gap or a new wheel run
@@ -280,7 +291,8 @@ def accumulate(
                 assert sk2 is not None
                 sets.append(SumSet(spec, [p[at : at + 1] for p in x], sk2, tracked=False))
             args = (phi[c0:c1], omega[c0:c1], int(idx[c0]), g.rate_hz, cfg.frames_per_rev)
-            sums = add_sample_sets(sets, *args, cfg.taper_deg)
+            cut = _cut(shared, c0, c1, [xi.shape[1] for xi in x], *args, cfg.taper_deg)
+            sums = add_sample_sets(sets, *args, cfg.taper_deg, cut=cut)
             if n_track:
                 # missing samples (a lost CAN frame) are filled from the previous engine
                 # cycle, or summed as zeros and solved for (dsp.gap_fit), and remembered.
@@ -293,7 +305,7 @@ def accumulate(
                 gs = evolve(gs, holes=holes, recent=recent)
                 if tracked is not raw:
                     sets[0] = SumSet(acc, tracked, st.plan.k2, cfg.clip_level)
-                    sums = add_sample_sets(sets, *args, cfg.taper_deg)
+                    sums = add_sample_sets(sets, *args, cfg.taper_deg, cut=cut)
             if n_track:
                 acc = sums[0]
             if at is not None:
@@ -309,6 +321,29 @@ def accumulate(
         spec=spec,
     )
     return st, gs
+
+
+def _cut(
+    shared: Shared | None,
+    c0: int,
+    c1: int,
+    sizes: list[int],
+    phi: np.ndarray,
+    omega: np.ndarray,
+    first_index: int,
+    rate_hz: float,
+    frames_per_rev: int,
+    taper_deg: float,
+) -> Cut:
+    """:func:`dsp.sums.cut_samples` of samples ``c0 .. c1 - 1`` (in pieces of ``sizes``),
+    made once for every group on them (the samples and the cut where pieces meet are the
+    same: the pieces are the spans of the lookup)."""
+    cut = None if shared is None else shared.get((c0, c1))
+    if cut is None:
+        cut = cut_samples(phi, omega, sizes, rate_hz, frames_per_rev, taper_deg, kernels.USE)
+        if shared is not None:
+            shared[(c0, c1)] = cut
+    return cut
 
 
 def _finite(rows: dict[int, np.ndarray]) -> bool:

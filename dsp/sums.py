@@ -27,7 +27,7 @@ import numpy as np
 
 from dsp import kernels
 from dsp.sum_rows import Row, row_size, unpack
-from dsp.sum_sets import Segments, SetSums, SumSet, numpy_sums
+from dsp.sum_sets import Cut, Segments, SetSums, SumSet, base_parts, numpy_sums, zones
 
 
 def add_samples(
@@ -79,6 +79,7 @@ def add_sample_sets(
     frames_per_rev: int,
     taper_deg: float,
     compiled: bool | None = None,
+    cut: Cut | None = None,
 ) -> list[dict[int, Row]]:
     """:func:`add_samples` for several sets of channels and orders on the same samples.
 
@@ -87,12 +88,47 @@ def add_sample_sets(
     its own, bit for bit (its carriers and zone weights laid out as in that call).
     ``compiled``: the carriers and sums by :func:`dsp.kernels.piece_sums` (one pass,
     the orders of each set only; within 1e-12 of this numpy reference, see there);
-    None: :data:`dsp.kernels.USE`.
+    None: :data:`dsp.kernels.USE`. ``cut``: :func:`cut_samples` of these arguments, made
+    beforehand (calls on the same samples share it), or None.
     """
     compiled = kernels.USE if compiled is None else compiled
+    if cut is None:
+        sizes = [xi.shape[1] for xi in sets[0].x]
+        cut = cut_samples(phi, omega, sizes, rate_hz, frames_per_rev, taper_deg, compiled)
+    mu = cut.seg.mu
+    if compiled:
+        rows = kernels.compiled_rows(sets, cut, first_index, frames_per_rev)
+    else:
+        sums, wa, wd = numpy_sums(sets, cut, first_index)
+        rows = [
+            _packed(st.k2, mu, set_sums, wa, wd, 2 * frames_per_rev)
+            for st, set_sums in zip(sets, sums, strict=True)
+        ]
+    outs = []
+    for st, w in zip(sets, rows, strict=True):
+        out = dict(st.rows)
+        for mm, row in zip(mu.tolist(), w, strict=True):
+            out[mm] = out[mm] + row if mm in out else row
+        outs.append(out)
+    return outs
+
+
+def cut_samples(
+    phi: np.ndarray,
+    omega: np.ndarray,
+    sizes: Sequence[int],
+    rate_hz: float,
+    frames_per_rev: int,
+    taper_deg: float,
+    compiled: bool,
+) -> Cut:
+    """What every set's sums on these samples share (:class:`dsp.sum_sets.Cut`): the
+    segments of pieces of ``sizes`` samples, ``q``, the angles from the frame angles and
+    the carriers' base (and on the numpy path the zones). Arguments as
+    :func:`add_sample_sets`'s."""
     spacing = 2.0 * math.pi / frames_per_rev
     half = 0.5 * math.radians(taper_deg)
-    cuts = np.cumsum([0] + [xi.shape[1] for xi in sets[0].x]).tolist()  # where each piece begins
+    cuts = np.cumsum([0, *sizes]).tolist()  # where each piece begins
     # each piece cut into segments as a call of its own would: a segment split between
     # two pieces appears twice, and its parts are added in order at the end
     if compiled:
@@ -114,21 +150,8 @@ def add_sample_sets(
         delta = phi - np.repeat(c, ends - starts)
     q = omega * (1.0 / rate_hz)
     seg = Segments(mu, starts, ends, zone_end, cuts, per_piece, c, half)
-    if compiled:
-        rows = kernels.compiled_rows(sets, seg, phi, q, delta, first_index, frames_per_rev)
-    else:
-        sums, wa, wd = numpy_sums(sets, seg, phi, q, delta, first_index)
-        rows = [
-            _packed(st.k2, mu, set_sums, wa, wd, 2 * frames_per_rev)
-            for st, set_sums in zip(sets, sums, strict=True)
-        ]
-    outs = []
-    for st, w in zip(sets, rows, strict=True):
-        out = dict(st.rows)
-        for mm, row in zip(mu.tolist(), w, strict=True):
-            out[mm] = out[mm] + row if mm in out else row
-        outs.append(out)
-    return outs
+    base_re, base_im = base_parts(delta)
+    return Cut(seg, phi, q, delta, base_re, base_im, None if compiled else zones(seg, phi, q))
 
 
 def _packed(
