@@ -30,7 +30,7 @@ from dsp.state import (
     set_group,
 )
 from dsp.sum_sets import Cut, SumSet
-from dsp.sums import add_sample_sets, cut_samples
+from dsp.sums import cut_samples, merge_rows, packed_rows
 
 CHUNK = 16384
 
@@ -267,7 +267,7 @@ def accumulate(
             for a, b in ((p0, min(p1, skip_a)), (max(p0, skip_b), p1)):
                 if b > a:
                     gs = add_pressure(gs, phi[a:b], p[g.pressure_at, a - p0 : b - p0], steps)
-    acc, spec = gs.acc, gs.spec
+    acc, spec, holes, recent = gs.acc, gs.spec, gs.holes, gs.recent
     n_track = len(g.track_rows)
     at = g.spectrum_at
     if n_track or at is not None:
@@ -292,20 +292,21 @@ def accumulate(
                 sets.append(SumSet(spec, [p[at : at + 1] for p in x], sk2, tracked=False))
             args = (phi[c0:c1], omega[c0:c1], int(idx[c0]), g.rate_hz, cfg.frames_per_rev)
             cut = _cut(shared, c0, c1, [xi.shape[1] for xi in x], *args, cfg.taper_deg)
-            sums = add_sample_sets(sets, *args, cfg.taper_deg, cut=cut)
+            packed = packed_rows(sets, cut, int(idx[c0]), cfg.frames_per_rev, kernels.USE)
             if n_track:
                 # missing samples (a lost CAN frame) are filled from the previous engine
                 # cycle, or summed as zeros and solved for (dsp.gap_fit), and remembered.
                 # A non-finite sample makes its segment's sums non-finite: finite sums
-                # spare the pass over the samples, and a hole costs the sums twice
+                # (of these samples: earlier rows were checked when they came) spare the
+                # pass over the samples, and a hole costs the sums twice
                 tracked, holes, recent = fill_holes(
-                    raw, phi[c0:c1], omega[c0:c1] / g.rate_hz, gs.holes, gs.recent,
-                    known_finite=_finite(sums[0]),
+                    raw, phi[c0:c1], omega[c0:c1] / g.rate_hz, holes, recent,
+                    known_finite=bool(np.isfinite(packed[0]).all()),
                 )  # fmt: skip
-                gs = evolve(gs, holes=holes, recent=recent)
                 if tracked is not raw:
                     sets[0] = SumSet(acc, tracked, st.plan.k2, cfg.clip_level)
-                    sums = add_sample_sets(sets, *args, cfg.taper_deg, cut=cut)
+                    packed = packed_rows(sets, cut, int(idx[c0]), cfg.frames_per_rev, kernels.USE)
+            sums = [merge_rows(s.rows, cut.seg.mu, w) for s, w in zip(sets, packed, strict=True)]
             if n_track:
                 acc = sums[0]
             if at is not None:
@@ -319,6 +320,8 @@ def accumulate(
         last_run=int(run[-1]),
         acc=acc,
         spec=spec,
+        holes=holes,
+        recent=recent,
     )
     return st, gs
 
@@ -344,8 +347,3 @@ def _cut(
         if shared is not None:
             shared[(c0, c1)] = cut
     return cut
-
-
-def _finite(rows: dict[int, np.ndarray]) -> bool:
-    """Whether every sum of every row is finite (a few dozen rows: microseconds)."""
-    return bool(np.isfinite(np.stack(list(rows.values()))).all()) if rows else True

@@ -95,22 +95,30 @@ def add_sample_sets(
     if cut is None:
         sizes = [xi.shape[1] for xi in sets[0].x]
         cut = cut_samples(phi, omega, sizes, rate_hz, frames_per_rev, taper_deg, compiled)
-    mu = cut.seg.mu
+    packed = packed_rows(sets, cut, first_index, frames_per_rev, compiled)
+    return [merge_rows(st.rows, cut.seg.mu, w) for st, w in zip(sets, packed, strict=True)]
+
+
+def packed_rows(
+    sets: Sequence[SumSet], cut: Cut, first_index: int, frames_per_rev: int, compiled: bool
+) -> list[np.ndarray]:
+    """Every set's sums of the segments of ``cut``, packed: (seg, row_size) per set, a
+    segment split between pieces once per piece (:func:`merge_rows` adds them)."""
     if compiled:
-        rows = kernels.compiled_rows(sets, cut, first_index, frames_per_rev)
-    else:
-        sums, wa, wd = numpy_sums(sets, cut, first_index)
-        rows = [
-            _packed(st.k2, mu, set_sums, wa, wd, 2 * frames_per_rev)
-            for st, set_sums in zip(sets, sums, strict=True)
-        ]
-    outs = []
-    for st, w in zip(sets, rows, strict=True):
-        out = dict(st.rows)
-        for mm, row in zip(mu.tolist(), w, strict=True):
-            out[mm] = out[mm] + row if mm in out else row
-        outs.append(out)
-    return outs
+        return kernels.compiled_rows(sets, cut, first_index, frames_per_rev)
+    sums, wa, wd = numpy_sums(sets, cut, first_index)
+    return [
+        _packed(st.k2, cut.seg.mu, set_sums, wa, wd, 2 * frames_per_rev)
+        for st, set_sums in zip(sets, sums, strict=True)
+    ]
+
+
+def merge_rows(rows: dict[int, Row], mu: np.ndarray, w: np.ndarray) -> dict[int, Row]:
+    """``rows`` (not modified) with the packed rows ``w`` of segments ``mu`` added, in order."""
+    out = dict(rows)
+    for mm, row in zip(mu.tolist(), w, strict=True):
+        out[mm] = out[mm] + row if mm in out else row
+    return out
 
 
 def cut_samples(
