@@ -65,7 +65,8 @@ def offset_rotation(s: np.ndarray, k2: np.ndarray, steps: int) -> np.ndarray:
     with the cycle, integer orders stay (no rounding in the complex exponential).
     """
     if steps == 1:
-        return (-1.0) ** (k2[None, :] * s[:, None])
+        # (-1.0) ** n, exactly: -1 for odd n (numpy's % is a floor modulo, so also below 0)
+        return np.where((k2[None, :] * s[:, None]) % 2 == 1, -1.0, 1.0)
     m = (k2[None, :] * s[:, None]) % (4 * steps)  # h delta = pi m / steps, period 4 pi h
     return np.exp(-1j * math.pi * m / steps)
 
