@@ -228,6 +228,26 @@ def lookup(
     return ok, phi, omega, run
 
 
+def lookup_grid(
+    table: AngleTable, t0_s: float, rate_hz: float, idx: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The times ``t0_s + k / rate_hz`` (s) of consecutive grid indices ``idx`` (n,) int64
+    and their :func:`lookup` (all before ``table.t_end``): ``t, ok, phi, omega, run`` (n,).
+    Compiled (:data:`dsp.kernels.USE`): one pass over samples and pieces together
+    (:func:`dsp.kernels.grid_values`), the same bits."""
+    if not kernels.USE:
+        t = t0_s + idx / rate_hz
+        return (t, *lookup(table, t))
+    n = idx.size
+    t, phi, omega = np.empty(n), np.empty(n), np.empty(n)
+    ok, run = np.empty(n, bool), np.empty(n, np.int64)
+    kernels.grid_values(
+        t0_s, rate_hz, int(idx[0]) if n else 0, table.t_lo, table.t_hi, table.phi_lo,
+        table.c1, table.c2, table.c3, table.run, t, ok, phi, omega, run,
+    )  # fmt: skip
+    return t, ok, phi, omega, run
+
+
 def time_at(table: AngleTable, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Time (s) and angular speed (rad/s) at which the crank reaches ``phi`` (rad).
 

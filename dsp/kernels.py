@@ -5,7 +5,8 @@ sends the tracker through numba instead, for: the segment sums (:func:`compiled_
 :mod:`dsp.fused_sums`, one vectorised pass per piece that makes the carriers of the
 orders of each set, sums them, and packs each segment's row), the cutting of the pieces
 into segments (:func:`segment_cuts`), the angle lookup of the samples
-(:func:`cubic_values`), the times of the frames' window ends (:func:`cubic_times`), the
+(:func:`cubic_values`, and of a block's consecutive samples with their times,
+:func:`grid_values`), the times of the frames' window ends (:func:`cubic_times`), the
 frames' window sums and amplitudes (:func:`window_sums`, :func:`group_amplitudes`), their
 speed and leakage figures (:func:`frame_figures`) and the
 leakage correction's ramps (:func:`ramp_slopes`, :mod:`dsp.ramp_slopes`). Every
@@ -81,6 +82,7 @@ import numpy as np
 
 from dsp.frame_figures import frame_figures as figures_loops
 from dsp.frames import RISE_GRID, RISE_SLOPE, RISE_TABLE
+from dsp.grid_values import grid_values as grid_loops
 from dsp.ramp_slopes import ramp_slopes as slopes_loops
 from dsp.sum_rows import (
     add_windows,
@@ -125,6 +127,11 @@ def segment_cuts(
 def cubic_values(*args: Any) -> None:
     """:func:`_cubic_values` compiled (on the first call, as :func:`piece_sums`)."""
     _jit(_cubic_values)(*args)
+
+
+def grid_values(*args: Any) -> None:
+    """:func:`dsp.grid_values.grid_values` compiled (on the first call, as :func:`piece_sums`)."""
+    _jit(grid_loops)(*args)
 
 
 def ramp_slopes(*args: Any) -> None:

@@ -172,10 +172,12 @@ def _look_up(
         (first, _), (last, count) = spans[0], spans[-1]
         if last + count - first == sum(n for _, n in spans):  # no sample missing in between
             idx = np.arange(first, last + count, dtype=np.int64)
+            looked = ang.lookup_grid(st.table, g.t0_s, g.rate_hz, idx)
         else:
             idx = np.concatenate([np.arange(f, f + n, dtype=np.int64) for f, n in spans])
-        t = g.t0_s + idx / g.rate_hz
-        found = angles[key] = ((idx, t, *ang.lookup(st.table, t)), {})
+            t = g.t0_s + idx / g.rate_hz
+            looked = (t, *ang.lookup(st.table, t))
+        found = angles[key] = ((idx, *looked), {})
     return found
 
 

@@ -287,3 +287,39 @@ def test_the_compiled_sums_name_their_helpers_hash():
         "a helper of dsp/fused_sums.py changed: set HELPERS_SHA256 there to "
         f"{digest.hexdigest()!r} so numba's cache is rebuilt"
     )
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_compiled_grid_lookup_gives_the_numpy_bits(seed, monkeypatch):
+    """dsp.angle.lookup_grid compiled (one pass over samples and pieces) gives the numpy
+    path's times, flags, angles, speeds and runs bit for bit: blocks before the first
+    knot, across the first, inside a run, across the stretch between two runs, at the end."""
+    rng = np.random.default_rng(300 + seed)
+    table = ang.AngleTable()
+    t0 = 0.013
+    for run in range(2):
+        rpm = rng.uniform(1000.0, 5000.0)
+        t = t0 + np.cumsum(rng.uniform(0.9, 1.1, 600) * 60.0 / rpm / 58)
+        phi = 100.0 * run + np.arange(t.size) * (2 * np.pi / 60)
+        table = ang.add_knots(table, t, phi, np.full(t.size, run, dtype=np.int64))
+        t0 = t[-1] + 0.01
+    rate, clock0 = 25_600.0, rng.uniform(-0.01, 0.01)
+    last = int((table.t_end - clock0) * rate) - 1  # the last index before the table's end
+    gap = int((table.t_lo[table.run == 1][0] - clock0) * rate)
+    blocks = [(0, 50), (10, 1), (0, 9000), (300, 1)]  # before the first knot, across it
+    blocks += [(first, int(rng.integers(1, 9000))) for first in (gap - 700, gap - 5, last - 8000)]
+    blocks += [(last - 900, 901), (last, 1)]  # up to the table's end
+    seen = set()
+    for first, n in blocks:
+        idx = np.arange(first, min(first + n, last + 1), dtype=np.int64)
+        monkeypatch.setattr(kernels, "USE", False)
+        want = ang.lookup_grid(table, clock0, rate, idx)
+        monkeypatch.setattr(kernels, "USE", True)
+        got = ang.lookup_grid(table, clock0, rate, idx)
+        for w, g in zip(want, got, strict=True):
+            assert g.dtype == w.dtype
+            np.testing.assert_array_equal(g, w)
+        seen.add((bool(want[1].all()), bool(want[1].any()), len(set(want[4][want[1]]))))
+    # every case met: none inside, some inside, all inside one run, both runs
+    assert {(False, False, 0), (False, True, 1), (True, True, 1)} <= seen
+    assert any(runs == 2 for _, _, runs in seen)
