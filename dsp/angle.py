@@ -129,7 +129,8 @@ def add_knots(table: AngleTable, t: np.ndarray, phi: np.ndarray, run: np.ndarray
     for a, b in itertools.pairwise(bounds):
         if b - a >= 4:
             st, sp = kt[a:b], kp[a:b]
-            c1, c2, c3 = cubic_pieces(st, sp)
+            pieces = kernels.cubic_pieces if kernels.USE else cubic_pieces  # the same bits
+            c1, c2, c3 = pieces(st, sp)
             # intervals j = 1 .. k-3 of the run: from knot j to knot j + 1
             parts.append((st[1:-2], st[2:-1], sp[1:-2], sp[2:-1], c1, c2, c3, kr[a + 1 : b - 2]))
     a = bounds[-2]

@@ -25,6 +25,8 @@ import math
 
 import numpy as np
 
+from dsp import kernels
+
 PRESSURE_HALF_WIDTH_RAD = math.radians(60.0)
 PRESSURE_RATIO = 1.5
 CAM_TOLERANCE_RAD = math.radians(90.0)
@@ -96,6 +98,8 @@ def pressure_sums(
     count : (c,) int64
     """
     step = 2.0 * math.pi / steps
+    if kernels.USE:  # two passes over the samples instead of a dozen array operations
+        return kernels.pressure_sums(phi_w, pressure, step, pressure_half_width(steps))
     k = np.rint(phi_w / step)  # whole numbers, as float
     near = np.abs(phi_w - step * k) < pressure_half_width(steps)
     near &= np.isfinite(pressure)

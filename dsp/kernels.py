@@ -76,7 +76,7 @@ import importlib.util
 import math
 import os
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, TypeVar, cast
 
 import numpy as np
 
@@ -99,7 +99,8 @@ AVAILABLE = importlib.util.find_spec("numba") is not None
 # PTINERTIA_NUMBA=1: the tracker uses the kernel (long runs, campaigns and studies); the
 # benchmarks and tests switch it per call
 USE = AVAILABLE and os.environ.get("PTINERTIA_NUMBA", "0") == "1"
-_compiled: dict[Callable[..., None], Callable[..., None]] = {}
+_compiled: dict[Callable[..., Any], Callable[..., Any]] = {}
+_Fn = TypeVar("_Fn", bound=Callable[..., Any])
 
 
 def piece_sums(*args: Any) -> None:
@@ -122,6 +123,71 @@ def segment_cuts(
         phi, cuts, spacing, half
     )
     return mu, starts, ends, zone_end, per_piece.tolist(), delta
+
+
+def cubic_pieces(t: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`dsp.angle.cubic_pieces` in one compiled pass (:func:`_cubic_pieces`)."""
+    c1, c2, c3 = np.empty(t.size - 3), np.empty(t.size - 3), np.empty(t.size - 3)
+    _jit(_cubic_pieces)(t, phi, c1, c2, c3)
+    return c1, c2, c3
+
+
+def _cubic_pieces(
+    t: np.ndarray, phi: np.ndarray, c1: np.ndarray, c2: np.ndarray, c3: np.ndarray
+) -> None:
+    """:func:`dsp.angle.cubic_pieces` knot by knot: its divided differences, the same
+    operations in the same order (no contraction), so the same bits. ``t``, ``phi`` (k,);
+    writes ``c1``, ``c2``, ``c3`` (k - 3,)."""
+    for j in range(c1.size):
+        t_j, p_j = t[j + 1], phi[j + 1]
+        z1 = t[j + 2] - t_j
+        z2 = t[j] - t_j
+        z3 = t[j + 3] - t_j
+        f01 = (phi[j + 2] - p_j) / z1
+        f02 = (phi[j] - p_j) / z2
+        f03 = (phi[j + 3] - p_j) / z3
+        f012 = (f02 - f01) / (z2 - z1)
+        f013 = (f03 - f01) / (z3 - z1)
+        f0123 = (f013 - f012) / (z3 - z2)
+        c3[j] = f0123
+        c2[j] = f012 - f0123 * (z1 + z2)
+        c1[j] = f01 - f012 * z1 + f0123 * z1 * z2
+
+
+def pressure_sums(
+    phi_w: np.ndarray, pressure: np.ndarray, step: float, half_width: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`dsp.cycle.pressure_sums` in two compiled passes over the samples
+    (:func:`_pressure_sums`); ``step`` and ``half_width`` (rad) as there."""
+    k_lo, total, count = _jit(_pressure_sums)(phi_w, pressure, step, half_width)
+    has = np.flatnonzero(count)
+    return has + k_lo, total[has], count[has]
+
+
+def _pressure_sums(
+    phi_w: np.ndarray, pressure: np.ndarray, step: float, half_width: float
+) -> tuple[int, np.ndarray, np.ndarray]:
+    """The lowest candidate ``k_lo`` and, from it on, the sum and count of the finite
+    pressure samples within ``half_width`` of their candidate ``rint(phi_w / step)``: the
+    numpy path's tests, each sample added in sample order (as ``np.bincount`` adds its
+    weights), so the same bits."""
+    found = False
+    k_lo = k_hi = 0
+    for i in range(phi_w.size):
+        k = np.rint(phi_w[i] / step)
+        if abs(phi_w[i] - step * k) < half_width and np.isfinite(pressure[i]):
+            kk = int(k)
+            k_lo = kk if not found or kk < k_lo else k_lo
+            k_hi = kk if not found or kk > k_hi else k_hi
+            found = True
+    total = np.zeros(k_hi - k_lo + 1 if found else 0)
+    count = np.zeros(total.size, np.int64)
+    for i in range(phi_w.size):
+        k = np.rint(phi_w[i] / step)
+        if abs(phi_w[i] - step * k) < half_width and np.isfinite(pressure[i]):
+            total[int(k) - k_lo] += pressure[i]
+            count[int(k) - k_lo] += 1
+    return k_lo, total, count
 
 
 def cubic_values(*args: Any) -> None:
@@ -208,14 +274,14 @@ def cubic_times(*args: Any) -> None:
     _jit(_cubic_times)(*args)
 
 
-def _jit(fn: Callable[..., None]) -> Callable[..., None]:
+def _jit(fn: _Fn) -> _Fn:
     """``fn`` compiled by numba, once per process."""
     compiled = _compiled.get(fn)
     if compiled is None:
         from numba import njit  # heavy (0.3 s): only where a kernel is used
 
         compiled = _compiled[fn] = njit(cache=True, nogil=True)(fn)
-    return compiled
+    return cast(_Fn, compiled)
 
 
 def _cubic_values(

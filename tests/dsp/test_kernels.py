@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from dsp import angle as ang
-from dsp import kernels
+from dsp import cycle, kernels
 from dsp.leakage import SLOPE_PERIODS, _slopes
 from dsp.ramp_slopes import ramp_slopes
 from dsp.sum_rows import unpack
@@ -323,3 +323,29 @@ def test_compiled_grid_lookup_gives_the_numpy_bits(seed, monkeypatch):
     # every case met: none inside, some inside, all inside one run, both runs
     assert {(False, False, 0), (False, True, 1), (True, True, 1)} <= seen
     assert any(runs == 2 for _, _, runs in seen)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_compiled_cubic_pieces_and_pressure_sums_give_the_numpy_bits(seed, monkeypatch):
+    """dsp.kernels.cubic_pieces and the compiled dsp.cycle.pressure_sums give the numpy
+    path's coefficients and candidate sums bit for bit (pressure with NaN samples, a
+    wheel's candidates and four pulses', a block that meets no candidate)."""
+    rng = np.random.default_rng(400 + seed)
+    t = np.cumsum(rng.uniform(0.9, 1.1, 500) * 1e-3)
+    phi = np.cumsum(rng.uniform(0.09, 0.11, 500))
+    want = ang.cubic_pieces(t, phi)
+    got = kernels.cubic_pieces(t, phi)
+    for w, g in zip(want, got, strict=True):
+        np.testing.assert_array_equal(g, w)
+    phi_w = 3.0 + np.cumsum(rng.uniform(0.001, 0.004, 20_000))  # some 9 revolutions
+    pressure = rng.uniform(-2.0, 50.0, phi_w.size)
+    pressure[rng.integers(0, phi_w.size, 40)] = np.nan
+    for steps, sl in ((1, slice(None)), (4, slice(None)), (1, slice(100, 200))):
+        monkeypatch.setattr(kernels, "USE", False)
+        want = cycle.pressure_sums(phi_w[sl], pressure[sl], steps)
+        monkeypatch.setattr(kernels, "USE", True)
+        got = cycle.pressure_sums(phi_w[sl], pressure[sl], steps)
+        assert want[0].size == 0 if sl.stop else want[0].size >= 8  # candidates met
+        for w, g in zip(want, got, strict=True):
+            assert g.dtype == w.dtype
+            np.testing.assert_array_equal(g, w)
