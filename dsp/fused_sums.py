@@ -205,7 +205,7 @@ def _sums1(x, c, s0, n, e, rp, r0, sums, top, clipping):
 # theirs change this file too (tests/dsp/test_kernels.py recomputes it and fails with
 # the new value), so a stale cache is never loaded.
 HELPERS = ("fused_segments.py", "spectrum_lanes.py", "vec8.py")
-HELPERS_SHA256 = "4447de1a2d13f4e4554d6ba77bfe0f017f3f09ba97cfa3935765e41a2052911a"
+HELPERS_SHA256 = "660480a5676d4244f8070e61c3f97819055ca21b3a178299b1e80e4a5cb421d3"
 
 # one signature, compiled (or loaded from numba's cache) when this module is imported, so
 # after the helpers above: the samples as any 2-d layout (blocks come channel-fastest,
@@ -214,21 +214,23 @@ HELPERS_SHA256 = "4447de1a2d13f4e4554d6ba77bfe0f017f3f09ba97cfa3935765e41a205291
 # np.frombuffer makes it: the numpy path takes it, so this one must)
 _F1, _I1 = nt.float64[::1], nt.int64[::1]
 _SAMPLES = nt.Array(nt.float64, 2, "A", readonly=True)
+_H1 = nt.float32[::1]
 _SIGNATURE = nt.void(
-    _SAMPLES, _F1, _F1, _F1, _F1, _F1, _I1, _I1, _I1, nt.float64, _I1, nt.boolean,
+    _SAMPLES, _F1, _F1, _H1, _H1, _F1, _I1, _I1, _I1, nt.float64, _I1, nt.boolean,
     nt.int64, nt.int64, nt.float64, _F1, _F1, _F1, _I1, _F1, _F1, nt.float64[:, ::1],
 )  # fmt: skip
 
 
 @njit(_SIGNATURE, cache=True, nogil=True)
 def piece_sums(
-    x, phi, q, base_re, base_im, c_lo, starts, ends, zone_end, taper_rad, k2, tracked,
+    x, phi, q, cos_half, sin_half, c_lo, starts, ends, zone_end, taper_rad, k2, tracked,
     power_from, power_stride, clip_level, grid, table, slope, mu, turn_re, turn_im, w,
 ):  # fmt: skip
     """Add the sums of the segments of one piece (one set of channels) to ``out``.
 
     ``x`` (n_ch, n) the piece's samples, ``phi`` (rad) and ``q = omega dt`` (rad) (n,);
-    ``base_re``, ``base_im`` (n,) the carriers' base ``exp(-i delta / 2)``; per segment
+    ``cos_half``, ``sin_half`` (n,) float32 the carriers' base ``exp(-i delta / 2)`` as
+    :func:`dsp.sum_sets.base_parts` makes it (``cos - i sin``, widened here); per segment
     (seg,): ``c_lo`` the start of its zone ``c_m - tau / 2`` (rad), ``starts``, ``ends``,
     ``zone_end`` sample indices within the piece. ``taper_rad`` the zone's width,
     ``k2`` (no,) ascending (0 the mean). ``tracked``: the zone weight multiplies the
@@ -282,8 +284,8 @@ def piece_sums(
         nz = zone_end[i] - s0
         total = 0.0
         for s in range(n):
-            pb_re[s] = base_re[s0 + s]
-            pb_im[s] = base_im[s0 + s]
+            pb_re[s] = np.float64(cos_half[s0 + s])  # exp(-i delta / 2), widened exactly
+            pb_im[s] = -np.float64(sin_half[s0 + s])
             pq[s] = q[s0 + s]
             total += q[s0 + s]
         for s in range(n, (n + 7) // 8 * 8):

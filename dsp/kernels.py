@@ -114,15 +114,16 @@ def piece_sums(*args: Any) -> None:
 
 def segment_cuts(
     phi: np.ndarray, cuts: np.ndarray, spacing: float, half: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int], np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int], np.ndarray, np.ndarray]:
     """:func:`dsp.fused_segments.segment_cuts`: the segments of each piece and the samples'
-    angles from their segment's frame angle, as :func:`dsp.sums.add_sample_sets` cuts them."""
+    angles from their segment's frame angle, as :func:`dsp.sums.add_sample_sets` cuts them,
+    and half of those angles in single precision (the carriers')."""
     from dsp import fused_segments  # imports numba: see piece_sums
 
-    mu, starts, ends, zone_end, per_piece, delta = fused_segments.segment_cuts(
+    mu, starts, ends, zone_end, per_piece, delta, half32 = fused_segments.segment_cuts(
         phi, cuts, spacing, half
     )
-    return mu, starts, ends, zone_end, per_piece.tolist(), delta
+    return mu, starts, ends, zone_end, per_piece.tolist(), delta, half32
 
 
 def cubic_pieces(t: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -319,7 +320,7 @@ def compiled_rows(
 ) -> list[np.ndarray]:
     """Every set's rows (seg, :func:`dsp.sum_rows.row_size`), packed by :func:`piece_sums`."""
     seg = cut.seg
-    phi, q, base_re, base_im = cut.phi, cut.q, cut.base_re, cut.base_im
+    phi, q, cos_half, sin_half = cut.phi, cut.q, cut.cos_half, cut.sin_half
     c_lo = seg.c - seg.half
     turn_re, turn_im = _turns(2 * frames_per_rev)
     out = []
@@ -331,7 +332,7 @@ def compiled_rows(
         for xp, p0, p1, count in pieces:
             s = slice(i, i + count)
             piece_sums(
-                xp, phi[p0:p1], q[p0:p1], base_re[p0:p1], base_im[p0:p1], c_lo[s],
+                xp, phi[p0:p1], q[p0:p1], cos_half[p0:p1], sin_half[p0:p1], c_lo[s],
                 seg.starts[s] - p0, seg.ends[s] - p0, seg.zone_end[s] - p0, 2.0 * seg.half,
                 st.k2, st.tracked, (-(first_index + p0)) % POWER_STRIDE, POWER_STRIDE, level,
                 RISE_GRID, RISE_TABLE, RISE_SLOPE, seg.mu[s], turn_re, turn_im, w[s],

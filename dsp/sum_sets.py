@@ -58,8 +58,9 @@ class Segments:
 class Cut:
     """What the sums of every set on the same samples share (:func:`dsp.sums.cut_samples`):
     the segments, ``phi`` (rad), ``q = omega dt`` (rad) and ``delta`` (rad, from the
-    sample's frame angle) (n,), the carriers' base ``exp(-i delta / 2)`` as its real and
-    imaginary parts (n,), and on the numpy path the zones' samples and weights
+    sample's frame angle) (n,), the cosine and sine of ``delta / 2`` in single precision
+    (n,) float32 (:func:`base_parts`: the carriers' base ``exp(-i delta / 2)`` is
+    ``cos_half - i sin_half``), and on the numpy path the zones' samples and weights
     (:func:`zones`). Groups on one sample clock get the same cut in a step: it is made
     once for all of them (:mod:`dsp.segments`)."""
 
@@ -67,8 +68,8 @@ class Cut:
     phi: np.ndarray
     q: np.ndarray
     delta: np.ndarray
-    base_re: np.ndarray
-    base_im: np.ndarray
+    cos_half: np.ndarray
+    sin_half: np.ndarray
     zones: Zones | None = None
 
 
@@ -110,7 +111,7 @@ def numpy_sums(
     mu, starts, ends = segs.mu, segs.starts, segs.ends
     cuts, per_piece = segs.cuts, segs.per_piece
     z_len, z_off, z, fall, wa, wd = cut.zones or zones(segs, cut.phi, cut.q)
-    carr = carriers(cut.base_re, cut.base_im, cut.q, [s.k2 for s in sets])
+    carr = carriers(cut.cos_half, cut.sin_half, cut.q, [s.k2 for s in sets])
     out: list[SetSums] = []
     for st, (e, re, im) in zip(sets, carr, strict=True):
         k2, x = st.k2, st.x
@@ -184,19 +185,24 @@ def _clipped(x: np.ndarray, starts: np.ndarray, ends: np.ndarray, level: float) 
 
 
 def base_parts(delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Real and imaginary part of ``exp(-i delta / 2)``, the base :func:`carriers` and the compiled kernel build on."""
-    half = (0.5 * delta).astype(np.float32)
-    base_re = np.cos(half).astype(np.float64)
-    base_im = np.sin(half).astype(np.float64)
-    np.negative(base_im, out=base_im)
-    return base_re, base_im
+    """``cos(delta / 2)`` and ``sin(delta / 2)`` in single precision (n,) float32: the base
+    ``exp(-i delta / 2) = cos - i sin`` that :func:`carriers` and the compiled kernel
+    build on (widened to double there, exactly). The compiled path makes ``delta / 2`` in
+    its segment pass (:func:`dsp.fused_segments.segment_cuts`, the same bits) and only
+    the cosine and sine here: numpy's SIMD ``cos``/``sin`` round as they always did."""
+    return half_parts((0.5 * delta).astype(np.float32))
+
+
+def half_parts(half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``cos(half)``, ``sin(half)`` of single-precision angles (rad): (n,) float32."""
+    return np.cos(half), np.sin(half)
 
 
 def carriers(
-    base_re: np.ndarray, base_im: np.ndarray, q: np.ndarray, k2s: Sequence[np.ndarray]
+    cos_half: np.ndarray, sin_half: np.ndarray, q: np.ndarray, k2s: Sequence[np.ndarray]
 ) -> list[tuple[np.ndarray, list[int], list[int]]]:
     """``q exp(-i k delta / 2)`` for every ``k`` in each ``k2`` of ``k2s``, from the base
-    ``exp(-i delta / 2)`` (:func:`base_parts`: its real and imaginary parts).
+    ``exp(-i delta / 2) = cos_half - i sin_half`` (:func:`base_parts`, float32).
 
     Returns, per ``k2``, ``(e, re, im)``: ``e`` (rows, n_samples) holds the real part of
     order ``k2[j]`` in row ``re[j]``, its imaginary part in row ``im[j]``. The first ``k2``
@@ -216,7 +222,7 @@ def carriers(
     """
     n = q.size
     base = np.empty(n, complex)
-    base.real, base.imag = base_re, base_im
+    base.real, base.imag = cos_half, np.negative(sin_half)  # widened exactly
     first = k2s[0].tolist()
     n0 = len(first)
     out: list[tuple[np.ndarray, list[int], list[int]]] = []

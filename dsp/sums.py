@@ -27,7 +27,16 @@ import numpy as np
 
 from dsp import kernels
 from dsp.sum_rows import Row, row_size, unpack
-from dsp.sum_sets import Cut, Segments, SetSums, SumSet, base_parts, numpy_sums, zones
+from dsp.sum_sets import (
+    Cut,
+    Segments,
+    SetSums,
+    SumSet,
+    base_parts,
+    half_parts,
+    numpy_sums,
+    zones,
+)
 
 
 def add_samples(
@@ -136,15 +145,16 @@ def cut_samples(
     :func:`add_sample_sets`'s."""
     spacing = 2.0 * math.pi / frames_per_rev
     half = 0.5 * math.radians(taper_deg)
-    cuts = np.cumsum([0, *sizes]).tolist()  # where each piece begins
+    cuts = list(itertools.accumulate(sizes, initial=0))  # where each piece begins
     # each piece cut into segments as a call of its own would: a segment split between
     # two pieces appears twice, and its parts are added in order at the end
     if compiled:
         # the same segments and angles from one compiled pass (dsp.kernels.segment_cuts)
-        mu, starts, ends, zone_end, per_piece, delta = kernels.segment_cuts(
+        mu, starts, ends, zone_end, per_piece, delta, half32 = kernels.segment_cuts(
             phi, np.array(cuts, dtype=np.int64), spacing, half
         )
         c = mu * spacing
+        cos_half, sin_half = half_parts(half32)
     else:
         parts = [_segments(phi, p0, p1, spacing, half) for p0, p1 in itertools.pairwise(cuts)]
         if len(parts) == 1:
@@ -156,10 +166,10 @@ def cut_samples(
         # carriers about each segment's own frame angle c_m (exact rotation applied below):
         # the same sample gets the same carrier whatever the block cut, and the angle stays small
         delta = phi - np.repeat(c, ends - starts)
+        cos_half, sin_half = base_parts(delta)
     q = omega * (1.0 / rate_hz)
     seg = Segments(mu, starts, ends, zone_end, cuts, per_piece, c, half)
-    base_re, base_im = base_parts(delta)
-    return Cut(seg, phi, q, delta, base_re, base_im, None if compiled else zones(seg, phi, q))
+    return Cut(seg, phi, q, delta, cos_half, sin_half, None if compiled else zones(seg, phi, q))
 
 
 def _packed(

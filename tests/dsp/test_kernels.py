@@ -210,7 +210,8 @@ def test_vector_transpose_puts_rows_in_columns():
 def test_compiled_segment_cuts_are_the_numpy_ones(fpr):
     """dsp.kernels.segment_cuts (the compiled path's segments) against dsp.sums._segments
     piece by piece and the numpy path's angles from the frame angle: the same integers and
-    the same bits, with segments split between pieces and pieces inside one segment."""
+    the same bits (and their halves in single precision), with segments split between
+    pieces and pieces inside one segment."""
     from dsp.sums import _segments
 
     phi, _, _, _ = _signal(fpr, 5000)
@@ -223,6 +224,8 @@ def test_compiled_segment_cuts_are_the_numpy_ones(fpr):
     assert got[4] == [part[0].size for part in parts]
     mu, starts, ends = got[0], got[1], got[2]
     np.testing.assert_array_equal(got[5], phi - np.repeat(mu * spacing, ends - starts))
+    assert got[6].dtype == np.float32  # the carriers' half angles, as dsp.sum_sets.base_parts
+    np.testing.assert_array_equal(got[6], (0.5 * got[5]).astype(np.float32))
     assert len(set(mu.tolist())) < mu.size  # a segment split between pieces
 
 
