@@ -92,6 +92,7 @@ from dsp.sum_rows import (
     window_rows,
 )
 from dsp.sum_sets import POWER_STRIDE, Cut, SumSet
+from dsp.wheel_intervals import interval_loops
 
 # numba is optional and imported on first use only: its import and the cached machine
 # code cost about 0.5 s of CPU per process, more than the kernel saves on a short run
@@ -199,6 +200,16 @@ def cubic_values(*args: Any) -> None:
 def grid_values(*args: Any) -> None:
     """:func:`dsp.grid_values.grid_values` compiled (on the first call, as :func:`piece_sums`)."""
     _jit(grid_loops)(*args)
+
+
+def wheel_intervals(
+    buf: np.ndarray, d: np.ndarray, c0: int, teeth: int, gap: int, r_prev: float, tol: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """:func:`dsp.wheel_intervals.wheel_intervals` in one compiled pass (the same bits)."""
+    c, n_rel = np.empty(buf.size, np.int64), np.empty(buf.size, np.int64)
+    r, prev, ratio = np.empty(d.size), np.empty(d.size), np.empty(d.size)
+    b = _jit(interval_loops)(buf, d, c0, teeth, gap, r_prev, tol, c, n_rel, r, prev, ratio)
+    return c, n_rel, r, prev, ratio, b
 
 
 def ramp_slopes(*args: Any) -> None:

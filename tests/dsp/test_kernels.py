@@ -380,3 +380,39 @@ def test_compiled_channel_sums_do_not_depend_on_the_channel_blocks():
         for c, got in enumerate(per_channel(x[lo:hi])):
             for have, want in zip(got, whole[lo + c], strict=True):
                 np.testing.assert_array_equal(have, want)
+
+
+def test_compiled_wheel_decoding_gives_the_numpy_knots_and_state(monkeypatch):
+    """dsp.wheel.decode_edges with its interval pass compiled (dsp.kernels.wheel_intervals)
+    gives the numpy path's knots, events and decoder state bit for bit, block after block,
+    over a sweep with a missed edge, an extra edge, a filled hole and a dropout."""
+    from dsp.synthetic import Ramp, SyntheticBench, random_content
+    from dsp.tacho import TachoConfig
+    from dsp.wheel import DecoderState, decode_edges
+
+    cfg = TachoConfig(tdc_after_gap_deg=84.0)
+    rng = np.random.default_rng(12)
+    bench = SyntheticBench(Ramp(1500.0, 3500.0, 4.0), [random_content(rng)], tdc_after_gap_deg=84.0)
+    times = bench.edge_times(4.0)
+    extra = times[2500] + 0.3 * (times[2501] - times[2500])
+    times = np.sort(np.append(np.delete(times, [1000, 4000, 4001]), extra))
+    times = np.concatenate((times[times < 3.0], times[times > 3.2]))  # a dropout
+    blocks = np.split(times, np.sort(rng.integers(0, times.size, 40)))
+
+    def decode(compiled):
+        monkeypatch.setattr(kernels, "USE", compiled)
+        state, out = DecoderState(), []
+        for block in blocks:
+            state, knots, events = decode_edges(state, block, cfg)
+            out.append((knots, [(e.kind, e.message) for e in events], state))
+        return out
+
+    want, got = decode(False), decode(True)
+    kinds = {kind for _, events, _ in want for kind, _ in events}
+    assert {"tacho_missing_edge", "tacho_extra_edge", "tacho_filled", "no_tacho"} <= kinds
+    for (wk, we, ws), (gk, ge, gs) in zip(want, got, strict=True):
+        assert ge == we and gk.runs == wk.runs
+        for name in ("t_s", "n", "run"):
+            np.testing.assert_array_equal(getattr(gk, name), getattr(wk, name))
+        for name, value in ws.__dict__.items():
+            np.testing.assert_array_equal(getattr(gs, name), value)
