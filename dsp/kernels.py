@@ -8,9 +8,11 @@ into segments (:func:`segment_cuts`), the angle lookup of the samples
 (:func:`cubic_values`, and of a block's consecutive samples with their times,
 :func:`grid_values`), the times of the frames' window ends (:func:`cubic_times`), the
 frames' window sums and amplitudes (:func:`window_sums`, :func:`group_amplitudes`), their
-speed and leakage figures (:func:`frame_figures`) and the
-leakage correction's ramps (:func:`ramp_slopes`, :mod:`dsp.ramp_slopes`). Every
-compiled function releases the GIL (``nogil=True``).
+speed and leakage figures (:func:`frame_figures`), the
+leakage correction's ramps (:func:`ramp_slopes`, :mod:`dsp.ramp_slopes`), the angle
+table's coefficients (:func:`cubic_pieces`), the pressure votes' candidate sums
+(:func:`pressure_sums`) and the wheel decoder's interval pass (:func:`wheel_intervals`).
+Every compiled function releases the GIL (``nogil=True``).
 
 Why numba, and why off by default. numba (well kept, NumPy's release cadence) over
 hand-written C: no build step, and ``cache=True`` keeps the machine code beside the
@@ -56,6 +58,21 @@ it (CPU, best of 5, before and after interleaved, load 3): the run's dsp stage c
 numpy unchanged (231-236x, 352-364x); ``PTINERTIA_NUMBA=1 ptinertia run --duration 5``
 1.07-1.22 s of CPU before, 1.10-1.11 after.
 
+Sixth pass (the per-block work around the kernels): the cut of a step's samples made
+once for both groups on one clock (:func:`dsp.sums.cut_samples`), a block's times and
+lookup in one pass (:func:`grid_values`), the table's coefficients, the candidate sums and
+the decoder's intervals compiled, the carriers' half angles made in the segment pass and
+their cosine and sine handed over in single precision, nine channels summed as blocks of
+four and five (not four, four and four again), fewer record copies
+(:func:`dsp.immutable.evolve`); all the numpy path's bits, the frames unchanged. The
+run's dsp stage (60 s log, 2997 frames; CPU best of 9, main and this pass interleaved,
+load 4-6) compiled 0.129-0.134 s -> 0.100-0.109 s a minute (callgrind, one pass:
+1.811 -> 1.550 G instructions); ``benchmarks/bench_order_tracking.py --quick`` (load 7)
+the issue's load compiled 614x -> 695x, numpy 320x -> 328x. The kernels are now some
+half of the compiled time: the sums 30 ms a minute, the rest about 15 ms.
+``PTINERTIA_NUMBA=1 ptinertia run --duration 5`` 1.46 -> 1.50 s of CPU (three more
+cached kernels to load); the default path 0.96 -> 0.95 s.
+
 What stays identical and what does not: the base ``exp(-i delta / 2)`` is made by numpy
 in single precision in both paths (its SIMD ``cos``/``sin`` round differently from
 libm's); segments, angles, taper weights, carriers, lookups and window times are the
@@ -80,9 +97,10 @@ from typing import Any, TypeVar, cast
 
 import numpy as np
 
+from dsp.angle_loops import cubic_pieces as pieces_loops
+from dsp.angle_loops import grid_values as grid_loops
 from dsp.frame_figures import frame_figures as figures_loops
 from dsp.frames import RISE_GRID, RISE_SLOPE, RISE_TABLE
-from dsp.grid_values import grid_values as grid_loops
 from dsp.ramp_slopes import ramp_slopes as slopes_loops
 from dsp.sum_rows import (
     add_windows,
@@ -128,32 +146,10 @@ def segment_cuts(
 
 
 def cubic_pieces(t: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`dsp.angle.cubic_pieces` in one compiled pass (:func:`_cubic_pieces`)."""
+    """:func:`dsp.angle.cubic_pieces` in one compiled pass (:func:`dsp.angle_loops.cubic_pieces`)."""
     c1, c2, c3 = np.empty(t.size - 3), np.empty(t.size - 3), np.empty(t.size - 3)
-    _jit(_cubic_pieces)(t, phi, c1, c2, c3)
+    _jit(pieces_loops)(t, phi, c1, c2, c3)
     return c1, c2, c3
-
-
-def _cubic_pieces(
-    t: np.ndarray, phi: np.ndarray, c1: np.ndarray, c2: np.ndarray, c3: np.ndarray
-) -> None:
-    """:func:`dsp.angle.cubic_pieces` knot by knot: its divided differences, the same
-    operations in the same order (no contraction), so the same bits. ``t``, ``phi`` (k,);
-    writes ``c1``, ``c2``, ``c3`` (k - 3,)."""
-    for j in range(c1.size):
-        t_j, p_j = t[j + 1], phi[j + 1]
-        z1 = t[j + 2] - t_j
-        z2 = t[j] - t_j
-        z3 = t[j + 3] - t_j
-        f01 = (phi[j + 2] - p_j) / z1
-        f02 = (phi[j] - p_j) / z2
-        f03 = (phi[j + 3] - p_j) / z3
-        f012 = (f02 - f01) / (z2 - z1)
-        f013 = (f03 - f01) / (z3 - z1)
-        f0123 = (f013 - f012) / (z3 - z2)
-        c3[j] = f0123
-        c2[j] = f012 - f0123 * (z1 + z2)
-        c1[j] = f01 - f012 * z1 + f0123 * z1 * z2
 
 
 def pressure_sums(
@@ -198,7 +194,7 @@ def cubic_values(*args: Any) -> None:
 
 
 def grid_values(*args: Any) -> None:
-    """:func:`dsp.grid_values.grid_values` compiled (on the first call, as :func:`piece_sums`)."""
+    """:func:`dsp.angle_loops.grid_values` compiled (on the first call, as :func:`piece_sums`)."""
     _jit(grid_loops)(*args)
 
 

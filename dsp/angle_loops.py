@@ -1,4 +1,5 @@
-"""The angle lookup of a block's consecutive samples in one pass, for numba.
+"""The angle table's per-step loops for numba: the lookup of a block's consecutive samples
+in one pass, and the table's cubic coefficients knot by knot.
 
 :func:`dsp.segments` looks up every sample of a step: their times ``t0 + k / rate``, then
 :func:`dsp.angle.lookup`, which places the table's pieces among the samples with a binary
@@ -13,6 +14,10 @@ to the last piece that starts at or before it (where the binary search puts it),
 the cubic is evaluated with :func:`dsp.kernels._cubic_values`'s operations, in its order
 (numba contracts no multiply-add without fastmath). Plain Python: the tests can run it
 uncompiled; the compiled path (:data:`dsp.kernels.USE`) runs it through numba.
+
+:func:`cubic_pieces` does :func:`dsp.angle.cubic_pieces`'s divided differences knot by knot
+(some 25 array operations a step in numpy), the same operations in the same order, so the
+same bits (:func:`dsp.kernels.cubic_pieces` compiles it).
 """
 
 from __future__ import annotations
@@ -80,3 +85,25 @@ def grid_values(
         else:
             ok[i] = ti < t_hi[p]
             run[i] = runs[p]
+
+
+def cubic_pieces(
+    t: np.ndarray, phi: np.ndarray, c1: np.ndarray, c2: np.ndarray, c3: np.ndarray
+) -> None:
+    """:func:`dsp.angle.cubic_pieces` knot by knot: its divided differences, the same
+    operations in the same order (no contraction), so the same bits. ``t``, ``phi`` (k,);
+    writes ``c1``, ``c2``, ``c3`` (k - 3,)."""
+    for j in range(c1.size):
+        t_j, p_j = t[j + 1], phi[j + 1]
+        z1 = t[j + 2] - t_j
+        z2 = t[j] - t_j
+        z3 = t[j + 3] - t_j
+        f01 = (phi[j + 2] - p_j) / z1
+        f02 = (phi[j] - p_j) / z2
+        f03 = (phi[j + 3] - p_j) / z3
+        f012 = (f02 - f01) / (z2 - z1)
+        f013 = (f03 - f01) / (z3 - z1)
+        f0123 = (f013 - f012) / (z3 - z2)
+        c3[j] = f0123
+        c2[j] = f012 - f0123 * (z1 + z2)
+        c1[j] = f01 - f012 * z1 + f0123 * z1 * z2
