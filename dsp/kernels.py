@@ -67,9 +67,9 @@ four and five (not four, four and four again), fewer record copies
 (:func:`dsp.immutable.evolve`); all the numpy path's bits, the frames unchanged. The
 run's dsp stage (60 s log, 2997 frames; CPU best of 9, main and this pass interleaved,
 load 4-6) compiled 0.129-0.134 s -> 0.100-0.109 s a minute (callgrind, one pass:
-1.811 -> 1.550 G instructions); ``benchmarks/bench_order_tracking.py --quick`` (load 7)
-the issue's load compiled 614x -> 695x, numpy 320x -> 328x. The kernels are now some
-half of the compiled time: the sums 30 ms a minute, the rest about 15 ms.
+1.811 -> 1.550 G instructions; numpy 2.860 -> 2.464 G); the issue's load
+(``benchmarks/bench_order_tracking.py``, best of 7, load 11.5) compiled 544-556x ->
+685-699x. The kernels are now some half of the compiled time (the sums 30 ms a minute).
 ``PTINERTIA_NUMBA=1 ptinertia run --duration 5`` 1.46 -> 1.50 s of CPU (three more
 cached kernels to load); the default path 0.96 -> 0.95 s.
 
