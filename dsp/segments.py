@@ -303,7 +303,7 @@ def accumulate(
                 # (of these samples: earlier rows were checked when they came) spare the
                 # pass over the samples, and a hole costs the sums twice
                 tracked, holes, recent = fill_holes(
-                    raw, phi[c0:c1], omega[c0:c1] / g.rate_hz, holes, recent,
+                    raw, phi[c0:c1], omega[c0:c1], g.rate_hz, holes, recent,
                     known_finite=bool(np.isfinite(packed[0]).all()),
                 )  # fmt: skip
                 if tracked is not raw:
