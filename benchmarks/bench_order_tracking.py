@@ -27,7 +27,13 @@ the figures much (wall-clock is printed beside them).
    blocks; :func:`issue_load`, which bench_pipeline.py also prints) on the numpy and the
    compiled path, and rota-order's best figure from 4., with the load average.
 
-Measured (issue 24, fourth pass: the compiled sums in eight-lane vectors, dsp.fused_sums;
+Measured (issue 24, sixth pass, the per-block work around the kernels, dsp.kernels; main and
+this pass interleaved, CPU best of 7, load 11.5): issue 24's load (5.) compiled 544-556x ->
+685-699x, numpy 269-287x -> 263-301x (within the noise at this load; on the run's log
+callgrind counts 14 % fewer instructions for the numpy path's dsp stage, 14 % fewer for
+the compiled one); the run's dsp stage compiled 0.129-0.134 s -> 0.100-0.109 s of CPU a
+minute (load 4-6). Frames bit for bit those of main on both paths.
+Fourth pass (issue 24: the compiled sums in eight-lane vectors, dsp.fused_sums;
 2 cores shared with other work, load average 10, CPU, best of 3, main and this pass run
 alternately twice): issue 24's load (5.) numpy path 334x (unchanged code: 338-348x here),
 compiled path 407-409x -> 584-597x (target 500x met, goal 600x at the edge); the run's

@@ -129,7 +129,8 @@ def add_knots(table: AngleTable, t: np.ndarray, phi: np.ndarray, run: np.ndarray
     for a, b in itertools.pairwise(bounds):
         if b - a >= 4:
             st, sp = kt[a:b], kp[a:b]
-            c1, c2, c3 = cubic_pieces(st, sp)
+            pieces = kernels.cubic_pieces if kernels.USE else cubic_pieces  # the same bits
+            c1, c2, c3 = pieces(st, sp)
             # intervals j = 1 .. k-3 of the run: from knot j to knot j + 1
             parts.append((st[1:-2], st[2:-1], sp[1:-2], sp[2:-1], c1, c2, c3, kr[a + 1 : b - 2]))
     a = bounds[-2]
@@ -226,6 +227,26 @@ def lookup(
             np.concatenate((np.zeros(head, dtype=np.int64), run)),
         )
     return ok, phi, omega, run
+
+
+def lookup_grid(
+    table: AngleTable, t0_s: float, rate_hz: float, idx: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The times ``t0_s + k / rate_hz`` (s) of consecutive grid indices ``idx`` (n,) int64
+    and their :func:`lookup` (all before ``table.t_end``): ``t, ok, phi, omega, run`` (n,).
+    Compiled (:data:`dsp.kernels.USE`): one pass over samples and pieces together
+    (:func:`dsp.kernels.grid_values`), the same bits."""
+    if not kernels.USE:
+        t = t0_s + idx / rate_hz
+        return (t, *lookup(table, t))
+    n = idx.size
+    t, phi, omega = np.empty(n), np.empty(n), np.empty(n)
+    ok, run = np.empty(n, bool), np.empty(n, np.int64)
+    kernels.grid_values(
+        t0_s, rate_hz, int(idx[0]) if n else 0, table.t_lo, table.t_hi, table.phi_lo,
+        table.c1, table.c2, table.c3, table.run, t, ok, phi, omega, run,
+    )  # fmt: skip
+    return t, ok, phi, omega, run
 
 
 def time_at(table: AngleTable, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

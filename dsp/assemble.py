@@ -269,8 +269,10 @@ def _finish(
         strict=True,
     )  # fmt: skip
     # a variance factor only where a window lost samples (most frames have none)
-    holed = (raw["variance"] != 1.0).any(axis=1).tolist()
-    variances = [v if h else None for v, h in zip(raw["variance"], holed, strict=True)]
+    holed = (raw["variance"] != 1.0).any(axis=1)
+    variances: list[np.ndarray | None] = [None] * js.size
+    for i in np.flatnonzero(holed).tolist():
+        variances[i] = raw["variance"][i]
     columns = zip(
         js.tolist(), parity.tolist(), times[:, 1].tolist(), rpm.tolist(), rpm_change.tolist(),
         list(out), list(raw["ok"]), list(leak), raw["flags"].tolist(), keys, spectra, variances,

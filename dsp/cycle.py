@@ -25,6 +25,8 @@ import math
 
 import numpy as np
 
+from dsp import kernels
+
 PRESSURE_HALF_WIDTH_RAD = math.radians(60.0)
 PRESSURE_RATIO = 1.5
 CAM_TOLERANCE_RAD = math.radians(90.0)
@@ -65,7 +67,8 @@ def offset_rotation(s: np.ndarray, k2: np.ndarray, steps: int) -> np.ndarray:
     with the cycle, integer orders stay (no rounding in the complex exponential).
     """
     if steps == 1:
-        return (-1.0) ** (k2[None, :] * s[:, None])
+        # (-1.0) ** n, exactly: -1 for odd n (numpy's % is a floor modulo, so also below 0)
+        return np.where((k2[None, :] * s[:, None]) % 2 == 1, -1.0, 1.0)
     m = (k2[None, :] * s[:, None]) % (4 * steps)  # h delta = pi m / steps, period 4 pi h
     return np.exp(-1j * math.pi * m / steps)
 
@@ -95,6 +98,8 @@ def pressure_sums(
     count : (c,) int64
     """
     step = 2.0 * math.pi / steps
+    if kernels.USE:  # two passes over the samples instead of a dozen array operations
+        return kernels.pressure_sums(phi_w, pressure, step, pressure_half_width(steps))
     k = np.rint(phi_w / step)  # whole numbers, as float
     near = np.abs(phi_w - step * k) < pressure_half_width(steps)
     near &= np.isfinite(pressure)

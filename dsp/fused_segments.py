@@ -21,8 +21,9 @@ def segment_cuts(phi, cuts, spacing, half):
     """:func:`dsp.sums._segments` of every piece ``cuts[p] .. cuts[p+1]-1`` of ``phi``
     (rad), concatenated, and ``delta = phi - c_m`` (rad) of each sample from its segment's
     frame angle: the same operations (``searchsorted``, ``floor``), so the same numbers.
-    Returns ``mu``, ``starts``, ``ends``, ``zone_end`` (seg,), the segments per piece and
-    ``delta`` (n,)."""
+    Returns ``mu``, ``starts``, ``ends``, ``zone_end`` (seg,), the segments per piece,
+    ``delta`` (n,) and ``half = float32(delta / 2)`` (n,), the carriers' angle
+    (:func:`dsp.sum_sets.base_parts`: the same multiplication and rounding)."""
     n_pieces = cuts.size - 1
     per_piece = np.empty(n_pieces, dtype=np.int64)
     for p in range(n_pieces):
@@ -34,6 +35,7 @@ def segment_cuts(phi, cuts, spacing, half):
     ends = np.empty(total, dtype=np.int64)
     zone_end = np.empty(total, dtype=np.int64)
     delta = np.empty(phi.size)
+    half32 = np.empty(phi.size, np.float32)
     i = 0
     for p in range(n_pieces):
         p0, p1 = cuts[p], cuts[p + 1]
@@ -50,8 +52,9 @@ def segment_cuts(phi, cuts, spacing, half):
             c = mu[i + k] * spacing
             for s in range(starts[i + k], ends[i + k]):
                 delta[s] = phi[s] - c
+                half32[s] = np.float32(0.5 * delta[s])
         i += per_piece[p]
-    return mu, starts, ends, zone_end, per_piece, delta
+    return mu, starts, ends, zone_end, per_piece, delta, half32
 
 
 @njit(cache=True, nogil=True)

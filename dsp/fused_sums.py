@@ -176,6 +176,50 @@ def _sums4(x, c, s0, n, e, rp, r0, sums, top, clipping):
 
 
 @njit(cache=True, nogil=True)
+def _sums5(x, c, s0, n, e, rp, r0, sums, top, clipping):
+    """:func:`_sums4` for channels ``c .. c + 4`` into ``sums`` (80,) and ``top`` (5,): the
+    last block when the channels leave one over a multiple of four (nine: four and five,
+    not four, four and four again from the fifth)."""
+    a0, a1, a2, a3 = vzero(), vzero(), vzero(), vzero()
+    a4, a5, a6, a7 = vzero(), vzero(), vzero(), vzero()
+    a8, a9 = vzero(), vzero()
+    m0 = m1 = m2 = m3 = m4 = -np.inf
+    for s in range(n):
+        b = s * rp + r0
+        e0 = vload(e, b)
+        e1 = vload(e, b + 8)
+        y0, y1, y2, y3 = x[c, s0 + s], x[c + 1, s0 + s], x[c + 2, s0 + s], x[c + 3, s0 + s]
+        y4 = x[c + 4, s0 + s]
+        if clipping:
+            m0 = abs(y0) if abs(y0) > m0 else m0
+            m1 = abs(y1) if abs(y1) > m1 else m1
+            m2 = abs(y2) if abs(y2) > m2 else m2
+            m3 = abs(y3) if abs(y3) > m3 else m3
+            m4 = abs(y4) if abs(y4) > m4 else m4
+        v = vsplat(y0)
+        a0, a1 = vfma(v, e0, a0), vfma(v, e1, a1)
+        v = vsplat(y1)
+        a2, a3 = vfma(v, e0, a2), vfma(v, e1, a3)
+        v = vsplat(y2)
+        a4, a5 = vfma(v, e0, a4), vfma(v, e1, a5)
+        v = vsplat(y3)
+        a6, a7 = vfma(v, e0, a6), vfma(v, e1, a7)
+        v = vsplat(y4)
+        a8, a9 = vfma(v, e0, a8), vfma(v, e1, a9)
+    vstore(sums, 0, a0)
+    vstore(sums, 8, a1)
+    vstore(sums, 16, a2)
+    vstore(sums, 24, a3)
+    vstore(sums, 32, a4)
+    vstore(sums, 40, a5)
+    vstore(sums, 48, a6)
+    vstore(sums, 56, a7)
+    vstore(sums, 64, a8)
+    vstore(sums, 72, a9)
+    top[0], top[1], top[2], top[3], top[4] = m0, m1, m2, m3, m4
+
+
+@njit(cache=True, nogil=True)
 def _sums1(x, c, s0, n, e, rp, r0, sums, top, clipping):
     """:func:`_sums4` for one channel and 48 columns (six vectors: the sums of one
     channel on their own would wait on each other)."""
@@ -205,7 +249,7 @@ def _sums1(x, c, s0, n, e, rp, r0, sums, top, clipping):
 # theirs change this file too (tests/dsp/test_kernels.py recomputes it and fails with
 # the new value), so a stale cache is never loaded.
 HELPERS = ("fused_segments.py", "spectrum_lanes.py", "vec8.py")
-HELPERS_SHA256 = "4447de1a2d13f4e4554d6ba77bfe0f017f3f09ba97cfa3935765e41a2052911a"
+HELPERS_SHA256 = "660480a5676d4244f8070e61c3f97819055ca21b3a178299b1e80e4a5cb421d3"
 
 # one signature, compiled (or loaded from numba's cache) when this module is imported, so
 # after the helpers above: the samples as any 2-d layout (blocks come channel-fastest,
@@ -214,21 +258,23 @@ HELPERS_SHA256 = "4447de1a2d13f4e4554d6ba77bfe0f017f3f09ba97cfa3935765e41a205291
 # np.frombuffer makes it: the numpy path takes it, so this one must)
 _F1, _I1 = nt.float64[::1], nt.int64[::1]
 _SAMPLES = nt.Array(nt.float64, 2, "A", readonly=True)
+_H1 = nt.float32[::1]
 _SIGNATURE = nt.void(
-    _SAMPLES, _F1, _F1, _F1, _F1, _F1, _I1, _I1, _I1, nt.float64, _I1, nt.boolean,
+    _SAMPLES, _F1, _F1, _H1, _H1, _F1, _I1, _I1, _I1, nt.float64, _I1, nt.boolean,
     nt.int64, nt.int64, nt.float64, _F1, _F1, _F1, _I1, _F1, _F1, nt.float64[:, ::1],
 )  # fmt: skip
 
 
 @njit(_SIGNATURE, cache=True, nogil=True)
 def piece_sums(
-    x, phi, q, base_re, base_im, c_lo, starts, ends, zone_end, taper_rad, k2, tracked,
+    x, phi, q, cos_half, sin_half, c_lo, starts, ends, zone_end, taper_rad, k2, tracked,
     power_from, power_stride, clip_level, grid, table, slope, mu, turn_re, turn_im, w,
 ):  # fmt: skip
     """Add the sums of the segments of one piece (one set of channels) to ``out``.
 
     ``x`` (n_ch, n) the piece's samples, ``phi`` (rad) and ``q = omega dt`` (rad) (n,);
-    ``base_re``, ``base_im`` (n,) the carriers' base ``exp(-i delta / 2)``; per segment
+    ``cos_half``, ``sin_half`` (n,) float32 the carriers' base ``exp(-i delta / 2)`` as
+    :func:`dsp.sum_sets.base_parts` makes it (``cos - i sin``, widened here); per segment
     (seg,): ``c_lo`` the start of its zone ``c_m - tau / 2`` (rad), ``starts``, ``ends``,
     ``zone_end`` sample indices within the piece. ``taper_rad`` the zone's width,
     ``k2`` (no,) ascending (0 the mean). ``tracked``: the zone weight multiplies the
@@ -264,8 +310,8 @@ def piece_sums(
     pb_re = np.zeros(longest8)
     pb_im = np.zeros(longest8)
     pq = np.zeros(longest8)
-    sums = np.empty(64)
-    top = np.empty(4)
+    sums = np.empty(80)
+    top = np.empty(5)
     acc_a = np.empty((n_ch, n_rows))
     acc_d = np.empty((n_ch, n_rows))
     clip = np.zeros(n_ch)
@@ -274,16 +320,19 @@ def piece_sums(
     px = np.zeros(2 * longest8)  # a channel's samples, then their zone's, padded with zeros
     lanes = np.zeros(16 * n_rows)
     # four channels at a time while there are four: a last block of fewer starts earlier
-    # and sums some channels again, the same terms in the same order (the same bits)
-    quads = (n_ch + 3) // 4 if tracked and n_ch >= 4 else 0
+    # and sums some channels again, the same terms in the same order (the same bits);
+    # one channel over a multiple of four ends with a block of five instead (nine
+    # channels: 18 vector multiply-adds a sample, not 24)
+    five = tracked and n_ch >= 5 and n_ch % 4 == 1
+    quads = (n_ch // 4 - 1 if five else (n_ch + 3) // 4) if tracked and n_ch >= 4 else 0
     for i in range(starts.size):
         s0 = starts[i]
         n = ends[i] - s0
         nz = zone_end[i] - s0
         total = 0.0
         for s in range(n):
-            pb_re[s] = base_re[s0 + s]
-            pb_im[s] = base_im[s0 + s]
+            pb_re[s] = np.float64(cos_half[s0 + s])  # exp(-i delta / 2), widened exactly
+            pb_im[s] = -np.float64(sin_half[s0 + s])
             pq[s] = q[s0 + s]
             total += q[s0 + s]
         for s in range(n, (n + 7) // 8 * 8):
@@ -316,7 +365,17 @@ def piece_sums(
                         clip[ch + c] = 1.0 if top[c] >= clip_level else 0.0
                 _sums4(x, ch, s0, nz, ez, rp, r0, sums, top, False)
                 _put_rows(acc_d, ch, 4, r0, 16, sums)
-        for ch in range(n_ch if quads else 0, n_ch):
+        if five:
+            ch = n_ch - 5
+            for r0 in range(0, rp, 16):
+                _sums5(x, ch, s0, n, e, rp, r0, sums, top, r0 == 0)
+                _put_rows(acc_a, ch, 5, r0, 16, sums)
+                if r0 == 0:
+                    for c in range(5):
+                        clip[ch + c] = 1.0 if top[c] >= clip_level else 0.0
+                _sums5(x, ch, s0, nz, ez, rp, r0, sums, top, False)
+                _put_rows(acc_d, ch, 5, r0, 16, sums)
+        for ch in range(n_ch if quads or five else 0, n_ch):
             for r0 in range(0, rp, 48):
                 first = r0 == 0
                 _sums1(x, ch, s0, n, e, rp, r0, sums, top, first)

@@ -71,7 +71,8 @@ MAX_FILL_STEP = 0.2  # rad: two samples further apart than this hold a gap, not 
 def fill_holes(
     pieces: list[np.ndarray],
     phi: np.ndarray,
-    q: np.ndarray,
+    omega: np.ndarray,
+    rate_hz: float,
     holes: Holes,
     recent: Recent,
     known_finite: bool = False,
@@ -81,8 +82,10 @@ def fill_holes(
     A missing sample takes the value of its channel one engine cycle (720 deg) earlier,
     interpolated linearly in angle between the two samples around ``phi - 4 pi`` (when both
     are present and close); where there is none it is summed as zero and solved for by
-    :func:`refit`. ``pieces`` (n_track, n_i) in the order of the samples ``phi``, ``q``
-    (n,); ``recent`` the samples of the last cycle before them (angle, rows), with their NaN.
+    :func:`refit`. ``pieces`` (n_track, n_i) in the order of the samples ``phi`` (rad),
+    ``omega`` (rad/s) (n,), ``rate_hz`` their rate (a hole's ``q = omega / rate_hz``, made
+    for the missing samples only); ``recent`` the samples of the last cycle before them
+    (angle, rows), with their NaN.
     Pieces without a hole are passed on as they are (no copy): the same list, so a caller
     sees at once that nothing was filled. ``known_finite``: the caller knows every sample
     is finite (their sums are; :func:`dsp.segments.accumulate`), no check is made.
@@ -118,7 +121,7 @@ def fill_holes(
         p0 += p.shape[1]
     holes = (
         np.concatenate((holes[0], phi[k])),
-        np.concatenate((holes[1], q[k])),
+        np.concatenate((holes[1], omega[k] / rate_hz)),
         np.concatenate((holes[2], ch.astype(np.int64))),
         np.concatenate((holes[3], ~filled)),
     )

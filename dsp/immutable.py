@@ -5,7 +5,9 @@
 its records some 3000 times a minute of stream, a twentieth of its work. The
 state records have no ``__post_init__`` and keep their fields in ``__dict__``,
 so a copy of that dict with the changes applied is the same object, in a fifth
-of the time.
+of the time. The field check compares the key views (no set is built) and the dict
+is filled by two updates (no keyword dict rebuilt): 1.2 -> 0.8 us a call (issue 24;
+some 3200 calls a minute of the run's log).
 """
 
 from __future__ import annotations
@@ -18,9 +20,11 @@ T = TypeVar("T")
 def evolve(record: T, **changes: Any) -> T:
     """``record`` (a frozen dataclass instance without ``__post_init__``) with ``changes``."""
     fields = record.__dict__
-    unknown = changes.keys() - fields.keys()
-    if unknown:
+    if not changes.keys() <= fields.keys():
+        unknown = changes.keys() - fields.keys()
         raise TypeError(f"{type(record).__name__} has no field {', '.join(sorted(unknown))}")
     new = object.__new__(type(record))
-    new.__dict__.update(fields, **changes)
+    state = new.__dict__
+    state.update(fields)
+    state.update(changes)
     return new

@@ -5,11 +5,14 @@ sends the tracker through numba instead, for: the segment sums (:func:`compiled_
 :mod:`dsp.fused_sums`, one vectorised pass per piece that makes the carriers of the
 orders of each set, sums them, and packs each segment's row), the cutting of the pieces
 into segments (:func:`segment_cuts`), the angle lookup of the samples
-(:func:`cubic_values`), the times of the frames' window ends (:func:`cubic_times`), the
+(:func:`cubic_values`, and of a block's consecutive samples with their times,
+:func:`grid_values`), the times of the frames' window ends (:func:`cubic_times`), the
 frames' window sums and amplitudes (:func:`window_sums`, :func:`group_amplitudes`), their
-speed and leakage figures (:func:`frame_figures`) and the
-leakage correction's ramps (:func:`ramp_slopes`, :mod:`dsp.ramp_slopes`). Every
-compiled function releases the GIL (``nogil=True``).
+speed and leakage figures (:func:`frame_figures`), the
+leakage correction's ramps (:func:`ramp_slopes`, :mod:`dsp.ramp_slopes`), the angle
+table's coefficients (:func:`cubic_pieces`), the pressure votes' candidate sums
+(:func:`pressure_sums`) and the wheel decoder's interval pass (:func:`wheel_intervals`).
+Every compiled function releases the GIL (``nogil=True``).
 
 Why numba, and why off by default. numba (well kept, NumPy's release cadence) over
 hand-written C: no build step, and ``cache=True`` keeps the machine code beside the
@@ -55,6 +58,21 @@ it (CPU, best of 5, before and after interleaved, load 3): the run's dsp stage c
 numpy unchanged (231-236x, 352-364x); ``PTINERTIA_NUMBA=1 ptinertia run --duration 5``
 1.07-1.22 s of CPU before, 1.10-1.11 after.
 
+Sixth pass (the per-block work around the kernels): the cut of a step's samples made
+once for both groups on one clock (:func:`dsp.sums.cut_samples`), a block's times and
+lookup in one pass (:func:`grid_values`), the table's coefficients, the candidate sums and
+the decoder's intervals compiled, the carriers' half angles made in the segment pass and
+their cosine and sine handed over in single precision, nine channels summed as blocks of
+four and five (not four, four and four again), fewer record copies
+(:func:`dsp.immutable.evolve`); all the numpy path's bits, the frames unchanged. The
+run's dsp stage (60 s log, 2997 frames; CPU best of 9, main and this pass interleaved,
+load 4-6) compiled 0.129-0.134 s -> 0.100-0.109 s a minute (callgrind, one pass:
+1.811 -> 1.550 G instructions; numpy 2.860 -> 2.464 G); the issue's load
+(``benchmarks/bench_order_tracking.py``, best of 7, load 11.5) compiled 544-556x ->
+685-699x. The kernels are now some half of the compiled time (the sums 30 ms a minute).
+``PTINERTIA_NUMBA=1 ptinertia run --duration 5`` 1.46 -> 1.50 s of CPU (three more
+cached kernels to load); the default path 0.96 -> 0.95 s.
+
 What stays identical and what does not: the base ``exp(-i delta / 2)`` is made by numpy
 in single precision in both paths (its SIMD ``cos``/``sin`` round differently from
 libm's); segments, angles, taper weights, carriers, lookups and window times are the
@@ -70,14 +88,17 @@ blocks beyond the pieces themselves (replay = live).
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import math
 import os
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, TypeVar, cast
 
 import numpy as np
 
+from dsp.angle_loops import cubic_pieces as pieces_loops
+from dsp.angle_loops import grid_values as grid_loops
 from dsp.frame_figures import frame_figures as figures_loops
 from dsp.frames import RISE_GRID, RISE_SLOPE, RISE_TABLE
 from dsp.ramp_slopes import ramp_slopes as slopes_loops
@@ -88,7 +109,8 @@ from dsp.sum_rows import (
     row_size,
     window_rows,
 )
-from dsp.sum_sets import POWER_STRIDE, Segments, SumSet, base_parts
+from dsp.sum_sets import POWER_STRIDE, Cut, SumSet
+from dsp.wheel_intervals import interval_loops
 
 # numba is optional and imported on first use only: its import and the cached machine
 # code cost about 0.5 s of CPU per process, more than the kernel saves on a short run
@@ -96,7 +118,8 @@ AVAILABLE = importlib.util.find_spec("numba") is not None
 # PTINERTIA_NUMBA=1: the tracker uses the kernel (long runs, campaigns and studies); the
 # benchmarks and tests switch it per call
 USE = AVAILABLE and os.environ.get("PTINERTIA_NUMBA", "0") == "1"
-_compiled: dict[Callable[..., None], Callable[..., None]] = {}
+_compiled: dict[Callable[..., Any], Callable[..., Any]] = {}
+_Fn = TypeVar("_Fn", bound=Callable[..., Any])
 
 
 def piece_sums(*args: Any) -> None:
@@ -110,20 +133,79 @@ def piece_sums(*args: Any) -> None:
 
 def segment_cuts(
     phi: np.ndarray, cuts: np.ndarray, spacing: float, half: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int], np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int], np.ndarray, np.ndarray]:
     """:func:`dsp.fused_segments.segment_cuts`: the segments of each piece and the samples'
-    angles from their segment's frame angle, as :func:`dsp.sums.add_sample_sets` cuts them."""
+    angles from their segment's frame angle, as :func:`dsp.sums.add_sample_sets` cuts them,
+    and half of those angles in single precision (the carriers')."""
     from dsp import fused_segments  # imports numba: see piece_sums
 
-    mu, starts, ends, zone_end, per_piece, delta = fused_segments.segment_cuts(
+    mu, starts, ends, zone_end, per_piece, delta, half32 = fused_segments.segment_cuts(
         phi, cuts, spacing, half
     )
-    return mu, starts, ends, zone_end, per_piece.tolist(), delta
+    return mu, starts, ends, zone_end, per_piece.tolist(), delta, half32
+
+
+def cubic_pieces(t: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`dsp.angle.cubic_pieces` in one compiled pass (:func:`dsp.angle_loops.cubic_pieces`)."""
+    c1, c2, c3 = np.empty(t.size - 3), np.empty(t.size - 3), np.empty(t.size - 3)
+    _jit(pieces_loops)(t, phi, c1, c2, c3)
+    return c1, c2, c3
+
+
+def pressure_sums(
+    phi_w: np.ndarray, pressure: np.ndarray, step: float, half_width: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`dsp.cycle.pressure_sums` in two compiled passes over the samples
+    (:func:`_pressure_sums`); ``step`` and ``half_width`` (rad) as there."""
+    k_lo, total, count = _jit(_pressure_sums)(phi_w, pressure, step, half_width)
+    has = np.flatnonzero(count)
+    return has + k_lo, total[has], count[has]
+
+
+def _pressure_sums(
+    phi_w: np.ndarray, pressure: np.ndarray, step: float, half_width: float
+) -> tuple[int, np.ndarray, np.ndarray]:
+    """The lowest candidate ``k_lo`` and, from it on, the sum and count of the finite
+    pressure samples within ``half_width`` of their candidate ``rint(phi_w / step)``: the
+    numpy path's tests, each sample added in sample order (as ``np.bincount`` adds its
+    weights), so the same bits."""
+    found = False
+    k_lo = k_hi = 0
+    for i in range(phi_w.size):
+        k = np.rint(phi_w[i] / step)
+        if abs(phi_w[i] - step * k) < half_width and np.isfinite(pressure[i]):
+            kk = int(k)
+            k_lo = kk if not found or kk < k_lo else k_lo
+            k_hi = kk if not found or kk > k_hi else k_hi
+            found = True
+    total = np.zeros(k_hi - k_lo + 1 if found else 0)
+    count = np.zeros(total.size, np.int64)
+    for i in range(phi_w.size):
+        k = np.rint(phi_w[i] / step)
+        if abs(phi_w[i] - step * k) < half_width and np.isfinite(pressure[i]):
+            total[int(k) - k_lo] += pressure[i]
+            count[int(k) - k_lo] += 1
+    return k_lo, total, count
 
 
 def cubic_values(*args: Any) -> None:
     """:func:`_cubic_values` compiled (on the first call, as :func:`piece_sums`)."""
     _jit(_cubic_values)(*args)
+
+
+def grid_values(*args: Any) -> None:
+    """:func:`dsp.angle_loops.grid_values` compiled (on the first call, as :func:`piece_sums`)."""
+    _jit(grid_loops)(*args)
+
+
+def wheel_intervals(
+    buf: np.ndarray, d: np.ndarray, c0: int, teeth: int, gap: int, r_prev: float, tol: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """:func:`dsp.wheel_intervals.wheel_intervals` in one compiled pass (the same bits)."""
+    c, n_rel = np.empty(buf.size, np.int64), np.empty(buf.size, np.int64)
+    r, prev, ratio = np.empty(d.size), np.empty(d.size), np.empty(d.size)
+    b = _jit(interval_loops)(buf, d, c0, teeth, gap, r_prev, tol, c, n_rel, r, prev, ratio)
+    return c, n_rel, r, prev, ratio, b
 
 
 def ramp_slopes(*args: Any) -> None:
@@ -200,14 +282,14 @@ def cubic_times(*args: Any) -> None:
     _jit(_cubic_times)(*args)
 
 
-def _jit(fn: Callable[..., None]) -> Callable[..., None]:
+def _jit(fn: _Fn) -> _Fn:
     """``fn`` compiled by numba, once per process."""
     compiled = _compiled.get(fn)
     if compiled is None:
         from numba import njit  # heavy (0.3 s): only where a kernel is used
 
         compiled = _compiled[fn] = njit(cache=True, nogil=True)(fn)
-    return compiled
+    return cast(_Fn, compiled)
 
 
 def _cubic_values(
@@ -241,21 +323,13 @@ def _cubic_values(
 
 
 def compiled_rows(
-    sets: Sequence[SumSet],
-    seg: Segments,
-    phi: np.ndarray,
-    q: np.ndarray,
-    delta: np.ndarray,
-    first_index: int,
-    frames_per_rev: int,
+    sets: Sequence[SumSet], cut: Cut, first_index: int, frames_per_rev: int
 ) -> list[np.ndarray]:
     """Every set's rows (seg, :func:`dsp.sum_rows.row_size`), packed by :func:`piece_sums`."""
-    base_re, base_im = base_parts(delta)
+    seg = cut.seg
+    phi, q, cos_half, sin_half = cut.phi, cut.q, cut.cos_half, cut.sin_half
     c_lo = seg.c - seg.half
-    period = 2 * frames_per_rev
-    # the rotations exp(-i h c_m) as dsp.sums computes them, one per integer turn
-    turn = np.exp(-2j * np.pi * np.arange(period) / period)
-    turn_re, turn_im = turn.real.copy(), turn.imag.copy()
+    turn_re, turn_im = _turns(2 * frames_per_rev)
     out = []
     for st in sets:
         w = np.zeros((seg.mu.size, row_size(st.x[0].shape[0], st.k2.size)))
@@ -265,7 +339,7 @@ def compiled_rows(
         for xp, p0, p1, count in pieces:
             s = slice(i, i + count)
             piece_sums(
-                xp, phi[p0:p1], q[p0:p1], base_re[p0:p1], base_im[p0:p1], c_lo[s],
+                xp, phi[p0:p1], q[p0:p1], cos_half[p0:p1], sin_half[p0:p1], c_lo[s],
                 seg.starts[s] - p0, seg.ends[s] - p0, seg.zone_end[s] - p0, 2.0 * seg.half,
                 st.k2, st.tracked, (-(first_index + p0)) % POWER_STRIDE, POWER_STRIDE, level,
                 RISE_GRID, RISE_TABLE, RISE_SLOPE, seg.mu[s], turn_re, turn_im, w[s],
@@ -273,6 +347,14 @@ def compiled_rows(
             i += count
         out.append(w)
     return out
+
+
+@functools.cache
+def _turns(period: int) -> tuple[np.ndarray, np.ndarray]:
+    """The rotations ``exp(-i h c_m)`` as :mod:`dsp.sums` computes them, one per integer
+    turn of ``period``: real and imaginary parts (period,), never modified."""
+    turn = np.exp(-2j * np.pi * np.arange(period) / period)
+    return turn.real.copy(), turn.imag.copy()
 
 
 def _cubic_times(

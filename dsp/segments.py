@@ -16,6 +16,7 @@ import numpy as np
 
 from acquisition.stream import SourceEvent
 from dsp import angle as ang
+from dsp import kernels
 from dsp.config import GroupPlan
 from dsp.gap_fit import fill_holes
 from dsp.immutable import evolve
@@ -28,14 +29,19 @@ from dsp.state import (
     last_complete_frame,
     set_group,
 )
-from dsp.sum_sets import SumSet
-from dsp.sums import add_sample_sets
+from dsp.sum_sets import Cut, SumSet
+from dsp.sums import cut_samples, merge_rows, packed_rows
 
 CHUNK = 16384
 
 
-# (t0_s, rate_hz, spans) -> (indices, times, ok, phi, omega, run), spans as (first index, count)
-Angles = dict[tuple[float, float, tuple[tuple[int, int], ...]], tuple[np.ndarray, ...]]
+# (t0_s, rate_hz, spans) -> (indices, times, ok, phi, omega, run), spans as (first index, count),
+# and the cuts of those samples (dsp.sums.cut_samples) by (first, end) sample: what groups on
+# one sample clock share in a step
+Shared = dict[tuple[int, int], Cut]
+Angles = dict[
+    tuple[float, float, tuple[tuple[int, int], ...]], tuple[tuple[np.ndarray, ...], Shared]
+]
 
 
 def process_groups(st: TrackerState, events: list[SourceEvent]) -> TrackerState:
@@ -92,8 +98,8 @@ def process_group(
     # The tacho stops a few teeth short of a block's end, so a step usually finds the
     # previous block's last samples and the new block: one pass over both, not two.
     for batch in _batches(spans):
-        looked = _look_up(st, g, batch, angles)
-        st, gs = accumulate(st, gi, gs, looked, [rows for _, rows in batch], events)
+        looked, shared = _look_up(st, g, batch, angles)
+        st, gs = accumulate(st, gi, gs, looked, [rows for _, rows in batch], events, shared)
     if dropped is not None:
         if not gs.starved:
             events.append(
@@ -156,20 +162,23 @@ def _batches(spans: list[tuple[int, np.ndarray]]) -> list[list[tuple[int, np.nda
 
 def _look_up(
     st: TrackerState, g: GroupPlan, batch: list[tuple[int, np.ndarray]], angles: Angles
-) -> tuple[np.ndarray, ...]:
-    """Grid indices, times and :func:`dsp.angle.lookup` of the samples of ``batch``."""
+) -> tuple[tuple[np.ndarray, ...], Shared]:
+    """Grid indices, times and :func:`dsp.angle.lookup` of the samples of ``batch``, and
+    their cuts so far."""
     spans = tuple((first, r.shape[1]) for first, r in batch)
     key = (g.t0_s, g.rate_hz, spans)
-    looked = angles.get(key)
-    if looked is None:
+    found = angles.get(key)
+    if found is None:
         (first, _), (last, count) = spans[0], spans[-1]
         if last + count - first == sum(n for _, n in spans):  # no sample missing in between
             idx = np.arange(first, last + count, dtype=np.int64)
+            looked = ang.lookup_grid(st.table, g.t0_s, g.rate_hz, idx)
         else:
             idx = np.concatenate([np.arange(f, f + n, dtype=np.int64) for f, n in spans])
-        t = g.t0_s + idx / g.rate_hz
-        looked = angles[key] = (idx, t, *ang.lookup(st.table, t))
-    return looked
+            t = g.t0_s + idx / g.rate_hz
+            looked = (t, *ang.lookup(st.table, t))
+        found = angles[key] = ((idx, *looked), {})
+    return found
 
 
 def _count_before(first: int, n: int, t0: float, rate: float, t_lim: float) -> int:
@@ -192,12 +201,15 @@ def accumulate(
     looked: tuple[np.ndarray, ...],
     pieces: list[np.ndarray],
     events: list[SourceEvent],
+    shared: Shared | None = None,
 ) -> tuple[TrackerState, GroupState]:
     """Add samples to group ``gi``'s sums.
 
     ``looked`` = (grid indices, times, ok, phi, omega, run) of the samples, which come
     in ``pieces`` (kept rows, (n_keep, n_i)), the blocks they arrived in: the sums are
     split where pieces meet, so they round exactly as they would block by block.
+    ``shared``: the cuts of these samples (:func:`dsp.sums.cut_samples`) that other
+    groups on the same samples made in this step, and where this one leaves its own.
     """
     g = st.plan.groups[gi]
     cfg = st.plan.config
@@ -210,13 +222,14 @@ def accumulate(
             for p in pieces:
                 p1 = p0 + p.shape[1]
                 one = tuple(v[p0:p1] for v in looked)
-                st, gs = accumulate(st, gi, gs, one, [p], events)
+                st, gs = accumulate(st, gi, gs, one, [p], events)  # no cut shared
                 p0 = p1
             return st, gs
         sel = np.flatnonzero(ok)
         if sel.size == 0:
             return st, gs
         pieces = [pieces[0][:, sel]]
+        shared = None  # other samples than the looked-up ones
         idx, t = idx[sel], t[sel]
         phi, omega, run = phi[sel], omega[sel], run[sel]
     # breaks against the previous sample with an angle: a sample gap or a new wheel run
@@ -248,7 +261,8 @@ def accumulate(
                 )
             )
         st = evolve(st, invalid=tuple(inv))
-    bounds = np.cumsum([0] + [p.shape[1] for p in pieces]).tolist()  # where each piece begins
+    # where each piece begins (Python ints: a list of two costs np.cumsum some microseconds)
+    bounds = list(itertools.accumulate((p.shape[1] for p in pieces), initial=0))
     if g.pressure_at is not None:
         steps = steps_per_rev(st)
         skip_a, skip_b = silent_pressure(st, phi) if steps == 1 else (0, 0)
@@ -256,7 +270,7 @@ def accumulate(
             for a, b in ((p0, min(p1, skip_a)), (max(p0, skip_b), p1)):
                 if b > a:
                     gs = add_pressure(gs, phi[a:b], p[g.pressure_at, a - p0 : b - p0], steps)
-    acc, spec = gs.acc, gs.spec
+    acc, spec, holes, recent = gs.acc, gs.spec, gs.holes, gs.recent
     n_track = len(g.track_rows)
     at = g.spectrum_at
     if n_track or at is not None:
@@ -280,20 +294,22 @@ def accumulate(
                 assert sk2 is not None
                 sets.append(SumSet(spec, [p[at : at + 1] for p in x], sk2, tracked=False))
             args = (phi[c0:c1], omega[c0:c1], int(idx[c0]), g.rate_hz, cfg.frames_per_rev)
-            sums = add_sample_sets(sets, *args, cfg.taper_deg)
+            cut = _cut(shared, c0, c1, [xi.shape[1] for xi in x], *args, cfg.taper_deg)
+            packed = packed_rows(sets, cut, int(idx[c0]), cfg.frames_per_rev, kernels.USE)
             if n_track:
                 # missing samples (a lost CAN frame) are filled from the previous engine
                 # cycle, or summed as zeros and solved for (dsp.gap_fit), and remembered.
                 # A non-finite sample makes its segment's sums non-finite: finite sums
-                # spare the pass over the samples, and a hole costs the sums twice
+                # (of these samples: earlier rows were checked when they came) spare the
+                # pass over the samples, and a hole costs the sums twice
                 tracked, holes, recent = fill_holes(
-                    raw, phi[c0:c1], omega[c0:c1] / g.rate_hz, gs.holes, gs.recent,
-                    known_finite=_finite(sums[0]),
+                    raw, phi[c0:c1], omega[c0:c1], g.rate_hz, holes, recent,
+                    known_finite=bool(np.isfinite(packed[0]).all()),
                 )  # fmt: skip
-                gs = evolve(gs, holes=holes, recent=recent)
                 if tracked is not raw:
                     sets[0] = SumSet(acc, tracked, st.plan.k2, cfg.clip_level)
-                    sums = add_sample_sets(sets, *args, cfg.taper_deg)
+                    packed = packed_rows(sets, cut, int(idx[c0]), cfg.frames_per_rev, kernels.USE)
+            sums = [merge_rows(s.rows, cut.seg.mu, w) for s, w in zip(sets, packed, strict=True)]
             if n_track:
                 acc = sums[0]
             if at is not None:
@@ -307,10 +323,30 @@ def accumulate(
         last_run=int(run[-1]),
         acc=acc,
         spec=spec,
+        holes=holes,
+        recent=recent,
     )
     return st, gs
 
 
-def _finite(rows: dict[int, np.ndarray]) -> bool:
-    """Whether every sum of every row is finite (a few dozen rows: microseconds)."""
-    return bool(np.isfinite(np.stack(list(rows.values()))).all()) if rows else True
+def _cut(
+    shared: Shared | None,
+    c0: int,
+    c1: int,
+    sizes: list[int],
+    phi: np.ndarray,
+    omega: np.ndarray,
+    first_index: int,
+    rate_hz: float,
+    frames_per_rev: int,
+    taper_deg: float,
+) -> Cut:
+    """:func:`dsp.sums.cut_samples` of samples ``c0 .. c1 - 1`` (in pieces of ``sizes``),
+    made once for every group on them (the samples and the cut where pieces meet are the
+    same: the pieces are the spans of the lookup)."""
+    cut = None if shared is None else shared.get((c0, c1))
+    if cut is None:
+        cut = cut_samples(phi, omega, sizes, rate_hz, frames_per_rev, taper_deg, kernels.USE)
+        if shared is not None:
+            shared[(c0, c1)] = cut
+    return cut

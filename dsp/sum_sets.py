@@ -54,25 +54,34 @@ class Segments:
     half: float
 
 
-# per set: a, d (seg, n_ch, rows), s2 (seg, n_ch), n2 (seg,), clip (seg, n_ch), and the
-# rows of the real and imaginary parts of each order
-SetSums = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int], list[int]]
+@dataclass(frozen=True)
+class Cut:
+    """What the sums of every set on the same samples share (:func:`dsp.sums.cut_samples`):
+    the segments, ``phi`` (rad), ``q = omega dt`` (rad) and ``delta`` (rad, from the
+    sample's frame angle) (n,), the cosine and sine of ``delta / 2`` in single precision
+    (n,) float32 (:func:`base_parts`: the carriers' base ``exp(-i delta / 2)`` is
+    ``cos_half - i sin_half``), and on the numpy path the zones' samples and weights
+    (:func:`zones`). Groups on one sample clock get the same cut in a step: it is made
+    once for all of them (:mod:`dsp.segments`)."""
+
+    seg: Segments
+    phi: np.ndarray
+    q: np.ndarray
+    delta: np.ndarray
+    cos_half: np.ndarray
+    sin_half: np.ndarray
+    zones: Zones | None = None
 
 
-def numpy_sums(
-    sets: Sequence[SumSet],
-    segs: Segments,
-    phi: np.ndarray,
-    q: np.ndarray,
-    delta: np.ndarray,
-    first_index: int,
-) -> tuple[list[SetSums], np.ndarray, np.ndarray]:
-    """Every set's sums and the weights ``wa``, ``wd`` in numpy: the reference."""
+# every zone's samples at once: z_len, z_off (seg + 1,), the zones' sample indices z, their
+# falling-taper weights fall (sum z_len,), and the weights wa, wd (seg,)
+Zones = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def zones(segs: Segments, phi: np.ndarray, q: np.ndarray) -> Zones:
+    """The zones' samples, taper weights and the segments' weights ``wa``, ``wd`` (numpy)."""
     mu, starts, ends, zone_end = segs.mu, segs.starts, segs.ends, segs.zone_end
-    cuts, per_piece, c, half = segs.cuts, segs.per_piece, segs.c, segs.half
-    n = cuts[-1]
-    carr = carriers(delta, q, [s.k2 for s in sets])
-    # every zone's samples at once: falling-taper weights
+    c, half = segs.c, segs.half
     z_len = zone_end - starts
     z_off = np.zeros(mu.size + 1, dtype=np.int64)
     np.cumsum(z_len, out=z_off[1:])
@@ -84,8 +93,25 @@ def numpy_sums(
     has_zone = z_len > 0
     if has_zone.any():
         wd[has_zone] = np.add.reduceat(q[z] * fall, z_off[:-1][has_zone])
-    wa = np.add.reduceat(q, starts) if n else np.zeros(mu.size)
+    wa = np.add.reduceat(q, starts) if segs.cuts[-1] else np.zeros(mu.size)
     wa[starts == ends] = 0.0  # reduceat gives the next element for an empty segment
+    return z_len, z_off, z, fall, wa, wd
+
+
+# per set: a, d (seg, n_ch, rows), s2 (seg, n_ch), n2 (seg,), clip (seg, n_ch), and the
+# rows of the real and imaginary parts of each order
+SetSums = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int], list[int]]
+
+
+def numpy_sums(
+    sets: Sequence[SumSet], cut: Cut, first_index: int
+) -> tuple[list[SetSums], np.ndarray, np.ndarray]:
+    """Every set's sums and the weights ``wa``, ``wd`` in numpy: the reference."""
+    segs = cut.seg
+    mu, starts, ends = segs.mu, segs.starts, segs.ends
+    cuts, per_piece = segs.cuts, segs.per_piece
+    z_len, z_off, z, fall, wa, wd = cut.zones or zones(segs, cut.phi, cut.q)
+    carr = carriers(cut.cos_half, cut.sin_half, cut.q, [s.k2 for s in sets])
     out: list[SetSums] = []
     for st, (e, re, im) in zip(sets, carr, strict=True):
         k2, x = st.k2, st.x
@@ -159,18 +185,24 @@ def _clipped(x: np.ndarray, starts: np.ndarray, ends: np.ndarray, level: float) 
 
 
 def base_parts(delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Real and imaginary part of ``exp(-i delta / 2)``, the base :func:`carriers` and the compiled kernel build on."""
-    half = (0.5 * delta).astype(np.float32)
-    base_re = np.cos(half).astype(np.float64)
-    base_im = np.sin(half).astype(np.float64)
-    np.negative(base_im, out=base_im)
-    return base_re, base_im
+    """``cos(delta / 2)`` and ``sin(delta / 2)`` in single precision (n,) float32: the base
+    ``exp(-i delta / 2) = cos - i sin`` that :func:`carriers` and the compiled kernel
+    build on (widened to double there, exactly). The compiled path makes ``delta / 2`` in
+    its segment pass (:func:`dsp.fused_segments.segment_cuts`, the same bits) and only
+    the cosine and sine here: numpy's SIMD ``cos``/``sin`` round as they always did."""
+    return half_parts((0.5 * delta).astype(np.float32))
+
+
+def half_parts(half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``cos(half)``, ``sin(half)`` of single-precision angles (rad): (n,) float32."""
+    return np.cos(half), np.sin(half)
 
 
 def carriers(
-    delta: np.ndarray, q: np.ndarray, k2s: Sequence[np.ndarray]
+    cos_half: np.ndarray, sin_half: np.ndarray, q: np.ndarray, k2s: Sequence[np.ndarray]
 ) -> list[tuple[np.ndarray, list[int], list[int]]]:
-    """``q exp(-i k delta / 2)`` for every ``k`` in each ``k2`` of ``k2s``.
+    """``q exp(-i k delta / 2)`` for every ``k`` in each ``k2`` of ``k2s``, from the base
+    ``exp(-i delta / 2) = cos_half - i sin_half`` (:func:`base_parts`, float32).
 
     Returns, per ``k2``, ``(e, re, im)``: ``e`` (rows, n_samples) holds the real part of
     order ``k2[j]`` in row ``re[j]``, its imaginary part in row ``im[j]``. The first ``k2``
@@ -188,8 +220,9 @@ def carriers(
     3000 rpm: 7e-8, against 1e-10 in double): 80 dB below the 60 dB specified,
     and far below any noise a bench has.
     """
-    base = np.empty(delta.size, complex)
-    base.real, base.imag = base_parts(delta)
+    n = q.size
+    base = np.empty(n, complex)
+    base.real, base.imag = cos_half, np.negative(sin_half)  # widened exactly
     first = k2s[0].tolist()
     n0 = len(first)
     out: list[tuple[np.ndarray, list[int], list[int]]] = []
@@ -208,7 +241,7 @@ def carriers(
         else:
             re = list(range(len(ks)))
             im = [len(ks) + r for r in re]
-        e = np.empty((2 * len(ks), delta.size))
+        e = np.empty((2 * len(ks), n))
         out.append((e, re, im))
         writes.append((e, ks, re, im))
     if sharer is not None:

@@ -27,7 +27,16 @@ import numpy as np
 
 from dsp import kernels
 from dsp.sum_rows import Row, row_size, unpack
-from dsp.sum_sets import Segments, SetSums, SumSet, numpy_sums
+from dsp.sum_sets import (
+    Cut,
+    Segments,
+    SetSums,
+    SumSet,
+    base_parts,
+    half_parts,
+    numpy_sums,
+    zones,
+)
 
 
 def add_samples(
@@ -79,6 +88,7 @@ def add_sample_sets(
     frames_per_rev: int,
     taper_deg: float,
     compiled: bool | None = None,
+    cut: Cut | None = None,
 ) -> list[dict[int, Row]]:
     """:func:`add_samples` for several sets of channels and orders on the same samples.
 
@@ -87,20 +97,64 @@ def add_sample_sets(
     its own, bit for bit (its carriers and zone weights laid out as in that call).
     ``compiled``: the carriers and sums by :func:`dsp.kernels.piece_sums` (one pass,
     the orders of each set only; within 1e-12 of this numpy reference, see there);
-    None: :data:`dsp.kernels.USE`.
+    None: :data:`dsp.kernels.USE`. ``cut``: :func:`cut_samples` of these arguments, made
+    beforehand (calls on the same samples share it), or None.
     """
     compiled = kernels.USE if compiled is None else compiled
+    if cut is None:
+        sizes = [xi.shape[1] for xi in sets[0].x]
+        cut = cut_samples(phi, omega, sizes, rate_hz, frames_per_rev, taper_deg, compiled)
+    packed = packed_rows(sets, cut, first_index, frames_per_rev, compiled)
+    return [merge_rows(st.rows, cut.seg.mu, w) for st, w in zip(sets, packed, strict=True)]
+
+
+def packed_rows(
+    sets: Sequence[SumSet], cut: Cut, first_index: int, frames_per_rev: int, compiled: bool
+) -> list[np.ndarray]:
+    """Every set's sums of the segments of ``cut``, packed: (seg, row_size) per set, a
+    segment split between pieces once per piece (:func:`merge_rows` adds them)."""
+    if compiled:
+        return kernels.compiled_rows(sets, cut, first_index, frames_per_rev)
+    sums, wa, wd = numpy_sums(sets, cut, first_index)
+    return [
+        _packed(st.k2, cut.seg.mu, set_sums, wa, wd, 2 * frames_per_rev)
+        for st, set_sums in zip(sets, sums, strict=True)
+    ]
+
+
+def merge_rows(rows: dict[int, Row], mu: np.ndarray, w: np.ndarray) -> dict[int, Row]:
+    """``rows`` (not modified) with the packed rows ``w`` of segments ``mu`` added, in order."""
+    out = dict(rows)
+    for mm, row in zip(mu.tolist(), w, strict=True):
+        out[mm] = out[mm] + row if mm in out else row
+    return out
+
+
+def cut_samples(
+    phi: np.ndarray,
+    omega: np.ndarray,
+    sizes: Sequence[int],
+    rate_hz: float,
+    frames_per_rev: int,
+    taper_deg: float,
+    compiled: bool,
+) -> Cut:
+    """What every set's sums on these samples share (:class:`dsp.sum_sets.Cut`): the
+    segments of pieces of ``sizes`` samples, ``q``, the angles from the frame angles and
+    the carriers' base (and on the numpy path the zones). Arguments as
+    :func:`add_sample_sets`'s."""
     spacing = 2.0 * math.pi / frames_per_rev
     half = 0.5 * math.radians(taper_deg)
-    cuts = np.cumsum([0] + [xi.shape[1] for xi in sets[0].x]).tolist()  # where each piece begins
+    cuts = list(itertools.accumulate(sizes, initial=0))  # where each piece begins
     # each piece cut into segments as a call of its own would: a segment split between
     # two pieces appears twice, and its parts are added in order at the end
     if compiled:
         # the same segments and angles from one compiled pass (dsp.kernels.segment_cuts)
-        mu, starts, ends, zone_end, per_piece, delta = kernels.segment_cuts(
+        mu, starts, ends, zone_end, per_piece, delta, half32 = kernels.segment_cuts(
             phi, np.array(cuts, dtype=np.int64), spacing, half
         )
         c = mu * spacing
+        cos_half, sin_half = half_parts(half32)
     else:
         parts = [_segments(phi, p0, p1, spacing, half) for p0, p1 in itertools.pairwise(cuts)]
         if len(parts) == 1:
@@ -112,23 +166,10 @@ def add_sample_sets(
         # carriers about each segment's own frame angle c_m (exact rotation applied below):
         # the same sample gets the same carrier whatever the block cut, and the angle stays small
         delta = phi - np.repeat(c, ends - starts)
+        cos_half, sin_half = base_parts(delta)
     q = omega * (1.0 / rate_hz)
     seg = Segments(mu, starts, ends, zone_end, cuts, per_piece, c, half)
-    if compiled:
-        rows = kernels.compiled_rows(sets, seg, phi, q, delta, first_index, frames_per_rev)
-    else:
-        sums, wa, wd = numpy_sums(sets, seg, phi, q, delta, first_index)
-        rows = [
-            _packed(st.k2, mu, set_sums, wa, wd, 2 * frames_per_rev)
-            for st, set_sums in zip(sets, sums, strict=True)
-        ]
-    outs = []
-    for st, w in zip(sets, rows, strict=True):
-        out = dict(st.rows)
-        for mm, row in zip(mu.tolist(), w, strict=True):
-            out[mm] = out[mm] + row if mm in out else row
-        outs.append(out)
-    return outs
+    return Cut(seg, phi, q, delta, cos_half, sin_half, None if compiled else zones(seg, phi, q))
 
 
 def _packed(

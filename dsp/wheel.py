@@ -38,8 +38,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from acquisition.stream import SourceEvent
+from dsp import kernels
 from dsp.immutable import evolve
 from dsp.tacho import TachoConfig
+from dsp.wheel_intervals import wheel_intervals
 
 # Revolutions across which a lost stretch is still bridged (speed assumed to vary linearly).
 MAX_BRIDGE_REVS = 20.0
@@ -184,14 +186,8 @@ def decode_edges(
         d = np.diff(buf)
         if d.size < 2:
             break
-        c = st.c0 + np.arange(buf.size)
-        n_rel = _position(c, teeth, gap)
-        pitches = np.diff(n_rel)
-        r = d / pitches
-        prev = np.concatenate(([st.r_prev], r[:-1]))
-        ratio = r / prev
-        bad = np.flatnonzero((ratio < 1 - tol) | (ratio > 1 + tol))
-        b = int(bad[0]) if bad.size else -1
+        intervals = kernels.wheel_intervals if kernels.USE else wheel_intervals  # same bits
+        c, n_rel, r, prev, ratio, b = intervals(buf, d, st.c0, teeth, gap, st.r_prev, tol)
         # a full revolution, up to the next gap's tooth 0, must pass before anything commits
         need = per_rev + 1 if gap else max(per_rev, 3) + 1
         if b >= 0 and (st.confirmed or b >= need) and ratio[b] > 1 + tol:

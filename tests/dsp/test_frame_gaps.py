@@ -78,7 +78,7 @@ def test_missing_samples_are_filled_from_one_cycle_earlier():
     x = _signal(phi, k2, amps)[None, :].repeat(2, axis=0)
     x[1, 2500:2509] = np.nan
     pieces, holes, recent = fill_holes(
-        [x[:, :1200], x[:, 1200:]], phi, np.full(phi.size, 0.013), NO_HOLES, NO_RECENT
+        [x[:, :1200], x[:, 1200:]], phi, np.full(phi.size, 0.013), 1.0, NO_HOLES, NO_RECENT
     )
     filled = np.concatenate(pieces, axis=1)
     truth = _signal(phi, k2, amps)
@@ -87,8 +87,10 @@ def test_missing_samples_are_filled_from_one_cycle_earlier():
     assert recent[0][0] >= phi[-1] - 4 * math.pi - 0.2
     # split into blocks anywhere: the same values
     q = np.full(phi.size, 0.013)
-    again, first_holes, kept = fill_holes([x[:, :2400]], phi[:2400], q[:2400], NO_HOLES, NO_RECENT)
-    more, _, _ = fill_holes([x[:, 2400:]], phi[2400:], q[2400:], first_holes, kept)
+    again, first_holes, kept = fill_holes(
+        [x[:, :2400]], phi[:2400], q[:2400], 1.0, NO_HOLES, NO_RECENT
+    )
+    more, _, _ = fill_holes([x[:, 2400:]], phi[2400:], q[2400:], 1.0, first_holes, kept)
     assert np.array_equal(
         np.concatenate((again[0], more[0]), axis=1)[1, 2500:2509], filled[1, 2500:2509]
     )

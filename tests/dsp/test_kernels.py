@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from dsp import angle as ang
-from dsp import kernels
+from dsp import cycle, kernels
 from dsp.leakage import SLOPE_PERIODS, _slopes
 from dsp.ramp_slopes import ramp_slopes
 from dsp.sum_rows import unpack
@@ -162,7 +162,14 @@ def test_compiled_ramps_agree_with_numpy(seed):
 
 
 @pytest.mark.parametrize(
-    ("n_ch", "k2"), [(1, [2]), (3, [0, 1, 2, 3]), (5, list(range(1, 10))), (10, list(range(0, 17)))]
+    ("n_ch", "k2"),
+    [
+        (1, [2]),
+        (3, [0, 1, 2, 3]),
+        (5, list(range(1, 10))),
+        (9, list(range(1, 9))),
+        (10, list(range(0, 17))),
+    ],
 )
 def test_compiled_rows_agree_with_numpy_for_any_channel_count_and_order_set(n_ch, k2):
     """The vectorised pass sums four channels at a time and the rest one by one, rows in
@@ -210,7 +217,8 @@ def test_vector_transpose_puts_rows_in_columns():
 def test_compiled_segment_cuts_are_the_numpy_ones(fpr):
     """dsp.kernels.segment_cuts (the compiled path's segments) against dsp.sums._segments
     piece by piece and the numpy path's angles from the frame angle: the same integers and
-    the same bits, with segments split between pieces and pieces inside one segment."""
+    the same bits (and their halves in single precision), with segments split between
+    pieces and pieces inside one segment."""
     from dsp.sums import _segments
 
     phi, _, _, _ = _signal(fpr, 5000)
@@ -223,6 +231,8 @@ def test_compiled_segment_cuts_are_the_numpy_ones(fpr):
     assert got[4] == [part[0].size for part in parts]
     mu, starts, ends = got[0], got[1], got[2]
     np.testing.assert_array_equal(got[5], phi - np.repeat(mu * spacing, ends - starts))
+    assert got[6].dtype == np.float32  # the carriers' half angles, as dsp.sum_sets.base_parts
+    np.testing.assert_array_equal(got[6], (0.5 * got[5]).astype(np.float32))
     assert len(set(mu.tolist())) < mu.size  # a segment split between pieces
 
 
@@ -287,3 +297,122 @@ def test_the_compiled_sums_name_their_helpers_hash():
         "a helper of dsp/fused_sums.py changed: set HELPERS_SHA256 there to "
         f"{digest.hexdigest()!r} so numba's cache is rebuilt"
     )
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_compiled_grid_lookup_gives_the_numpy_bits(seed, monkeypatch):
+    """dsp.angle.lookup_grid compiled (one pass over samples and pieces) gives the numpy
+    path's times, flags, angles, speeds and runs bit for bit: blocks before the first
+    knot, across the first, inside a run, across the stretch between two runs, at the end."""
+    rng = np.random.default_rng(300 + seed)
+    table = ang.AngleTable()
+    t0 = 0.013
+    for run in range(2):
+        rpm = rng.uniform(1000.0, 5000.0)
+        t = t0 + np.cumsum(rng.uniform(0.9, 1.1, 600) * 60.0 / rpm / 58)
+        phi = 100.0 * run + np.arange(t.size) * (2 * np.pi / 60)
+        table = ang.add_knots(table, t, phi, np.full(t.size, run, dtype=np.int64))
+        t0 = t[-1] + 0.01
+    rate, clock0 = 25_600.0, rng.uniform(-0.01, 0.01)
+    last = int((table.t_end - clock0) * rate) - 1  # the last index before the table's end
+    gap = int((table.t_lo[table.run == 1][0] - clock0) * rate)
+    blocks = [(0, 50), (10, 1), (0, 9000), (300, 1)]  # before the first knot, across it
+    blocks += [(first, int(rng.integers(1, 9000))) for first in (gap - 700, gap - 5, last - 8000)]
+    blocks += [(last - 900, 901), (last, 1)]  # up to the table's end
+    seen = set()
+    for first, n in blocks:
+        idx = np.arange(first, min(first + n, last + 1), dtype=np.int64)
+        monkeypatch.setattr(kernels, "USE", False)
+        want = ang.lookup_grid(table, clock0, rate, idx)
+        monkeypatch.setattr(kernels, "USE", True)
+        got = ang.lookup_grid(table, clock0, rate, idx)
+        for w, g in zip(want, got, strict=True):
+            assert g.dtype == w.dtype
+            np.testing.assert_array_equal(g, w)
+        seen.add((bool(want[1].all()), bool(want[1].any()), len(set(want[4][want[1]]))))
+    # every case met: none inside, some inside, all inside one run, both runs
+    assert {(False, False, 0), (False, True, 1), (True, True, 1)} <= seen
+    assert any(runs == 2 for _, _, runs in seen)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_compiled_cubic_pieces_and_pressure_sums_give_the_numpy_bits(seed, monkeypatch):
+    """dsp.kernels.cubic_pieces and the compiled dsp.cycle.pressure_sums give the numpy
+    path's coefficients and candidate sums bit for bit (pressure with NaN samples, a
+    wheel's candidates and four pulses', a block that meets no candidate)."""
+    rng = np.random.default_rng(400 + seed)
+    t = np.cumsum(rng.uniform(0.9, 1.1, 500) * 1e-3)
+    phi = np.cumsum(rng.uniform(0.09, 0.11, 500))
+    want = ang.cubic_pieces(t, phi)
+    got = kernels.cubic_pieces(t, phi)
+    for w, g in zip(want, got, strict=True):
+        np.testing.assert_array_equal(g, w)
+    phi_w = 3.0 + np.cumsum(rng.uniform(0.001, 0.004, 20_000))  # some 9 revolutions
+    pressure = rng.uniform(-2.0, 50.0, phi_w.size)
+    pressure[rng.integers(0, phi_w.size, 40)] = np.nan
+    for steps, sl in ((1, slice(None)), (4, slice(None)), (1, slice(100, 200))):
+        monkeypatch.setattr(kernels, "USE", False)
+        want = cycle.pressure_sums(phi_w[sl], pressure[sl], steps)
+        monkeypatch.setattr(kernels, "USE", True)
+        got = cycle.pressure_sums(phi_w[sl], pressure[sl], steps)
+        assert want[0].size == 0 if sl.stop else want[0].size >= 8  # candidates met
+        for w, g in zip(want, got, strict=True):
+            assert g.dtype == w.dtype
+            np.testing.assert_array_equal(g, w)
+
+
+def test_compiled_channel_sums_do_not_depend_on_the_channel_blocks():
+    """Nine channels are summed as a block of four and one of five, four as one block of
+    four, five as one of five, seven as four and four from the fourth: every channel's
+    sums, mean square and clip flag are the same bits whichever block it was in."""
+    phi, omega, _, spectrum = _signal(9, 3000)
+    x = np.random.default_rng(9).standard_normal((9, 3000)) * 3.0
+    k2 = np.arange(1, 9)
+
+    def per_channel(rows_x):
+        (rows, _) = _sums(True, phi, omega, rows_x, spectrum, [0, 1200, 3000], 8.5, k2, k2, 1)
+        n_ch = rows_x.shape[0]
+        parts = [unpack(np.array(list(rows.values())), n_ch, k2.size)[i] for i in (0, 1, 2, 6)]
+        return [[np.asarray(p)[:, c] for p in parts] for c in range(n_ch)]
+
+    whole = per_channel(x)
+    for lo, hi in ((0, 4), (4, 9), (2, 9)):
+        for c, got in enumerate(per_channel(x[lo:hi])):
+            for have, want in zip(got, whole[lo + c], strict=True):
+                np.testing.assert_array_equal(have, want)
+
+
+def test_compiled_wheel_decoding_gives_the_numpy_knots_and_state(monkeypatch):
+    """dsp.wheel.decode_edges with its interval pass compiled (dsp.kernels.wheel_intervals)
+    gives the numpy path's knots, events and decoder state bit for bit, block after block,
+    over a sweep with a missed edge, an extra edge, a filled hole and a dropout."""
+    from dsp.synthetic import Ramp, SyntheticBench, random_content
+    from dsp.tacho import TachoConfig
+    from dsp.wheel import DecoderState, decode_edges
+
+    cfg = TachoConfig(tdc_after_gap_deg=84.0)
+    rng = np.random.default_rng(12)
+    bench = SyntheticBench(Ramp(1500.0, 3500.0, 4.0), [random_content(rng)], tdc_after_gap_deg=84.0)
+    times = bench.edge_times(4.0)
+    extra = times[2500] + 0.3 * (times[2501] - times[2500])
+    times = np.sort(np.append(np.delete(times, [1000, 4000, 4001]), extra))
+    times = np.concatenate((times[times < 3.0], times[times > 3.2]))  # a dropout
+    blocks = np.split(times, np.sort(rng.integers(0, times.size, 40)))
+
+    def decode(compiled):
+        monkeypatch.setattr(kernels, "USE", compiled)
+        state, out = DecoderState(), []
+        for block in blocks:
+            state, knots, events = decode_edges(state, block, cfg)
+            out.append((knots, [(e.kind, e.message) for e in events], state))
+        return out
+
+    want, got = decode(False), decode(True)
+    kinds = {kind for _, events, _ in want for kind, _ in events}
+    assert {"tacho_missing_edge", "tacho_extra_edge", "tacho_filled", "no_tacho"} <= kinds
+    for (wk, we, ws), (gk, ge, gs) in zip(want, got, strict=True):
+        assert ge == we and gk.runs == wk.runs
+        for name in ("t_s", "n", "run"):
+            np.testing.assert_array_equal(getattr(gk, name), getattr(wk, name))
+        for name, value in ws.__dict__.items():
+            np.testing.assert_array_equal(getattr(gs, name), value)
