@@ -133,14 +133,12 @@ def fit_run(
     index = [s.position for s in run]
     run_frames = [frames[i] for i in index]
     orders = np.asarray(run_frames[0].orders, dtype=float)
-    readings = np.stack(
-        [f.amplitudes[:, s.cols[s.used]] for f, s in zip(run_frames, run, strict=True)]
-    )
+    readings = run_readings(run_frames, run)
     x, residual_rms, relative, noise_var = fit.fit_arrays(readings)
     motions = fit.motions(x, residual_rms, relative, noise_var)
     # np.mean's sum and division without its wrapper's checks (the same bits)
     power = np.add.reduce(readings.real**2 + readings.imag**2, axis=2) / readings.shape[2]
-    bends = gates.curvature(run_frames, orders, motions, fit)
+    bends = gates.curvature(run_frames, orders, motions, fit, (x[:, :, 3:], noise_var))
     rpm_list = [f.rpm for f in run_frames]
     rpm = np.array(rpm_list, dtype=float)
     force, moment = run_excitation(setup, rpm_list, orders)
@@ -155,6 +153,17 @@ def fit_run(
         index, orders, readings, motions, power, force, moment, gas, why, floor,
         relative, share, beyond,
     )  # fmt: skip
+
+
+def run_readings(frames: list[FrameLike], run: list[Screened]) -> np.ndarray:
+    """(n, k, u) complex: the used channels' amplitudes of a run's frames, m/s^2. Their
+    channels are the same (:func:`run_end`); where their columns are too (one channel
+    tuple: :meth:`estimator.channel_fits.ChannelFits.screen` caches them per tuple),
+    one gather for the run (copies: the same values as frame by frame)."""
+    first = run[0]
+    if all(s.cols is first.cols for s in run):
+        return np.array([f.amplitudes for f in frames])[:, :, first.cols[first.used]]
+    return np.stack([f.amplitudes[:, s.cols[s.used]] for f, s in zip(frames, run, strict=True)])
 
 
 def run_excitation(

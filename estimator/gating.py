@@ -204,9 +204,12 @@ class OrderGates:
         orders: np.ndarray,
         motions: list[RigidMotion],
         fit: RigidFit,
+        arrays: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> np.ndarray:
         """(n_frames, k): relative second difference of Omega' per order over three frames
         720 deg apart, less what the measurement noise explains (0 where not known).
+        ``arrays``: the ``motions``' Omega' (n, k, 3) and noise variances (n, k) as
+        arrays, when at hand (:meth:`RigidFit.fit_arrays`; then the motions are ``fit``'s).
 
         Along the mass line the rigid motion of an order changes slowly and almost
         linearly with rpm; near a rigid-body mode it bends sharply, and there the
@@ -228,28 +231,36 @@ class OrderGates:
             last = (-(10**9), -(10**9), (none, none))
         r0, r1, (w0, w1) = last
         seq_rev = [r0, r1, *(r for r in revs if r is not None)]
-        seq_w = np.array([w0, w1] + [motions[j].omega_dot for j in at])  # (2 + n, k, 3)
+        every = len(at) == len(frames)
+        if arrays is None:
+            omega = np.array([motions[j].omega_dot for j in at])
+            noise = np.array([motions[j].noise_var for j in at])  # (n, k)
+        else:
+            omega, noise = arrays if every else (arrays[0][at], arrays[1][at])
+        seq_w = np.concatenate((np.array((w0, w1)), omega))  # (2 + n, k, 3)
         w = seq_w[2:]
         # each frame's revolution 2 and 4 after the two before it (frames 720 deg apart)
         chained = np.array(
             [seq_rev[i + 1] == c - 2 and seq_rev[i] == c - 4 for i, c in enumerate(seq_rev[2:])]
         )
-        size = np.maximum(np.sqrt(np.add.reduce(w.real**2 + w.imag**2, axis=2)), 1e-300)  # (n, k)
         d = w - 2 * seq_w[1:-1] + seq_w[:-2]
-        bend = np.sqrt(np.add.reduce(d.real**2 + d.imag**2, axis=2)) / size
+        # |w| and |d| per order in one pass (elementwise, the bits of each alone)
+        both = np.concatenate((w, d))
+        norms = np.sqrt(np.add.reduce(both.real**2 + both.imag**2, axis=2))
+        size = np.maximum(norms[: len(w)], 1e-300)  # (n, k)
+        bend = norms[len(w) :] / size
         # what noise alone puts into a second difference of three fits (sqrt 6
         # sigma), sigma from this frame's rigid-fit residual: only the excess bends
-        covs = [motions[j].cov_unit for j in at]
-        if all(c is covs[0] for c in covs):  # a run's frames share their fit's
-            trace = np.full(len(at), np.trace(covs[0][3:, 3:]))
+        covs = [fit.cov_unit] if arrays is not None else [motions[j].cov_unit for j in at]
+        if all(c is fit.cov_unit for c in covs):  # a run's frames share their fit's
+            sigma = np.sqrt(2 * noise * fit.omega_trace) / size
         else:
             trace = np.array([np.trace(c[3:, 3:]) for c in covs])
-        noise = np.array([motions[j].noise_var for j in at])  # (n, k)
-        sigma = np.sqrt(2 * noise * trace[:, None]) / size
+            sigma = np.sqrt(2 * noise * trace[:, None]) / size
         excess = np.maximum(0.0, bend - BEND_NOISE * sigma)
         excess = np.where(chained[:, None] & np.isfinite(excess), excess, 0.0)
         self.motion_history[key] = (seq_rev[-2], seq_rev[-1], (seq_w[-2], seq_w[-1]))
-        if len(at) == len(frames):
+        if every:
             return excess
         out = np.zeros((len(frames), len(orders)))
         out[at] = excess
