@@ -142,10 +142,16 @@ def fit_run(
     rpm_list = [f.rpm for f in run_frames]
     rpm = np.array(rpm_list, dtype=float)
     force, moment = run_excitation(setup, rpm_list, orders)
-    gas = run_gas(setup, run_frames, orders)
-    for j, g in enumerate(gas):
-        if g is not None:
-            moment[j] = moment[j] + g
+    gas, at, stack = gas_moments(setup, run_frames, orders)
+    if stack is not None:  # the measured gas moments as one array: one sum
+        if len(at) == len(gas):
+            moment = moment + stack
+        else:
+            moment[at] = moment[at] + stack
+    else:
+        for j, g in enumerate(gas):
+            if g is not None:
+                moment[j] = moment[j] + g
     why, floor = gates.screen_orders(rpm, orders, force, moment, bends, power, relative, fit)
     mean, q = noise_levels_many(fit, [s.variance for s in run])
     share, beyond = excess_many(relative, noise_var, fit, mean, q)
@@ -184,9 +190,18 @@ def run_gas(
 ) -> list[np.ndarray | None]:
     """The measured gas moment (k, 3) of each of a run's frames, None for a frame
     without a finite pressure spectrum (or without a pressure channel at all)."""
+    return gas_moments(setup, frames, orders)[0]
+
+
+def gas_moments(
+    setup: EstimatorSetup, frames: list[FrameLike], orders: np.ndarray
+) -> tuple[list[np.ndarray | None], list[int], np.ndarray | None]:
+    """:func:`run_gas`, and where the setup's gas moment has ``many`` the frames that
+    have one and their moments as one (m, k, 3) array (its rows are :func:`run_gas`'s),
+    else ``[]`` and None."""
     gas: list[np.ndarray | None] = [None] * len(frames)
     if setup.gas_moment is None:
-        return gas
+        return gas, [], None
     given: list[tuple[int, np.ndarray]] = [
         (j, p) for j, f in enumerate(frames) if (p := getattr(f, "spectrum", None)) is not None
     ]
@@ -196,11 +211,13 @@ def run_gas(
         stack = np.array([p for _, p in given])  # (m, n_half): a frame's pressure orders
         finite = np.isfinite(stack).all(axis=1)
         at = [j for (j, _), ok in zip(given, finite.tolist(), strict=True) if ok]
-        if at:
-            for j, g in zip(at, many(orders, stack[finite]), strict=True):
-                gas[j] = g
-        return gas
+        if not at:
+            return gas, [], None
+        moments = many(orders, stack if len(at) == len(given) else stack[finite])
+        for j, g in zip(at, moments, strict=True):
+            gas[j] = g
+        return gas, at, moments
     for j, p in given:
         if np.isfinite(p).all():
             gas[j] = setup.gas_moment(orders, p)
-    return gas
+    return gas, [], None

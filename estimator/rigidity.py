@@ -160,14 +160,12 @@ def excess_many(
     dof = max(fit.sw.size - fit.rank, 1)
     rss = 2.0 * dof * noise_var  # noise_var = rss / (2 dof)
     known = np.isfinite(mean)[:, None]
-
-    def beyond(c: np.ndarray) -> np.ndarray:
-        c = c[:, None]
-        part = relative * np.sqrt(np.where(rss > c, 1.0 - c / rss, 0.0))
-        return np.where(known, part, relative)
-
+    # both levels as one (2, n, 1) array: each element's operations as for one level
+    c = np.array((mean, q))[:, :, None]
     with np.errstate(divide="ignore", invalid="ignore"):  # (one context: a few us each)
-        return beyond(mean), beyond(q)
+        part = relative * np.sqrt(np.where(rss > c, 1.0 - c / rss, 0.0))
+    both = np.where(known, part, relative)
+    return both[0], both[1]
 
 
 def excess_residual(
