@@ -23,6 +23,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from estimator import row_kernels
+from estimator.compiled_runs import fitted_arrays
 from estimator.gating import FrameLike, OrderGates
 from estimator.kinematics import RigidFit, RigidMotion
 from estimator.rigidity import excess_many, noise_levels_many
@@ -133,11 +135,20 @@ def fit_run(
     index = [s.position for s in run]
     run_frames = [frames[i] for i in index]
     orders = np.asarray(run_frames[0].orders, dtype=float)
-    readings = run_readings(run_frames, run)
-    x, residual_rms, relative, noise_var = fit.fit_arrays(readings)
+    if row_kernels.USE:  # PTINERTIA_NUMBA=1: the gather, fit and power in one loop
+        first = run[0]
+        if all(s.cols is first.cols for s in run):
+            amps, columns = np.array([f.amplitudes for f in run_frames]), first.cols[first.used]
+        else:  # (frames of other channel tuples: gathered frame by frame)
+            amps = run_readings(run_frames, run)
+            columns = np.arange(amps.shape[2])
+        readings, x, residual_rms, relative, noise_var, power = fitted_arrays(fit, amps, columns)
+    else:
+        readings = run_readings(run_frames, run)
+        x, residual_rms, relative, noise_var = fit.fit_arrays(readings)
+        # np.mean's sum and division without its wrapper's checks (the same bits)
+        power = np.add.reduce(readings.real**2 + readings.imag**2, axis=2) / readings.shape[2]
     motions = fit.motions(x, residual_rms, relative, noise_var)
-    # np.mean's sum and division without its wrapper's checks (the same bits)
-    power = np.add.reduce(readings.real**2 + readings.imag**2, axis=2) / readings.shape[2]
     bends = gates.curvature(run_frames, orders, motions, fit, (x[:, :, 3:], noise_var))
     rpm_list = [f.rpm for f in run_frames]
     rpm = np.array(rpm_list, dtype=float)
