@@ -105,3 +105,147 @@ def fit_pairs(
             out[1, f, o] = residual_rms / signal_rms if signal_rms > 0 else 0.0
             out[2, f, o] = resid_ss / (2 * dof)
             out[3, f, o] = signal / u
+
+
+def bend_excess(
+    seq_w: np.ndarray,
+    chained: np.ndarray,
+    noise: np.ndarray,
+    trace: float,
+    bend_noise: float,
+    compiled: bool = True,
+) -> np.ndarray:
+    """:meth:`estimator.gating.OrderGates.curvature`'s arithmetic: (n, k) the relative
+    second difference of Omega' (``seq_w`` (2 + n, k, 3) complex: the two before and the
+    n frames') beyond ``bend_noise`` times its noise (``noise`` (n, k) the fits' noise
+    variances, ``trace`` that of the fit's Omega' covariance), 0 where not ``chained``
+    (n,) or not finite."""
+    out = np.empty(noise.shape)
+    (jit(bend_pairs) if compiled else bend_pairs)(
+        np.ascontiguousarray(seq_w, complex),
+        np.asarray(chained, np.bool_),
+        np.ascontiguousarray(noise, float),
+        float(trace),
+        float(bend_noise),
+        out,
+    )
+    return out
+
+
+def bend_pairs(
+    seq_w: np.ndarray,
+    chained: np.ndarray,
+    noise: np.ndarray,
+    trace: float,
+    bend_noise: float,
+    out: np.ndarray,
+) -> None:
+    """:func:`bend_excess`' loop."""
+    n_f, n_o = noise.shape
+    for f in range(n_f):
+        for o in range(n_o):
+            size = 0.0
+            bend = 0.0
+            for i in range(3):
+                w = seq_w[f + 2, o, i]
+                d = w - 2 * seq_w[f + 1, o, i] + seq_w[f, o, i]
+                size += w.real * w.real + w.imag * w.imag
+                bend += d.real * d.real + d.imag * d.imag
+            size = max(np.sqrt(size), 1e-300)
+            sigma = np.sqrt(2 * noise[f, o] * trace) / size
+            excess = np.sqrt(bend) / size - bend_noise * sigma
+            out[f, o] = excess if chained[f] and np.isfinite(excess) and excess > 0 else 0.0
+
+
+def noise_sums(
+    var: np.ndarray, fit: RigidFit, compiled: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`estimator.rigidity.noise_levels_many`' arithmetic before the chi-square
+    quantile, for m channel noise variances ``var`` (m, n_ch) of ``fit``'s channels:
+    (m,) the noise's mean weighted residual sum of squares ``2 sum l``, Satterthwaite's
+    scale ``g`` and degrees of freedom ``h``; NaN where a variance is not finite, and
+    ``g`` 0 (``h`` 2) where ``sum l`` or ``sum l^2`` is not positive."""
+    m_diag, m_sq = fit.residual_projector_parts
+    out = np.empty((3, len(var)))
+    (jit(noise_rows) if compiled else noise_rows)(
+        np.ascontiguousarray(var, float), np.ascontiguousarray(fit.sw, float), m_diag, m_sq, out
+    )
+    return out[0], out[1], out[2]
+
+
+def noise_rows(
+    var: np.ndarray, sw: np.ndarray, m_diag: np.ndarray, m_sq: np.ndarray, out: np.ndarray
+) -> None:
+    """:func:`noise_sums`' loop."""
+    m, n = var.shape
+    d = np.empty(n)
+    for j in range(m):
+        known = True
+        for c in range(n):
+            d[c] = sw[c] ** 2 * var[j, c]
+            known = known and np.isfinite(var[j, c])
+        s1 = 0.0
+        s2 = 0.0
+        for a in range(n):
+            s1 += m_diag[a] * d[a]
+            for b in range(n):
+                s2 += m_sq[a, b] * (d[a] * d[b])
+        if not known:
+            out[0, j] = np.nan
+            out[1, j] = np.nan
+            out[2, j] = np.nan
+        elif s1 > 0 and s2 > 0:
+            out[0, j] = 2.0 * s1
+            out[1, j] = s2 / s1
+            out[2, j] = 2.0 * s1**2 / s2
+        else:
+            out[0, j] = 0.0
+            out[1, j] = 0.0
+            out[2, j] = 2.0
+
+
+def excess_rows(
+    relative: np.ndarray,
+    noise_var: np.ndarray,
+    dof: int,
+    mean: np.ndarray,
+    q: np.ndarray,
+    compiled: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`estimator.rigidity.excess_many`' arithmetic: (n, k) the relative residuals
+    less the noise's ``mean`` and beyond its quantile ``q`` ((n,) each, NaN: unknown)."""
+    out = np.empty((2, *relative.shape))
+    (jit(excess_pairs) if compiled else excess_pairs)(
+        np.ascontiguousarray(relative, float),
+        np.ascontiguousarray(noise_var, float),
+        float(dof),
+        np.asarray(mean, float),
+        np.asarray(q, float),
+        out,
+    )
+    return out[0], out[1]
+
+
+def excess_pairs(
+    relative: np.ndarray,
+    noise_var: np.ndarray,
+    dof: float,
+    mean: np.ndarray,
+    q: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """:func:`excess_rows`' loop."""
+    n_f, n_o = relative.shape
+    for f in range(n_f):
+        known = np.isfinite(mean[f])
+        for o in range(n_o):
+            rel = relative[f, o]
+            rss = 2.0 * dof * noise_var[f, o]
+            for i in range(2):
+                c = mean[f] if i == 0 else q[f]
+                if not known:
+                    out[i, f, o] = rel
+                elif rss > c:
+                    out[i, f, o] = rel * np.sqrt(1.0 - c / rss)
+                else:
+                    out[i, f, o] = rel * 0.0

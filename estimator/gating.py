@@ -20,6 +20,8 @@ from typing import Protocol
 import numpy as np
 from scipy.special import fdtri
 
+from estimator import row_kernels
+from estimator.compiled_runs import bend_excess
 from estimator.kinematics import RigidFit, RigidMotion
 from estimator.setup import EstimatorSetup, Gates
 
@@ -238,11 +240,37 @@ class OrderGates:
         else:
             omega, noise = arrays if every else (arrays[0][at], arrays[1][at])
         seq_w = np.concatenate((np.array((w0, w1)), omega))  # (2 + n, k, 3)
-        w = seq_w[2:]
         # each frame's revolution 2 and 4 after the two before it (frames 720 deg apart)
         chained = np.array(
             [seq_rev[i + 1] == c - 2 and seq_rev[i] == c - 4 for i, c in enumerate(seq_rev[2:])]
         )
+        # (the motions' covariances: their fit's, or listed)
+        fitted = [] if arrays is not None else [motions[j] for j in at]
+        if row_kernels.USE and all(m.cov_unit is fit.cov_unit for m in fitted):
+            # PTINERTIA_NUMBA=1: the arithmetic in one loop
+            excess = bend_excess(seq_w, chained, noise, fit.omega_trace, BEND_NOISE)
+        else:
+            excess = self._bend_excess(seq_w, chained, noise, fitted, fit)
+        self.motion_history[key] = (seq_rev[-2], seq_rev[-1], (seq_w[-2], seq_w[-1]))
+        if every:
+            return excess
+        out = np.zeros((len(frames), len(orders)))
+        out[at] = excess
+        return out
+
+    @staticmethod
+    def _bend_excess(
+        seq_w: np.ndarray,
+        chained: np.ndarray,
+        noise: np.ndarray,
+        motions: list[RigidMotion],
+        fit: RigidFit,
+    ) -> np.ndarray:
+        """:meth:`curvature`'s arithmetic (``estimator.compiled_runs.bend_excess``: the
+        compiled loop) for n frames: ``seq_w`` (2 + n, k, 3) the two Omega' before them
+        and theirs, ``chained`` (n,), ``noise`` (n, k) their fits' noise variances,
+        ``motions`` theirs where their covariances may not be ``fit``'s (else empty)."""
+        w = seq_w[2:]
         d = w - 2 * seq_w[1:-1] + seq_w[:-2]
         # |w| and |d| per order in one pass (elementwise, the bits of each alone)
         both = np.concatenate((w, d))
@@ -251,20 +279,14 @@ class OrderGates:
         bend = norms[len(w) :] / size
         # what noise alone puts into a second difference of three fits (sqrt 6
         # sigma), sigma from this frame's rigid-fit residual: only the excess bends
-        covs = [fit.cov_unit] if arrays is not None else [motions[j].cov_unit for j in at]
+        covs = [fit.cov_unit] if not motions else [m.cov_unit for m in motions]
         if all(c is fit.cov_unit for c in covs):  # a run's frames share their fit's
             sigma = np.sqrt(2 * noise * fit.omega_trace) / size
         else:
             trace = np.array([np.trace(c[3:, 3:]) for c in covs])
             sigma = np.sqrt(2 * noise * trace[:, None]) / size
         excess = np.maximum(0.0, bend - BEND_NOISE * sigma)
-        excess = np.where(chained[:, None] & np.isfinite(excess), excess, 0.0)
-        self.motion_history[key] = (seq_rev[-2], seq_rev[-1], (seq_w[-2], seq_w[-1]))
-        if every:
-            return excess
-        out = np.zeros((len(frames), len(orders)))
-        out[at] = excess
-        return out
+        return np.where(chained[:, None] & np.isfinite(excess), excess, 0.0)
 
     def residual(
         self, h: float, rpm: float, relative: float, share: float, excess: float

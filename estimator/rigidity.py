@@ -37,6 +37,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import gammainccinv
 
+from estimator import row_kernels
+from estimator.compiled_runs import excess_rows, noise_sums
 from estimator.kinematics import RigidFit, RigidMotion
 
 # Upper quantile of the noise's chi-square the residual must pass to count at all.
@@ -131,6 +133,15 @@ def noise_levels_many(
     if not var_list or var_list[0].shape != fit.sw.shape:
         return np.full(len(variances), np.nan), np.full(len(variances), np.nan)
     var = np.array(var_list)  # (m, n_ch)
+    if row_kernels.USE:  # PTINERTIA_NUMBA=1: the sums in one loop
+        mean_all, g, h = noise_sums(var, fit)
+        q_all = g * 2.0 * gammainccinv(h / 2.0, 1.0 - NOISE_QUANTILE)  # (NaN: unknown)
+        if len(var_list) == len(variances):
+            return mean_all, q_all
+        mean, q = np.full(len(variances), np.nan), np.full(len(variances), np.nan)
+        pick = np.array([rows[id(variances[j])] for j in at])
+        mean[at], q[at] = mean_all[pick], q_all[pick]
+        return mean, q
     d = fit.sw**2 * var
     m_diag, m_sq = fit.residual_projector_parts
     s1 = np.add.reduce(m_diag * d, axis=1)  # sum l = tr(M D), per frame
@@ -158,6 +169,8 @@ def excess_many(
     residuals and noise variances, the (n,) noise levels of :func:`noise_levels_many`
     (NaN: unknown, the whole residual)."""
     dof = max(fit.sw.size - fit.rank, 1)
+    if row_kernels.USE:  # PTINERTIA_NUMBA=1: in one loop
+        return excess_rows(relative, noise_var, dof, mean, q)
     rss = 2.0 * dof * noise_var  # noise_var = rss / (2 dof)
     known = np.isfinite(mean)[:, None]
     # both levels as one (2, n, 1) array: each element's operations as for one level

@@ -1,7 +1,8 @@
 """The compiled arithmetic of a fitted run (estimator/compiled_runs.py) against the numpy
-reference (RigidFit.fit_arrays and fit_run's power): the readings are copies (equal), the
-fits agree within rounding (1e-13 relative to each array's largest entry: the loop sums
-in another order than BLAS), and so do whole runs of the estimator (1e-12 relative),
+reference (RigidFit.fit_arrays and fit_run's power, the curvature gate's arithmetic, the
+noise levels and the excess residuals): the readings are copies (equal), the fits agree
+within rounding (1e-13 relative to each array's largest entry: the loop sums in another
+order than BLAS), the rest within 1e-13 relative, and so do whole runs of the estimator (1e-12 relative),
 one frame at a time and in blocks bit for bit. The loop is checked run by the
 interpreter (no numba needed) and compiled."""
 
@@ -14,9 +15,11 @@ import numpy as np
 import pytest
 from support.estimator_harness import Body, frames, make_setup
 
-from estimator import row_kernels
-from estimator.compiled_runs import fitted_arrays
+from estimator import compiled_runs, row_kernels
+from estimator.compiled_runs import bend_excess, fitted_arrays
+from estimator.gating import BEND_NOISE, OrderGates
 from estimator.kinematics import RigidFit
+from estimator.rigidity import excess_many, noise_levels_many
 from estimator.streaming import InertiaEstimator
 
 NUMBA = pytest.mark.skipif(not row_kernels.AVAILABLE, reason="numba not installed")
@@ -82,3 +85,59 @@ def test_the_compiled_runs_give_the_numpy_estimate(monkeypatch: pytest.MonkeyPat
     # one frame at a time (live) and in blocks (replay) give the same bits
     single, _ = _estimate(monkeypatch, True, 1)
     assert np.array_equal(single.theta, got.theta) and np.array_equal(single.cov, got.cov)
+
+
+@pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=NUMBA)])
+def test_the_compiled_curvature_is_the_numpy_one(compiled: bool) -> None:
+    fit, _ = _fit(3, True)
+    rng = np.random.default_rng(3)
+    seq_w = rng.normal(size=(8, 3, 3)) + 1j * rng.normal(size=(8, 3, 3))
+    seq_w[:2, 1] = np.nan  # no motion before: not finite
+    seq_w[4:, 2] = seq_w[3, 2] * np.arange(1, 5)[:, None]  # straight: within the noise
+    seq_w[5, 0] = 0.0  # no motion at all
+    chained = np.array([True, True, True, False, True, True])
+    noise = rng.uniform(0.0, 0.02, (6, 3))
+    noise[2, 0] = 0.0  # a noise-free fit: all its bend is excess
+    want = OrderGates._bend_excess(seq_w, chained, noise, [], fit)
+    got = bend_excess(seq_w, chained, noise, fit.omega_trace, BEND_NOISE, compiled=compiled)
+    np.testing.assert_allclose(got, want, rtol=1e-13, atol=0)
+    # not chained, no motion before, straight: nothing; a motion gone: a bend
+    assert np.all(got[3] == 0) and np.all(got[:2, 1] == 0) and np.all(got[4:, 2] == 0)
+    w = seq_w[4, 0]
+    bend = np.linalg.norm(w - 2 * seq_w[3, 0] + seq_w[2, 0]) / np.linalg.norm(w)
+    assert got[2, 0] == pytest.approx(bend, rel=1e-14) and np.count_nonzero(got) > 6
+
+
+@pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=NUMBA)])
+def test_the_compiled_noise_levels_are_the_numpy_ones(
+    monkeypatch: pytest.MonkeyPatch, compiled: bool
+) -> None:
+    # unknown noise (None, a NaN channel), nil noise, measured noise, shared by frames
+    fit, _ = _fit(3, True)
+    fit = fit.on_channels(np.arange(9))
+    rng = np.random.default_rng(8)
+    amps = rng.normal(size=(7, 3, 9)) + 1j * rng.normal(size=(7, 3, 9))
+    measured = rng.uniform(0.1, 2.0, 9)
+    missing = measured.copy()
+    missing[4] = np.nan
+    variances: list[np.ndarray | None] = [None, measured, measured, np.zeros(9), missing]
+    variances += [0.01 * measured, None]
+    _, _, relative, noise_var = fit.fit_arrays(amps)
+    unknown = [True, False, False, False, True, False, True]
+    own: list[np.ndarray | None] = [rng.uniform(0.1, 2.0, 9) for _ in range(7)]
+    for each in (variances, own):
+        monkeypatch.setattr(row_kernels, "USE", False)
+        want = noise_levels_many(fit, each)
+        want_excess = excess_many(relative, noise_var, fit, *want)
+        monkeypatch.setattr(row_kernels, "USE", True)
+        if not compiled:
+            monkeypatch.setattr(compiled_runs, "jit", lambda fn: fn)
+        got = noise_levels_many(fit, each)
+        got_excess = excess_many(relative, noise_var, fit, *got)
+        for a, b in zip((*got, *got_excess), (*want, *want_excess), strict=True):
+            np.testing.assert_allclose(a, b, rtol=1e-13, atol=0)
+        assert np.isnan(got[0]).tolist() == unknown
+        assert np.all(got_excess[1] <= got_excess[0]) and np.any(got_excess[1] < relative)
+        if each is variances:
+            assert got[0][3] == got[1][3] == 0  # (nil noise)
+        unknown = [False] * 7
