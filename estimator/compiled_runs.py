@@ -249,3 +249,89 @@ def excess_pairs(
                     out[i, f, o] = rel * np.sqrt(1.0 - c / rss)
                 else:
                     out[i, f, o] = rel * 0.0
+
+
+def order_screen(
+    rpm: np.ndarray,
+    orders: np.ndarray,
+    force: np.ndarray,
+    moment: np.ndarray,
+    curvature: np.ndarray,
+    power: np.ndarray,
+    leak: np.ndarray,
+    near_hz: float,
+    max_curvature: float,
+    excited: np.ndarray,
+    compiled: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`estimator.gating.OrderGates.screen_orders`' arithmetic: ``why`` (n, k) int
+    and the error ``floor`` (n, k), (m/s^2)^2, from the excitation ``force`` and
+    ``moment`` (n, k, 3) complex at ``rpm`` (n,), the ``curvature`` and ``power`` (n, k),
+    ``leak`` (k, k) the neighbour leakage's shares squared, ``near_hz`` the frequency
+    below which an order is near the modes (-inf: never), and ``excited`` (n, k) the
+    orders excited whatever their known excitation (the unbalance's order 1)."""
+    why = np.empty(curvature.shape, np.int64)
+    floor = np.empty(curvature.shape)
+    (jit(screen_pairs) if compiled else screen_pairs)(
+        np.asarray(rpm, float),
+        np.asarray(orders, float),
+        np.ascontiguousarray(force, complex),
+        np.ascontiguousarray(moment, complex),
+        np.ascontiguousarray(curvature, float),
+        np.ascontiguousarray(power, float),
+        np.ascontiguousarray(leak, float),
+        float(near_hz),
+        float(max_curvature),
+        np.ascontiguousarray(excited, np.bool_),
+        why,
+        floor,
+    )
+    return why, floor
+
+
+def screen_pairs(
+    rpm: np.ndarray,
+    orders: np.ndarray,
+    force: np.ndarray,
+    moment: np.ndarray,
+    curvature: np.ndarray,
+    power: np.ndarray,
+    leak: np.ndarray,
+    near_hz: float,
+    max_curvature: float,
+    excited: np.ndarray,
+    why: np.ndarray,
+    floor: np.ndarray,
+) -> None:
+    """:func:`order_screen`'s loop."""
+    n_f, n_o = curvature.shape
+    level = np.empty(n_o)
+    bent = np.empty(n_o)
+    for f in range(n_f):
+        top = -np.inf
+        for o in range(n_o):
+            sf = 0.0
+            sm = 0.0
+            for i in range(3):
+                sf += abs(force[f, o, i]) ** 2
+                sm += abs(moment[f, o, i]) ** 2
+            level[o] = 0.3 * np.sqrt(sf) + np.sqrt(sm)
+            if level[o] > top or np.isnan(level[o]):  # (a NaN stays, as in np.max)
+                top = level[o]
+            bent[o] = curvature[f, o] ** 2 * power[f, o]
+        limit = 1e-6 * (top if top >= 1e-300 or np.isnan(top) else 1e-300)
+        for o in range(n_o):
+            leak_var = 0.0
+            for j in range(n_o):
+                leak_var += leak[o, j] * bent[j]
+            floor[f, o] = bent[o] + leak_var
+            if not (level[o] > limit or excited[f, o]):
+                why[f, o] = 1
+            elif orders[o] * rpm[f] / 60.0 < near_hz:
+                why[f, o] = 2
+            elif curvature[f, o] > max_curvature:
+                why[f, o] = 3
+            elif leak_var > max_curvature**2 * power[f, o]:
+                why[f, o] = 4
+            else:
+                why[f, o] = 0

@@ -21,7 +21,7 @@ import numpy as np
 from scipy.special import fdtri
 
 from estimator import row_kernels
-from estimator.compiled_runs import bend_excess
+from estimator.compiled_runs import bend_excess, order_screen
 from estimator.kinematics import RigidFit, RigidMotion
 from estimator.setup import EstimatorSetup, Gates
 
@@ -117,29 +117,40 @@ class OrderGates:
             rejected (0: not by these gates; :meth:`judge` adds the residual gate).
         floor : (n, k) the channel variance the dsp errs by near a mode, (m/s^2)^2.
         """
+        corr = self.setup.corrections
+        unloaded = None
+        if corr.unbalance and corr.unbalance_location and fit is not None and relative is not None:
+            # the estimated unbalance drives order 1 (a balanced inline 4 has no known
+            # order-1 load): its rows hold the mount reactions and the unbalance. Only
+            # with the couple free: pinned at the reference point, the simulated inline
+            # 4's intervals held in 2 of 10 realistic seeds (10 of 10 with it)
+            unloaded = (
+                (orders[None, :] == 1.0)
+                & responds(relative, power, fit)
+                & self.far_from_modes(orders, rpm)
+            )
+        top = self.setup.mode_max_hz
+        max_curvature = self.setup.gates.max_curvature
+        if row_kernels.USE:  # PTINERTIA_NUMBA=1: the arithmetic below in one loop
+            return order_screen(
+                rpm, orders, force, moment, curvature, power,
+                _leak_matrix(tuple(orders.tolist())),
+                -np.inf if top is None else self.setup.gates.min_mode_ratio * top,
+                max_curvature,
+                np.zeros(curvature.shape, bool) if unloaded is None else unloaded,
+            )  # fmt: skip
         # Excitation level per order (force times a typical 0.3 m arm, plus moment):
         # an order the engine does not excite carries no information, only noise.
         level = 0.3 * np.sqrt(np.add.reduce(np.abs(force) ** 2, axis=2)) + np.sqrt(
             np.add.reduce(np.abs(moment) ** 2, axis=2)
         )
         excited = level > 1e-6 * np.maximum(level.max(axis=1, keepdims=True), 1e-300)
-        corr = self.setup.corrections
-        if corr.unbalance and corr.unbalance_location and fit is not None and relative is not None:
-            # the estimated unbalance drives order 1 (a balanced inline 4 has no known
-            # order-1 load): its rows hold the mount reactions and the unbalance. Only
-            # with the couple free: pinned at the reference point, the simulated inline
-            # 4's intervals held in 2 of 10 realistic seeds (10 of 10 with it)
-            excited |= (
-                (orders[None, :] == 1.0)
-                & responds(relative, power, fit)
-                & self.far_from_modes(orders, rpm)
-            )
-        top = self.setup.mode_max_hz
+        if unloaded is not None:
+            excited |= unloaded
         if top is None:
             near = np.zeros(level.shape, dtype=bool)
         else:
             near = orders[None, :] * rpm[:, None] / 60.0 < self.setup.gates.min_mode_ratio * top
-        max_curvature = self.setup.gates.max_curvature
         leak_var = neighbour_leakage(orders, curvature, power)
         leaking = leak_var > max_curvature**2 * power
         # np.select([~excited, near, curvature > max_curvature, leaking], [1, 2, 3, 4]):

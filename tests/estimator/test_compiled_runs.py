@@ -1,8 +1,8 @@
 """The compiled arithmetic of a fitted run (estimator/compiled_runs.py) against the numpy
 reference (RigidFit.fit_arrays and fit_run's power, the curvature gate's arithmetic, the
-noise levels and the excess residuals): the readings are copies (equal), the fits agree
+noise levels, the excess residuals and the order screen): the readings are copies (equal), the fits agree
 within rounding (1e-13 relative to each array's largest entry: the loop sums in another
-order than BLAS), the rest within 1e-13 relative, and so do whole runs of the estimator (1e-12 relative),
+order than BLAS), the rest within 1e-13 relative (the same decisions), and so do whole runs of the estimator (1e-12 relative),
 one frame at a time and in blocks bit for bit. The loop is checked run by the
 interpreter (no numba needed) and compiled."""
 
@@ -20,6 +20,7 @@ from estimator.compiled_runs import bend_excess, fitted_arrays
 from estimator.gating import BEND_NOISE, OrderGates
 from estimator.kinematics import RigidFit
 from estimator.rigidity import excess_many, noise_levels_many
+from estimator.setup import Corrections
 from estimator.streaming import InertiaEstimator
 
 NUMBA = pytest.mark.skipif(not row_kernels.AVAILABLE, reason="numba not installed")
@@ -141,3 +142,39 @@ def test_the_compiled_noise_levels_are_the_numpy_ones(
         if each is variances:
             assert got[0][3] == got[1][3] == 0  # (nil noise)
         unknown = [False] * 7
+
+
+@pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=NUMBA)])
+@pytest.mark.parametrize(("mode_hz", "unbalance_location"), [(None, False), (30.0, True)])
+def test_the_compiled_order_screen_is_the_numpy_one(
+    monkeypatch: pytest.MonkeyPatch, compiled: bool, mode_hz: float | None, unbalance_location: bool
+) -> None:
+    # every reason: not excited (a nil order, a NaN level's frame), near the modes, off
+    # the mass line, leakage from a bending neighbour; order 1 unloaded but responding
+    corrections = Corrections(unbalance_location=unbalance_location)
+    setup = dataclasses.replace(make_setup(Body(), corrections=corrections), mode_max_hz=mode_hz)
+    gates = OrderGates(setup)
+    fit, _ = _fit(3, True)
+    rng = np.random.default_rng(11)
+    n, orders = 40, np.array([0.5, 1.0, 1.5, 2.0])
+    rpm = rng.uniform(800.0, 6000.0, n)
+    force = rng.normal(size=(n, 4, 3)) + 1j * rng.normal(size=(n, 4, 3))
+    moment = rng.normal(size=(n, 4, 3)) + 1j * rng.normal(size=(n, 4, 3))
+    force[:, 1], moment[:, 1] = 0.0, 0.0  # order 1: no known load
+    force[5, 2, 0] = np.nan
+    curvature = rng.uniform(0.0, 0.01, (n, 4))
+    power = rng.uniform(0.1, 2.0, (n, 4))
+    relative = rng.uniform(0.0, 0.5, (n, 4))
+    rpm[7], curvature[7] = 3000.0, [0.002, 0.002, 0.2, 0.002]  # H1.5 bends: H2 leaks
+    args = (rpm, orders, force, moment, curvature, power, relative, fit)
+    monkeypatch.setattr(row_kernels, "USE", False)
+    why, floor = gates.screen_orders(*args)
+    monkeypatch.setattr(row_kernels, "USE", True)
+    if not compiled:
+        monkeypatch.setattr(compiled_runs, "jit", lambda fn: fn)
+    got_why, got_floor = gates.screen_orders(*args)
+    assert np.array_equal(got_why, why)
+    np.testing.assert_allclose(got_floor, floor, rtol=1e-13, atol=0)
+    assert set(why.ravel().tolist()) == ({0, 1, 2, 3, 4} if mode_hz else {0, 1, 3, 4})
+    assert np.all(why[5, [0, 2, 3]] == 1) and np.any(why[:, 1] != 1) == unbalance_location
+    assert why[7, 2] == 3 and why[7, 3] == 4
