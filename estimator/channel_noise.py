@@ -40,6 +40,9 @@ from typing import Any
 
 import numpy as np
 
+from estimator import row_kernels
+from estimator.compiled_noise import noise_medians, window_means
+
 CAPACITY = 256
 # Weights are kept within this ratio of the median channel's: a channel with no
 # measurable noise (noise-free simulation, a stuck sensor) must not take the fit over.
@@ -166,9 +169,12 @@ class ChannelNoise:
             by_k.setdefault(len(x), []).append(i)
         for k, at in by_k.items():
             x, x1, x0 = (np.array([triples[i][m] for i in at]) for m in range(3))
-            d = x - 2 * x1 + x0
-            per_order = (d.real**2 + d.imag**2) / 12.0  # 6 Var per part, two parts
-            m = median_of_orders(per_order)
+            if row_kernels.USE:  # PTINERTIA_NUMBA=1: in one loop, the same bits
+                m = noise_medians(x, x1, x0)
+            else:
+                d = x - 2 * x1 + x0
+                per_order = (d.real**2 + d.imag**2) / 12.0  # 6 Var per part, two parts
+                m = median_of_orders(per_order)
             for i, row, unbiased in zip(at, m, m / median_bias(k), strict=True):
                 medians[i], recent[i] = row, unbiased
         before = len(self._recent)
@@ -238,6 +244,8 @@ def _window_variances(recent: list[np.ndarray]) -> list[np.ndarray]:
     if len(recent) < RECENT:
         return []
     stack = np.array(recent)  # (m, n_channels)
+    if row_kernels.USE:  # PTINERTIA_NUMBA=1: in one loop, the same bits
+        return list(window_means(stack, RECENT))
     n = len(recent) - RECENT + 1
     total = stack[:n] + stack[1 : n + 1]
     for j in range(2, RECENT):

@@ -1,22 +1,37 @@
 """The compiled arithmetic of a run of frames fitted alike (``PTINERTIA_NUMBA=1``).
 
-:func:`fitted_arrays` does, in one loop over a run's (frame, order) pairs, what
-:func:`estimator.fitted_runs.fit_run` otherwise does in a dozen numpy calls: gather the
-used channels' amplitudes, fit the rigid motion (:meth:`estimator.kinematics.RigidFit.
-fit_arrays`) and take the readings' mean square per order. The numpy functions stay the
-default and the reference; :func:`estimator.row_kernels.jit` compiles the loop
-(``cache=True``, ``nogil=True``) on its first call, so the default path never imports
-numba.
+Each function here does in one loop over a run's (frame, order) pairs what the numpy
+path does in a dozen to thirty-five array calls: :func:`fitted_arrays` (the used
+channels' gather, the rigid fit of :meth:`estimator.kinematics.RigidFit.fit_arrays`
+and the readings' power, for :func:`estimator.fitted_runs.fit_run`), :func:`bend_excess`
+(the curvature gate, :meth:`estimator.gating.OrderGates.curvature`),
+:func:`order_screen` (:meth:`~estimator.gating.OrderGates.screen_orders`),
+:func:`noise_sums` and :func:`excess_rows` (:mod:`estimator.rigidity`), and
+:func:`noise_medians` and :func:`window_means` (:mod:`estimator.channel_noise`). The
+numpy functions stay the default and the reference; :func:`estimator.row_kernels.jit`
+compiles a loop (``cache=True``, ``nogil=True``) on its first call, so the default path
+never imports numba.
 
 Why: a run is a dozen frames of 3 orders by 9 channels, and at that size numpy's
-per-call overhead, not the arithmetic, is what the fit costs (issue 24: the fit,
-its gather and the power 28-45 us a 12-frame run in numpy calls against a few us here).
+per-call overhead, not the arithmetic, is what it costs (issue 24). Measured on the 60 s
+log's frames (a 12-frame run, timeit CPU best of 5, load 5-10): ``fit_run`` 216 us
+before this module's loops and the numpy path's restructuring, 171 numpy, 100 compiled;
+in it the gather, fit and power 25.6 -> 4.4 us, the curvature 19.6 -> 8.7, the noise
+levels 27.8 -> 12.3 (scipy's chi-square quantile stays), the excess 8.1 -> 1.5, the order
+screen 18.3 -> 3.4; the channel noise's ``add_many`` about 6.3 -> 3.4 us a frame.
 
-How close: the gather is a copy (the same readings); the fit's two matrix products are
-summed in the loop's order where numpy takes BLAS's, so the motions, residuals and
-power agree within a few units in the last place (tested within 1e-13 relative);
-``ptinertia run --rerun off`` and ``--realistic``: compiled against compiled before
-within 1e-12 relative on every estimate (the figures in the commit).
+How close: the gather is a copy, the channel noise's medians and windows and the
+curvature's sums take numpy's operations in numpy's order (the same bits, tested);
+the fit's two matrix products, the noise levels' double sum, the level's ``|z|^2`` and
+the neighbour leakage's product are summed in the loop's order where numpy takes
+BLAS's or its pairwise sums: within a few units in the last place (tested within 1e-13
+relative, the order screen's reasons equal). ``ptinertia run --rerun off --realistic``
+compiled against numpy: every estimate and interval within 1e-12 relative but the
+half-order residual ratio (4.4e-11; 6.4e-11 with the row kernels alone) and a principal
+axis component of 0.029 (1.4e-12; 4.6e-12 before); the default (noise-free) run: the same
+decisions, its intervals within 5e-11 (the row kernels alone: 1.4e-10), its round-off
+quantities (variance factor, zero unbalance and crank offset) move as with the row
+kernels (:mod:`estimator.compiled_rows`).
 """
 
 from __future__ import annotations
@@ -155,100 +170,6 @@ def bend_pairs(
             sigma = np.sqrt(2 * noise[f, o] * trace) / size
             excess = np.sqrt(bend) / size - bend_noise * sigma
             out[f, o] = excess if chained[f] and np.isfinite(excess) and excess > 0 else 0.0
-
-
-def noise_sums(
-    var: np.ndarray, fit: RigidFit, compiled: bool = True
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`estimator.rigidity.noise_levels_many`' arithmetic before the chi-square
-    quantile, for m channel noise variances ``var`` (m, n_ch) of ``fit``'s channels:
-    (m,) the noise's mean weighted residual sum of squares ``2 sum l``, Satterthwaite's
-    scale ``g`` and degrees of freedom ``h``; NaN where a variance is not finite, and
-    ``g`` 0 (``h`` 2) where ``sum l`` or ``sum l^2`` is not positive."""
-    m_diag, m_sq = fit.residual_projector_parts
-    out = np.empty((3, len(var)))
-    (jit(noise_rows) if compiled else noise_rows)(
-        np.ascontiguousarray(var, float), np.ascontiguousarray(fit.sw, float), m_diag, m_sq, out
-    )
-    return out[0], out[1], out[2]
-
-
-def noise_rows(
-    var: np.ndarray, sw: np.ndarray, m_diag: np.ndarray, m_sq: np.ndarray, out: np.ndarray
-) -> None:
-    """:func:`noise_sums`' loop."""
-    m, n = var.shape
-    d = np.empty(n)
-    for j in range(m):
-        known = True
-        for c in range(n):
-            d[c] = sw[c] ** 2 * var[j, c]
-            known = known and np.isfinite(var[j, c])
-        s1 = 0.0
-        s2 = 0.0
-        for a in range(n):
-            s1 += m_diag[a] * d[a]
-            for b in range(n):
-                s2 += m_sq[a, b] * (d[a] * d[b])
-        if not known:
-            out[0, j] = np.nan
-            out[1, j] = np.nan
-            out[2, j] = np.nan
-        elif s1 > 0 and s2 > 0:
-            out[0, j] = 2.0 * s1
-            out[1, j] = s2 / s1
-            out[2, j] = 2.0 * s1**2 / s2
-        else:
-            out[0, j] = 0.0
-            out[1, j] = 0.0
-            out[2, j] = 2.0
-
-
-def excess_rows(
-    relative: np.ndarray,
-    noise_var: np.ndarray,
-    dof: int,
-    mean: np.ndarray,
-    q: np.ndarray,
-    compiled: bool = True,
-) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`estimator.rigidity.excess_many`' arithmetic: (n, k) the relative residuals
-    less the noise's ``mean`` and beyond its quantile ``q`` ((n,) each, NaN: unknown)."""
-    out = np.empty((2, *relative.shape))
-    (jit(excess_pairs) if compiled else excess_pairs)(
-        np.ascontiguousarray(relative, float),
-        np.ascontiguousarray(noise_var, float),
-        float(dof),
-        np.asarray(mean, float),
-        np.asarray(q, float),
-        out,
-    )
-    return out[0], out[1]
-
-
-def excess_pairs(
-    relative: np.ndarray,
-    noise_var: np.ndarray,
-    dof: float,
-    mean: np.ndarray,
-    q: np.ndarray,
-    out: np.ndarray,
-) -> None:
-    """:func:`excess_rows`' loop."""
-    n_f, n_o = relative.shape
-    for f in range(n_f):
-        known = np.isfinite(mean[f])
-        for o in range(n_o):
-            rel = relative[f, o]
-            rss = 2.0 * dof * noise_var[f, o]
-            for i in range(2):
-                c = mean[f] if i == 0 else q[f]
-                if not known:
-                    out[i, f, o] = rel
-                elif rss > c:
-                    out[i, f, o] = rel * np.sqrt(1.0 - c / rss)
-                else:
-                    out[i, f, o] = rel * 0.0
 
 
 def order_screen(

@@ -38,7 +38,7 @@ import numpy as np
 from scipy.special import gammainccinv
 
 from estimator import row_kernels
-from estimator.compiled_runs import excess_rows, noise_sums
+from estimator.compiled_noise import excess_rows, noise_sums
 from estimator.kinematics import RigidFit, RigidMotion
 
 # Upper quantile of the noise's chi-square the residual must pass to count at all.

@@ -1,10 +1,11 @@
 """The compiled arithmetic of a fitted run (estimator/compiled_runs.py) against the numpy
 reference (RigidFit.fit_arrays and fit_run's power, the curvature gate's arithmetic, the
-noise levels, the excess residuals and the order screen): the readings are copies (equal), the fits agree
-within rounding (1e-13 relative to each array's largest entry: the loop sums in another
-order than BLAS), the rest within 1e-13 relative (the same decisions), and so do whole runs of the estimator (1e-12 relative),
-one frame at a time and in blocks bit for bit. The loop is checked run by the
-interpreter (no numba needed) and compiled."""
+noise levels, the excess residuals, the order screen, the channel noise's medians and
+windows). The readings are copies and the channel noise the same operations: equal. The
+fits agree within rounding (1e-13 relative to each array's largest entry: the loop sums
+in another order than BLAS), the rest within 1e-13 relative (the same decisions), and
+whole runs of the estimator within 1e-12 relative, one frame at a time and in blocks bit
+for bit. The loops are checked run by the interpreter (no numba needed) and compiled."""
 
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ import numpy as np
 import pytest
 from support.estimator_harness import Body, frames, make_setup
 
-from estimator import compiled_runs, row_kernels
+from estimator import compiled_noise, compiled_runs, row_kernels
+from estimator.channel_noise import ChannelNoise
 from estimator.compiled_runs import bend_excess, fitted_arrays
 from estimator.gating import BEND_NOISE, OrderGates
 from estimator.kinematics import RigidFit
@@ -132,7 +134,7 @@ def test_the_compiled_noise_levels_are_the_numpy_ones(
         want_excess = excess_many(relative, noise_var, fit, *want)
         monkeypatch.setattr(row_kernels, "USE", True)
         if not compiled:
-            monkeypatch.setattr(compiled_runs, "jit", lambda fn: fn)
+            monkeypatch.setattr(compiled_noise, "jit", lambda fn: fn)
         got = noise_levels_many(fit, each)
         got_excess = excess_many(relative, noise_var, fit, *got)
         for a, b in zip((*got, *got_excess), (*want, *want_excess), strict=True):
@@ -178,3 +180,39 @@ def test_the_compiled_order_screen_is_the_numpy_one(
     assert set(why.ravel().tolist()) == ({0, 1, 2, 3, 4} if mode_hz else {0, 1, 3, 4})
     assert np.all(why[5, [0, 2, 3]] == 1) and np.any(why[:, 1] != 1) == unbalance_location
     assert why[7, 2] == 3 and why[7, 3] == 4
+
+
+@pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=NUMBA)])
+@pytest.mark.parametrize("k", [3, 4])
+def test_the_compiled_channel_noise_is_the_numpy_one_bit_for_bit(
+    monkeypatch: pytest.MonkeyPatch, compiled: bool, k: int
+) -> None:
+    # a sweep of frames 720 deg apart (revolutions 0, 2, 4, ...), a channel lost for a
+    # while (NaN) and another with no noise at all; in blocks of 5, numpy against loops
+    rng = np.random.default_rng(k)
+    n = 30
+    amps = rng.normal(size=(n, k, 9)) + 1j * rng.normal(size=(n, k, 9))
+    amps *= rng.uniform(0.1, 3.0, 9)
+    amps[12:15, :, 2] = np.nan
+    amps[:, :, 5] = 1.0 + 2.0j
+    amps[7, 1, 4] = np.nan  # one order of one frame
+    orders = tuple(np.arange(1, k + 1) / 2.0)
+    frames = [(2 * j, orders, amps[j]) for j in range(n)]
+
+    def variances(use: bool) -> list[Any]:
+        monkeypatch.setattr(row_kernels, "USE", use)
+        noise = ChannelNoise(9)
+        after = [v for at in range(0, n, 5) for v, _ in noise.add_many(frames[at : at + 5])]
+        noise.release(noise.estimates)
+        return [*after, noise.weights()]
+
+    want = variances(False)
+    if not compiled:
+        monkeypatch.setattr(compiled_noise, "jit", lambda fn: fn)
+    got = variances(True)
+    assert len(got) == len(want) and sum(v is not None for v in want) > 15
+    for a, b in zip(got, want, strict=True):
+        assert (a is None and b is None) or np.array_equal(a, b, equal_nan=True)
+    last = want[-2]
+    assert not np.isnan(last[2]) and last[5] == 0.0
+    assert any(v is not None and np.isnan(v[2]) for v in want)
