@@ -168,10 +168,12 @@ class ChannelNoise:
         for i, (x, _, _) in enumerate(triples):
             by_k.setdefault(len(x), []).append(i)
         for k, at in by_k.items():
-            x, x1, x0 = (np.array([triples[i][m] for i in at]) for m in range(3))
+            # (one stack of the triples: copies, the same values as three)
+            stack = np.array(triples if len(at) == len(triples) else [triples[i] for i in at])
             if row_kernels.USE:  # PTINERTIA_NUMBA=1: in one loop, the same bits
-                m = noise_medians(x, x1, x0)
+                m = noise_medians(stack)
             else:
+                x, x1, x0 = stack[:, 0], stack[:, 1], stack[:, 2]
                 d = x - 2 * x1 + x0
                 per_order = (d.real**2 + d.imag**2) / 12.0  # 6 Var per part, two parts
                 m = median_of_orders(per_order)

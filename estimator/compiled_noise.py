@@ -107,33 +107,27 @@ def excess_pairs(
                     out[i, f, o] = rel * 0.0
 
 
-def noise_medians(
-    x: np.ndarray, x1: np.ndarray, x0: np.ndarray, compiled: bool = True
-) -> np.ndarray:
+def noise_medians(triples: np.ndarray, compiled: bool = True) -> np.ndarray:
     """:class:`estimator.channel_noise.ChannelNoise`'s per-frame estimates before their
     bias: (m, n_ch) the median over the orders of ``|x - 2 x1 + x0|^2 / 12`` of m frames'
-    (m, k, n_ch) complex amplitudes and the two 720 deg before each, NaN where one order
-    is (numpy's median: the mean of the middle pair for even k). The same operations
-    as the numpy path (:func:`estimator.channel_noise.median_of_orders`): the same bits."""
-    out = np.empty((x.shape[0], x.shape[2]))
-    (jit(median_rows) if compiled else median_rows)(
-        np.ascontiguousarray(x, complex),
-        np.ascontiguousarray(x1, complex),
-        np.ascontiguousarray(x0, complex),
-        out,
-    )
+    (k, n_ch) complex amplitudes ``x`` and the two 720 deg before each, ``triples``
+    (m, 3, k, n_ch) [x, x1, x0]; NaN where one order is (numpy's median: the mean of the
+    middle pair for even k). The same operations as the numpy path
+    (:func:`estimator.channel_noise.median_of_orders`): the same bits."""
+    out = np.empty((triples.shape[0], triples.shape[3]))
+    (jit(median_rows) if compiled else median_rows)(np.ascontiguousarray(triples, complex), out)
     return out
 
 
-def median_rows(x: np.ndarray, x1: np.ndarray, x0: np.ndarray, out: np.ndarray) -> None:
+def median_rows(triples: np.ndarray, out: np.ndarray) -> None:
     """:func:`noise_medians`' loop (an insertion sort of the k orders)."""
-    m, k, n = x.shape
+    m, _, k, n = triples.shape
     v = np.empty(k)
     for f in range(m):
         for c in range(n):
             nan = False
             for o in range(k):
-                d = x[f, o, c] - 2 * x1[f, o, c] + x0[f, o, c]
+                d = triples[f, 0, o, c] - 2 * triples[f, 1, o, c] + triples[f, 2, o, c]
                 e = (d.real**2 + d.imag**2) / 12.0
                 nan = nan or np.isnan(e)
                 j = o
