@@ -173,13 +173,10 @@ def fit_run(
 
 
 def run_readings(frames: list[FrameLike], run: list[Screened]) -> np.ndarray:
-    """(n, k, u) complex: the used channels' amplitudes of a run's frames, m/s^2. Their
-    channels are the same (:func:`run_end`); where their columns are too (one channel
-    tuple: :meth:`estimator.channel_fits.ChannelFits.screen` caches them per tuple),
-    one gather for the run (copies: the same values as frame by frame)."""
-    first = run[0]
-    if all(s.cols is first.cols for s in run):
-        return np.array([f.amplitudes for f in frames])[:, :, first.cols[first.used]]
+    """(n, k, u) complex: the used channels' amplitudes of a run's frames, m/s^2, each
+    frame's gathered alone and stacked (the memory layout the numpy fit's reductions
+    see, and so their bits, are those of a frame alone: a gather of the whole run at
+    once lays the channels out otherwise and moved the relative residual by an ulp)."""
     return np.stack([f.amplitudes[:, s.cols[s.used]] for f, s in zip(frames, run, strict=True)])
 
 

@@ -141,9 +141,9 @@ class OrderGates:
             )  # fmt: skip
         # Excitation level per order (force times a typical 0.3 m arm, plus moment):
         # an order the engine does not excite carries no information, only noise.
-        level = 0.3 * np.sqrt(np.add.reduce(np.abs(force) ** 2, axis=2)) + np.sqrt(
-            np.add.reduce(np.abs(moment) ** 2, axis=2)
-        )
+        # (force and moment as one array: each element's operations as for either alone)
+        norms = np.sqrt(np.add.reduce(np.abs(np.array((force, moment))) ** 2, axis=3))
+        level = 0.3 * norms[0] + norms[1]
         excited = level > 1e-6 * np.maximum(level.max(axis=1, keepdims=True), 1e-300)
         if unloaded is not None:
             excited |= unloaded
@@ -292,12 +292,14 @@ class OrderGates:
         # sigma), sigma from this frame's rigid-fit residual: only the excess bends
         covs = [fit.cov_unit] if not motions else [m.cov_unit for m in motions]
         if all(c is fit.cov_unit for c in covs):  # a run's frames share their fit's
-            sigma = np.sqrt(2 * noise * fit.omega_trace) / size
+            # (2 noise trace: doubling is exact, so either product rounds alike)
+            sigma = np.sqrt(noise * (2 * fit.omega_trace)) / size
         else:
             trace = np.array([np.trace(c[3:, 3:]) for c in covs])
             sigma = np.sqrt(2 * noise * trace[:, None]) / size
         excess = np.maximum(0.0, bend - BEND_NOISE * sigma)
-        return np.where(chained[:, None] & np.isfinite(excess), excess, 0.0)
+        usable = np.isfinite(excess) if chained.all() else chained[:, None] & np.isfinite(excess)
+        return np.where(usable, excess, 0.0)
 
     def residual(
         self, h: float, rpm: float, relative: float, share: float, excess: float

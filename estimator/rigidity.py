@@ -128,11 +128,17 @@ def noise_levels_many(
             continue
         if id(v) not in rows:
             rows[id(v)] = len(var_list)
-            var_list.append(np.asarray(v, float) if fit.channels is None else v[fit.channels])
+            var_list.append(v)
         at.append(j)
-    if not var_list or var_list[0].shape != fit.sw.shape:
+    if not var_list:
         return np.full(len(variances), np.nan), np.full(len(variances), np.nan)
-    var = np.array(var_list)  # (m, n_ch)
+    var = np.array(var_list, dtype=float)  # (m, n_setup): one gather for all of them
+    if fit.channels is not None and var.ndim == 2:
+        # (np.take: C-ordered as the rows were; var[:, channels] is laid out by column,
+        # and the sums below would take another order)
+        var = np.take(var, fit.channels, axis=1)
+    if var.shape[1:] != fit.sw.shape:
+        return np.full(len(variances), np.nan), np.full(len(variances), np.nan)
     if row_kernels.USE:  # PTINERTIA_NUMBA=1: the sums in one loop
         mean_all, g, h = noise_sums(var, fit)
         q_all = g * 2.0 * gammainccinv(h / 2.0, 1.0 - NOISE_QUANTILE)  # (NaN: unknown)

@@ -1,12 +1,17 @@
 """What a fitted run hands the frame queue per frame (``FittedRun.queued``): the half-order
-masks and power sums it makes once per run are each frame's own."""
+masks and power sums it makes once per run are each frame's own; and its fits are those
+of each frame alone."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from support.estimator_harness import Body, frames, make_setup
 
-from estimator.fitted_runs import FittedRun
+from estimator import row_kernels
+from estimator.channel_fits import ChannelFits
+from estimator.fitted_runs import FittedRun, Screened, fit_run, run_end
+from estimator.gating import OrderGates
 
 
 def _run(orders: list[float], n: int, seed: int) -> FittedRun:
@@ -37,3 +42,35 @@ def test_each_frame_gets_its_own_half_orders_and_power_sum(orders: list[float]) 
     assert half.any() and not half.all()
     with pytest.raises(ValueError):
         half[0] = not half[0]
+
+
+def test_a_runs_fits_are_its_frames_fitted_alone(monkeypatch: pytest.MonkeyPatch) -> None:
+    # the numpy path: a run's readings, motions and power are those of its frames fitted
+    # as runs of one (live) and RigidFit.fit's of each frame, bit for bit; the relative
+    # residual within rounding (RigidFit.fit_arrays copies a stack of frames to sum the
+    # channels' power, where a frame's is a view, and numpy's sums take another order)
+    monkeypatch.setattr(row_kernels, "USE", False)
+    body = Body()
+    setup = make_setup(body)
+    data = list(frames(body, np.linspace(1500.0, 4000.0, 14)))
+    channels = ChannelFits(setup)
+    run = [Screened(i, *s) for i, s in enumerate(channels.screen(data))]
+    assert run_end(data, run, 0) == len(run)
+    reason, fit = channels.choose(run[0].used, run[0].steps)
+    assert reason is None and fit is not None
+    r = fit_run(setup, OrderGates(setup), fit, data, run)
+    for j, (f, s) in enumerate(zip(data, run, strict=True)):
+        alone = fit_run(setup, OrderGates(setup), fit, [f], [s._replace(position=0)])
+        assert np.array_equal(r.readings[j], alone.readings[0])
+        assert np.array_equal(r.power[j], alone.power[0])
+        for name in ("gamma_o", "omega_dot", "residual_rms", "noise_var"):
+            assert np.array_equal(getattr(r.motions[j], name), getattr(alone.motions[0], name))
+        rel, rel_alone = r.motions[j].relative_residual, alone.motions[0].relative_residual
+        np.testing.assert_allclose(rel, rel_alone, rtol=1e-14, atol=0)
+        own = f.amplitudes[:, s.cols[s.used]]
+        one = fit.fit(own)
+        assert np.array_equal(r.readings[j], own)
+        for name in ("gamma_o", "omega_dot", "residual_rms", "noise_var"):
+            assert np.array_equal(getattr(r.motions[j], name), getattr(one, name)), name
+        assert np.array_equal(alone.motions[0].relative_residual, one.relative_residual)
+        assert r.power[j] == pytest.approx(np.mean(abs(own) ** 2, axis=1), rel=1e-14)
