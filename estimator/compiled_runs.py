@@ -15,13 +15,14 @@ never imports numba.
 Why: a run is a dozen frames of 3 orders by 9 channels, and at that size numpy's
 per-call overhead, not the arithmetic, is what it costs (issue 24). Measured on the 60 s
 log's frames (a 12-frame run, timeit CPU best of 5, load 5-10): ``fit_run`` 216-235 us
-on main, 201-217 numpy now, 93-100 compiled; in it the gather, fit and power 25.6 -> 4.4
+on main, 175-176 numpy now, 93-100 compiled; in it the gather, fit and power 25.6 -> 4.4
 us, the curvature 19.6 -> 8.7, the noise levels 27.8 -> 12.3 (scipy's chi-square
 quantile stays), the excess 8.1 -> 1.5, the order screen 18.3 -> 3.4; the channel
 noise's ``add_many`` about 6.3 -> 3.4 us a frame. The whole estimator on those frames
 (1498 used; callgrind, instructions per used frame, the blocks of
 ``benchmarks/pipeline_stages._feed``): compiled 1477 k on main -> 1329 k (-10 %), numpy
-1860 k -> 1814 k (-2.5 %, this module's loops unused). Their cost at the start of a
+1860 k -> 1814 k (-2.5 %, this module's loops unused; before the numpy path's one-gather
+readings, which saved some 40 us a 12-frame run more). Their cost at the start of a
 compiled run: about 2.3 s of CPU once per install to compile the seven loops, then 2.5-5
 ms each to load from numba's cache.
 

@@ -173,10 +173,21 @@ def fit_run(
 
 
 def run_readings(frames: list[FrameLike], run: list[Screened]) -> np.ndarray:
-    """(n, k, u) complex: the used channels' amplitudes of a run's frames, m/s^2, each
-    frame's gathered alone and stacked (the memory layout the numpy fit's reductions
-    see, and so their bits, are those of a frame alone: a gather of the whole run at
-    once lays the channels out otherwise and moved the relative residual by an ulp)."""
+    """(n, k, u) complex: the used channels' amplitudes of a run's frames, m/s^2, laid out
+    in memory as each frame's gathered alone and stacked: channel-major per frame. The
+    numpy fit's sums take their order from that layout (a gather of the whole run at once
+    lays the channels out otherwise and moved the relative residual by an ulp), so where
+    the frames share their columns (one channel tuple) and are C-ordered, one gather and
+    one copy into that layout; else frame by frame."""
+    first = run[0]
+    k = np.shape(frames[0].amplitudes)[0]
+    if (
+        k > 1
+        and all(s.cols is first.cols for s in run)
+        and all(f.amplitudes.flags.c_contiguous for f in frames)
+    ):
+        gathered = np.array([f.amplitudes for f in frames])[:, :, first.cols[first.used]]
+        return gathered.transpose(0, 2, 1).copy().transpose(0, 2, 1)
     return np.stack([f.amplitudes[:, s.cols[s.used]] for f, s in zip(frames, run, strict=True)])
 
 

@@ -10,7 +10,7 @@ from support.estimator_harness import Body, frames, make_setup
 
 from estimator import row_kernels
 from estimator.channel_fits import ChannelFits
-from estimator.fitted_runs import FittedRun, Screened, fit_run, run_end
+from estimator.fitted_runs import FittedRun, Screened, fit_run, run_end, run_readings
 from estimator.gating import OrderGates
 
 
@@ -74,3 +74,18 @@ def test_a_runs_fits_are_its_frames_fitted_alone(monkeypatch: pytest.MonkeyPatch
             assert np.array_equal(getattr(r.motions[j], name), getattr(one, name)), name
         assert np.array_equal(alone.motions[0].relative_residual, one.relative_residual)
         assert r.power[j] == pytest.approx(np.mean(abs(own) ** 2, axis=1), rel=1e-14)
+
+
+def test_a_runs_readings_are_laid_out_as_its_frames_gathered_alone() -> None:
+    # the numpy fit's sums take their order from the memory layout: a run's readings
+    # must be the frames' own gathers stacked, in values and in strides
+    body = Body()
+    setup = make_setup(body)
+    for orders in ((1.0, 1.5, 2.0), (1.0, 2.0), (0.5, 1.0, 1.5, 2.0, 2.5, 3.0)):
+        data = list(frames(body, np.linspace(1500.0, 4000.0, 9), orders=orders))
+        data[4].channel_ok[6] = False  # (its own run: another channel set)
+        run = [Screened(i, *s) for i, s in enumerate(ChannelFits(setup).screen(data))]
+        for part in (run[:4], run[5:]):
+            got = run_readings([data[s.position] for s in part], part)
+            want = np.stack([data[s.position].amplitudes[:, s.cols[s.used]] for s in part])
+            assert np.array_equal(got, want) and got.strides == want.strides
