@@ -21,8 +21,7 @@ quantile stays), the excess 8.1 -> 1.5, the order screen 18.3 -> 3.4; the channe
 noise's ``add_many`` about 6.3 -> 3.4 us a frame. The whole estimator on those frames
 (1498 used; callgrind, instructions per used frame, the blocks of
 ``benchmarks/pipeline_stages._feed``): compiled 1477 k on main -> 1329 k (-10 %), numpy
-1860 k -> 1814 k (-2.5 %, this module's loops unused; before the numpy path's one-gather
-readings, which saved some 40 us a 12-frame run more). Their cost at the start of a
+1860 k -> 1800 k (-3.2 %, this module's loops unused). Their cost at the start of a
 compiled run: about 2.3 s of CPU once per install to compile the seven loops, then 2.5-5
 ms each to load from numba's cache.
 
