@@ -43,7 +43,9 @@ class ChannelFits:
 
     def __init__(self, setup: EstimatorSetup) -> None:
         self.setup = setup
-        self._columns: dict[tuple[str, ...], np.ndarray] = {}  # frame channels -> setup columns
+        # frame channels -> per setup channel its column (-1: absent), whether present, and
+        # the columns to gather (0 where absent; None where they are the frame's own order)
+        self._columns: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray, np.ndarray | None]] = {}
         self._fitters: dict[bytes, RigidFit | None] = {}  # channel mask -> geometry
         # the channels' weights in the rigid fit: declared, measured along the sweep
         # (refreshed at each relinearisation), or equal
@@ -127,12 +129,12 @@ class ChannelFits:
         """Usable setup channels (bool: present, flagged good, finite) and, per setup
         channel, its column in the frame, of frames with the same channels and orders;
         and their amplitudes (n, k, n_setup) in setup channel order, NaN where not used."""
-        cols = self._columns_of(frames[0].channels)
-        present = cols >= 0
-        at = np.where(present, cols, 0)
-        amps = np.array([f.amplitudes for f in frames])[:, :, at]  # (n, k, n_setup)
+        cols, present, at = self._columns_of(frames[0].channels)
+        amps = np.array([f.amplitudes for f in frames])  # (n, k, n_setup)
+        ok = np.array([f.channel_ok for f in frames], dtype=bool)
+        if at is not None:  # (a copy either way: the same values)
+            amps, ok = amps[:, :, at], ok[:, at]
         finite = np.isfinite(amps).all(axis=1)
-        ok = np.array([np.asarray(f.channel_ok, bool) for f in frames])[:, at]
         used = present & ok & finite
         return [(row, cols) for row in used], np.where(used[:, None, :], amps, np.nan)
 
@@ -171,14 +173,21 @@ class ChannelFits:
                 self._fitters[key] = None
         return self._fitters[key]
 
-    def _columns_of(self, channels: tuple[str, ...]) -> np.ndarray:
-        """Per setup channel, its column among ``channels`` (-1: absent), cached."""
-        cols = self._columns.get(channels)
-        if cols is None:
+    def _columns_of(
+        self, channels: tuple[str, ...]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Per setup channel, its column among ``channels`` (-1: absent) and whether it
+        is present; and the columns to gather (0 where absent), None when that is all
+        of ``channels`` in their order; cached."""
+        known = self._columns.get(channels)
+        if known is None:
             index = {c: i for i, c in enumerate(channels)}
             cols = np.array([index.get(name, -1) for name in self.setup.channels])
-            self._columns[channels] = cols
-        return cols
+            present = cols >= 0
+            at = np.where(present, cols, 0)
+            same = len(at) == len(channels) and bool(np.all(at == np.arange(len(at))))
+            known = self._columns[channels] = (cols, present, None if same else at)
+        return known
 
     def refresh_weights(self) -> None:
         """Weigh the channels by their measured noise from now on (new frames' fits)."""

@@ -40,6 +40,9 @@ from typing import Any
 
 import numpy as np
 
+from estimator import row_kernels
+from estimator.compiled_noise import noise_medians, window_means
+
 CAPACITY = 256
 # Weights are kept within this ratio of the median channel's: a channel with no
 # measurable noise (noise-free simulation, a stuck sensor) must not take the fit over.
@@ -165,10 +168,15 @@ class ChannelNoise:
         for i, (x, _, _) in enumerate(triples):
             by_k.setdefault(len(x), []).append(i)
         for k, at in by_k.items():
-            x, x1, x0 = (np.array([triples[i][m] for i in at]) for m in range(3))
-            d = x - 2 * x1 + x0
-            per_order = (d.real**2 + d.imag**2) / 12.0  # 6 Var per part, two parts
-            m = median_of_orders(per_order)
+            # (one stack of the triples: copies, the same values as three)
+            stack = np.array(triples if len(at) == len(triples) else [triples[i] for i in at])
+            if row_kernels.USE:  # PTINERTIA_NUMBA=1: in one loop, the same bits
+                m = noise_medians(stack)
+            else:
+                x, x1, x0 = stack[:, 0], stack[:, 1], stack[:, 2]
+                d = x - 2 * x1 + x0
+                per_order = (d.real**2 + d.imag**2) / 12.0  # 6 Var per part, two parts
+                m = median_of_orders(per_order)
             for i, row, unbiased in zip(at, m, m / median_bias(k), strict=True):
                 medians[i], recent[i] = row, unbiased
         before = len(self._recent)
@@ -238,6 +246,8 @@ def _window_variances(recent: list[np.ndarray]) -> list[np.ndarray]:
     if len(recent) < RECENT:
         return []
     stack = np.array(recent)  # (m, n_channels)
+    if row_kernels.USE:  # PTINERTIA_NUMBA=1: in one loop, the same bits
+        return list(window_means(stack, RECENT))
     n = len(recent) - RECENT + 1
     total = stack[:n] + stack[1 : n + 1]
     for j in range(2, RECENT):

@@ -23,6 +23,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from estimator import row_kernels
+from estimator.compiled_runs import fitted_arrays
 from estimator.gating import FrameLike, OrderGates
 from estimator.kinematics import RigidFit, RigidMotion
 from estimator.rigidity import excess_many, noise_levels_many
@@ -133,21 +135,34 @@ def fit_run(
     index = [s.position for s in run]
     run_frames = [frames[i] for i in index]
     orders = np.asarray(run_frames[0].orders, dtype=float)
-    readings = np.stack(
-        [f.amplitudes[:, s.cols[s.used]] for f, s in zip(run_frames, run, strict=True)]
-    )
-    x, residual_rms, relative, noise_var = fit.fit_arrays(readings)
+    if row_kernels.USE:  # PTINERTIA_NUMBA=1: the gather, fit and power in one loop
+        first = run[0]
+        if all(s.cols is first.cols for s in run):
+            amps, columns = np.array([f.amplitudes for f in run_frames]), first.cols[first.used]
+        else:  # (frames of other channel tuples: gathered frame by frame)
+            amps = run_readings(run_frames, run)
+            columns = np.arange(amps.shape[2])
+        readings, x, residual_rms, relative, noise_var, power = fitted_arrays(fit, amps, columns)
+    else:
+        readings = run_readings(run_frames, run)
+        x, residual_rms, relative, noise_var = fit.fit_arrays(readings)
+        # np.mean's sum and division without its wrapper's checks (the same bits)
+        power = np.add.reduce(readings.real**2 + readings.imag**2, axis=2) / readings.shape[2]
     motions = fit.motions(x, residual_rms, relative, noise_var)
-    # np.mean's sum and division without its wrapper's checks (the same bits)
-    power = np.add.reduce(readings.real**2 + readings.imag**2, axis=2) / readings.shape[2]
-    bends = gates.curvature(run_frames, orders, motions, fit)
+    bends = gates.curvature(run_frames, orders, motions, fit, (x[:, :, 3:], noise_var))
     rpm_list = [f.rpm for f in run_frames]
     rpm = np.array(rpm_list, dtype=float)
     force, moment = run_excitation(setup, rpm_list, orders)
-    gas = run_gas(setup, run_frames, orders)
-    for j, g in enumerate(gas):
-        if g is not None:
-            moment[j] = moment[j] + g
+    gas, at, stack = gas_moments(setup, run_frames, orders)
+    if stack is not None:  # the measured gas moments as one array: one sum
+        if len(at) == len(gas):
+            moment = moment + stack
+        else:
+            moment[at] = moment[at] + stack
+    else:
+        for j, g in enumerate(gas):
+            if g is not None:
+                moment[j] = moment[j] + g
     why, floor = gates.screen_orders(rpm, orders, force, moment, bends, power, relative, fit)
     mean, q = noise_levels_many(fit, [s.variance for s in run])
     share, beyond = excess_many(relative, noise_var, fit, mean, q)
@@ -155,6 +170,25 @@ def fit_run(
         index, orders, readings, motions, power, force, moment, gas, why, floor,
         relative, share, beyond,
     )  # fmt: skip
+
+
+def run_readings(frames: list[FrameLike], run: list[Screened]) -> np.ndarray:
+    """(n, k, u) complex: the used channels' amplitudes of a run's frames, m/s^2, laid out
+    in memory as each frame's gathered alone and stacked: channel-major per frame. The
+    numpy fit's sums take their order from that layout (a gather of the whole run at once
+    lays the channels out otherwise and moved the relative residual by an ulp), so where
+    the frames share their columns (one channel tuple) and are C-ordered, one gather and
+    one copy into that layout; else frame by frame."""
+    first = run[0]
+    k = np.shape(frames[0].amplitudes)[0]
+    if (
+        k > 1
+        and all(s.cols is first.cols for s in run)
+        and all(f.amplitudes.flags.c_contiguous for f in frames)
+    ):
+        gathered = np.array([f.amplitudes for f in frames])[:, :, first.cols[first.used]]
+        return gathered.transpose(0, 2, 1).copy().transpose(0, 2, 1)
+    return np.stack([f.amplitudes[:, s.cols[s.used]] for f, s in zip(frames, run, strict=True)])
 
 
 def run_excitation(
@@ -175,9 +209,18 @@ def run_gas(
 ) -> list[np.ndarray | None]:
     """The measured gas moment (k, 3) of each of a run's frames, None for a frame
     without a finite pressure spectrum (or without a pressure channel at all)."""
+    return gas_moments(setup, frames, orders)[0]
+
+
+def gas_moments(
+    setup: EstimatorSetup, frames: list[FrameLike], orders: np.ndarray
+) -> tuple[list[np.ndarray | None], list[int], np.ndarray | None]:
+    """:func:`run_gas`, and where the setup's gas moment has ``many`` the frames that
+    have one and their moments as one (m, k, 3) array (its rows are :func:`run_gas`'s),
+    else ``[]`` and None."""
     gas: list[np.ndarray | None] = [None] * len(frames)
     if setup.gas_moment is None:
-        return gas
+        return gas, [], None
     given: list[tuple[int, np.ndarray]] = [
         (j, p) for j, f in enumerate(frames) if (p := getattr(f, "spectrum", None)) is not None
     ]
@@ -187,11 +230,13 @@ def run_gas(
         stack = np.array([p for _, p in given])  # (m, n_half): a frame's pressure orders
         finite = np.isfinite(stack).all(axis=1)
         at = [j for (j, _), ok in zip(given, finite.tolist(), strict=True) if ok]
-        if at:
-            for j, g in zip(at, many(orders, stack[finite]), strict=True):
-                gas[j] = g
-        return gas
+        if not at:
+            return gas, [], None
+        moments = many(orders, stack if len(at) == len(given) else stack[finite])
+        for j, g in zip(at, moments, strict=True):
+            gas[j] = g
+        return gas, at, moments
     for j, p in given:
         if np.isfinite(p).all():
             gas[j] = setup.gas_moment(orders, p)
-    return gas
+    return gas, [], None

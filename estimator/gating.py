@@ -20,6 +20,8 @@ from typing import Protocol
 import numpy as np
 from scipy.special import fdtri
 
+from estimator import row_kernels
+from estimator.compiled_runs import bend_excess, order_screen
 from estimator.kinematics import RigidFit, RigidMotion
 from estimator.setup import EstimatorSetup, Gates
 
@@ -115,29 +117,40 @@ class OrderGates:
             rejected (0: not by these gates; :meth:`judge` adds the residual gate).
         floor : (n, k) the channel variance the dsp errs by near a mode, (m/s^2)^2.
         """
-        # Excitation level per order (force times a typical 0.3 m arm, plus moment):
-        # an order the engine does not excite carries no information, only noise.
-        level = 0.3 * np.sqrt(np.add.reduce(np.abs(force) ** 2, axis=2)) + np.sqrt(
-            np.add.reduce(np.abs(moment) ** 2, axis=2)
-        )
-        excited = level > 1e-6 * np.maximum(level.max(axis=1, keepdims=True), 1e-300)
         corr = self.setup.corrections
+        unloaded = None
         if corr.unbalance and corr.unbalance_location and fit is not None and relative is not None:
             # the estimated unbalance drives order 1 (a balanced inline 4 has no known
             # order-1 load): its rows hold the mount reactions and the unbalance. Only
             # with the couple free: pinned at the reference point, the simulated inline
             # 4's intervals held in 2 of 10 realistic seeds (10 of 10 with it)
-            excited |= (
+            unloaded = (
                 (orders[None, :] == 1.0)
                 & responds(relative, power, fit)
                 & self.far_from_modes(orders, rpm)
             )
         top = self.setup.mode_max_hz
+        max_curvature = self.setup.gates.max_curvature
+        if row_kernels.USE:  # PTINERTIA_NUMBA=1: the arithmetic below in one loop
+            return order_screen(
+                rpm, orders, force, moment, curvature, power,
+                _leak_matrix(tuple(orders.tolist())),
+                -np.inf if top is None else self.setup.gates.min_mode_ratio * top,
+                max_curvature,
+                np.zeros(curvature.shape, bool) if unloaded is None else unloaded,
+            )  # fmt: skip
+        # Excitation level per order (force times a typical 0.3 m arm, plus moment):
+        # an order the engine does not excite carries no information, only noise.
+        # (force and moment as one array: each element's operations as for either alone)
+        norms = np.sqrt(np.add.reduce(np.abs(np.array((force, moment))) ** 2, axis=3))
+        level = 0.3 * norms[0] + norms[1]
+        excited = level > 1e-6 * np.maximum(level.max(axis=1, keepdims=True), 1e-300)
+        if unloaded is not None:
+            excited |= unloaded
         if top is None:
             near = np.zeros(level.shape, dtype=bool)
         else:
             near = orders[None, :] * rpm[:, None] / 60.0 < self.setup.gates.min_mode_ratio * top
-        max_curvature = self.setup.gates.max_curvature
         leak_var = neighbour_leakage(orders, curvature, power)
         leaking = leak_var > max_curvature**2 * power
         # np.select([~excited, near, curvature > max_curvature, leaking], [1, 2, 3, 4]):
@@ -205,9 +218,12 @@ class OrderGates:
         orders: np.ndarray,
         motions: list[RigidMotion],
         fit: RigidFit,
+        arrays: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> np.ndarray:
         """(n_frames, k): relative second difference of Omega' per order over three frames
         720 deg apart, less what the measurement noise explains (0 where not known).
+        ``arrays``: the ``motions``' Omega' (n, k, 3) and noise variances (n, k) as
+        arrays, when at hand (:meth:`RigidFit.fit_arrays`; then the motions are ``fit``'s).
 
         Along the mass line the rigid motion of an order changes slowly and almost
         linearly with rpm; near a rigid-body mode it bends sharply, and there the
@@ -229,32 +245,62 @@ class OrderGates:
             last = (-(10**9), -(10**9), (none, none))
         r0, r1, (w0, w1) = last
         seq_rev = [r0, r1, *(r for r in revs if r is not None)]
-        seq_w = np.array([w0, w1] + [motions[j].omega_dot for j in at])  # (2 + n, k, 3)
-        w = seq_w[2:]
+        every = len(at) == len(frames)
+        if arrays is None:
+            omega = np.array([motions[j].omega_dot for j in at])
+            noise = np.array([motions[j].noise_var for j in at])  # (n, k)
+        else:
+            omega, noise = arrays if every else (arrays[0][at], arrays[1][at])
+        seq_w = np.concatenate((np.array((w0, w1)), omega))  # (2 + n, k, 3)
         # each frame's revolution 2 and 4 after the two before it (frames 720 deg apart)
         chained = np.array(
             [seq_rev[i + 1] == c - 2 and seq_rev[i] == c - 4 for i, c in enumerate(seq_rev[2:])]
         )
-        size = np.maximum(np.sqrt(np.add.reduce(w.real**2 + w.imag**2, axis=2)), 1e-300)  # (n, k)
-        d = w - 2 * seq_w[1:-1] + seq_w[:-2]
-        bend = np.sqrt(np.add.reduce(d.real**2 + d.imag**2, axis=2)) / size
-        # what noise alone puts into a second difference of three fits (sqrt 6
-        # sigma), sigma from this frame's rigid-fit residual: only the excess bends
-        covs = [motions[j].cov_unit for j in at]
-        if all(c is covs[0] for c in covs):  # a run's frames share their fit's
-            trace = np.full(len(at), np.trace(covs[0][3:, 3:]))
+        # (the motions' covariances: their fit's, or listed)
+        fitted = [] if arrays is not None else [motions[j] for j in at]
+        if row_kernels.USE and all(m.cov_unit is fit.cov_unit for m in fitted):
+            # PTINERTIA_NUMBA=1: the arithmetic in one loop
+            excess = bend_excess(seq_w, chained, noise, fit.omega_trace, BEND_NOISE)
         else:
-            trace = np.array([np.trace(c[3:, 3:]) for c in covs])
-        noise = np.array([motions[j].noise_var for j in at])  # (n, k)
-        sigma = np.sqrt(2 * noise * trace[:, None]) / size
-        excess = np.maximum(0.0, bend - BEND_NOISE * sigma)
-        excess = np.where(chained[:, None] & np.isfinite(excess), excess, 0.0)
+            excess = self._bend_excess(seq_w, chained, noise, fitted, fit)
         self.motion_history[key] = (seq_rev[-2], seq_rev[-1], (seq_w[-2], seq_w[-1]))
-        if len(at) == len(frames):
+        if every:
             return excess
         out = np.zeros((len(frames), len(orders)))
         out[at] = excess
         return out
+
+    @staticmethod
+    def _bend_excess(
+        seq_w: np.ndarray,
+        chained: np.ndarray,
+        noise: np.ndarray,
+        motions: list[RigidMotion],
+        fit: RigidFit,
+    ) -> np.ndarray:
+        """:meth:`curvature`'s arithmetic (``estimator.compiled_runs.bend_excess``: the
+        compiled loop) for n frames: ``seq_w`` (2 + n, k, 3) the two Omega' before them
+        and theirs, ``chained`` (n,), ``noise`` (n, k) their fits' noise variances,
+        ``motions`` theirs where their covariances may not be ``fit``'s (else empty)."""
+        w = seq_w[2:]
+        d = w - 2 * seq_w[1:-1] + seq_w[:-2]
+        # |w| and |d| per order in one pass (elementwise, the bits of each alone)
+        both = np.concatenate((w, d))
+        norms = np.sqrt(np.add.reduce(both.real**2 + both.imag**2, axis=2))
+        size = np.maximum(norms[: len(w)], 1e-300)  # (n, k)
+        bend = norms[len(w) :] / size
+        # what noise alone puts into a second difference of three fits (sqrt 6
+        # sigma), sigma from this frame's rigid-fit residual: only the excess bends
+        covs = [fit.cov_unit] if not motions else [m.cov_unit for m in motions]
+        if all(c is fit.cov_unit for c in covs):  # a run's frames share their fit's
+            # (2 noise trace: doubling is exact, so either product rounds alike)
+            sigma = np.sqrt(noise * (2 * fit.omega_trace)) / size
+        else:
+            trace = np.array([np.trace(c[3:, 3:]) for c in covs])
+            sigma = np.sqrt(2 * noise * trace[:, None]) / size
+        excess = np.maximum(0.0, bend - BEND_NOISE * sigma)
+        usable = np.isfinite(excess) if chained.all() else chained[:, None] & np.isfinite(excess)
+        return np.where(usable, excess, 0.0)
 
     def residual(
         self, h: float, rpm: float, relative: float, share: float, excess: float

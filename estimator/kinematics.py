@@ -172,6 +172,12 @@ class RigidFit:
         m = self.residual_projector
         return np.diag(m).copy(), m**2
 
+    @functools.cached_property
+    def omega_trace(self) -> float:
+        """The trace of :attr:`cov_unit`'s Omega' block: the noise of a fitted Omega'
+        per unit channel variance (:meth:`estimator.gating.OrderGates.curvature`)."""
+        return float(np.trace(self.cov_unit[3:, 3:]))
+
     @property
     def rank(self) -> int:
         """How many rigid-body motions the channels determine (6, or 5 with ``null``)."""
@@ -223,18 +229,13 @@ class RigidFit:
         self, x: np.ndarray, residual_rms: np.ndarray, relative: np.ndarray, noise_var: np.ndarray
     ) -> list[RigidMotion]:
         """The :class:`RigidMotion` of each frame from :meth:`fit_arrays`."""
+        # (positional fields, rows taken by iterating: a few hundred ns less per frame)
+        o, cov, gain = self.origin, self.cov_unit, self.gain
         return [
-            RigidMotion(
-                origin=self.origin,
-                gamma_o=x[i, :, :3],
-                omega_dot=x[i, :, 3:],
-                cov_unit=self.cov_unit,
-                residual_rms=residual_rms[i],
-                relative_residual=relative[i],
-                noise_var=noise_var[i],
-                gain=self.gain,
+            RigidMotion(o, g, w, cov, r, rel, nv, gain)
+            for g, w, r, rel, nv in zip(
+                x[:, :, :3], x[:, :, 3:], residual_rms, relative, noise_var, strict=True
             )
-            for i in range(len(x))
         ]
 
 

@@ -37,6 +37,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import gammainccinv
 
+from estimator import row_kernels
+from estimator.compiled_noise import excess_rows, noise_sums
 from estimator.kinematics import RigidFit, RigidMotion
 
 # Upper quantile of the noise's chi-square the residual must pass to count at all.
@@ -126,11 +128,26 @@ def noise_levels_many(
             continue
         if id(v) not in rows:
             rows[id(v)] = len(var_list)
-            var_list.append(np.asarray(v, float) if fit.channels is None else v[fit.channels])
+            var_list.append(v)
         at.append(j)
-    if not var_list or var_list[0].shape != fit.sw.shape:
+    if not var_list:
         return np.full(len(variances), np.nan), np.full(len(variances), np.nan)
-    var = np.array(var_list)  # (m, n_ch)
+    var = np.array(var_list, dtype=float)  # (m, n_setup): one gather for all of them
+    if fit.channels is not None and var.ndim == 2:
+        # (np.take: C-ordered as the rows were; var[:, channels] is laid out by column,
+        # and the sums below would take another order)
+        var = np.take(var, fit.channels, axis=1)
+    if var.shape[1:] != fit.sw.shape:
+        return np.full(len(variances), np.nan), np.full(len(variances), np.nan)
+    if row_kernels.USE:  # PTINERTIA_NUMBA=1: the sums in one loop
+        mean_all, g, h = noise_sums(var, fit)
+        q_all = g * 2.0 * gammainccinv(h / 2.0, 1.0 - NOISE_QUANTILE)  # (NaN: unknown)
+        if len(var_list) == len(variances):
+            return mean_all, q_all
+        mean, q = np.full(len(variances), np.nan), np.full(len(variances), np.nan)
+        pick = np.array([rows[id(variances[j])] for j in at])
+        mean[at], q[at] = mean_all[pick], q_all[pick]
+        return mean, q
     d = fit.sw**2 * var
     m_diag, m_sq = fit.residual_projector_parts
     s1 = np.add.reduce(m_diag * d, axis=1)  # sum l = tr(M D), per frame
@@ -158,16 +175,16 @@ def excess_many(
     residuals and noise variances, the (n,) noise levels of :func:`noise_levels_many`
     (NaN: unknown, the whole residual)."""
     dof = max(fit.sw.size - fit.rank, 1)
+    if row_kernels.USE:  # PTINERTIA_NUMBA=1: in one loop
+        return excess_rows(relative, noise_var, dof, mean, q)
     rss = 2.0 * dof * noise_var  # noise_var = rss / (2 dof)
     known = np.isfinite(mean)[:, None]
-
-    def beyond(c: np.ndarray) -> np.ndarray:
-        c = c[:, None]
-        part = relative * np.sqrt(np.where(rss > c, 1.0 - c / rss, 0.0))
-        return np.where(known, part, relative)
-
+    # both levels as one (2, n, 1) array: each element's operations as for one level
+    c = np.array((mean, q))[:, :, None]
     with np.errstate(divide="ignore", invalid="ignore"):  # (one context: a few us each)
-        return beyond(mean), beyond(q)
+        part = relative * np.sqrt(np.where(rss > c, 1.0 - c / rss, 0.0))
+    both = np.where(known, part, relative)
+    return both[0], both[1]
 
 
 def excess_residual(

@@ -42,6 +42,7 @@ With a cylinder-pressure channel the gas is measured, and its tolerance does not
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 
 import numpy as np
@@ -97,8 +98,7 @@ def _per_pair(parts: Callable[[tuple[float, ...]], OrderExcitation]) -> PairExci
     by_orders: dict[tuple[float, ...], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def derivative(rpm: np.ndarray, orders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        # the sorted distinct orders, np.unique's without its cost (called per batch of rows)
-        key = tuple(sorted(set(orders.tolist())))
+        key, at = _order_index(np.asarray(orders, float).tobytes())
         if key not in by_orders:
             ex = parts(key)
             by_orders[key] = (
@@ -106,13 +106,33 @@ def _per_pair(parts: Callable[[tuple[float, ...]], OrderExcitation]) -> PairExci
                 np.stack([ex.gas_force, ex.gas_moment], axis=1),
                 np.stack([ex.unit_inertia_force, ex.unit_inertia_moment], axis=1),
             )
-        sorted_orders, gas, unit = by_orders[key]
-        at = np.searchsorted(sorted_orders, orders)
-        w2 = (rpm_to_omega(rpm) ** 2)[:, None, None]
-        both = gas[at] + w2 * unit[at]
+        _, gas, unit = by_orders[key]
+        both = gas[at] + _speed_squared(np.asarray(rpm, float).tobytes()) * unit[at]
         return both[:, 0], both[:, 1]
 
     return derivative
+
+
+# Each excitation input's derivative is evaluated for the same (frame, order) pairs in a
+# batch of rows: their order index and speeds squared are made once for all of them.
+@functools.lru_cache(maxsize=64)
+def _order_index(orders: bytes) -> tuple[tuple[float, ...], np.ndarray]:
+    """The sorted distinct orders of the pairs' ``orders`` (float64 bytes; np.unique's
+    without its cost) and each pair's index among them (read-only)."""
+    h = np.frombuffer(orders)
+    key = tuple(sorted(set(h.tolist())))
+    at = np.searchsorted(np.array(key), h)
+    at.flags.writeable = False
+    return key, at
+
+
+@functools.lru_cache(maxsize=4)
+def _speed_squared(rpm: bytes) -> np.ndarray:
+    """(n, 1, 1) the pairs' crank speeds ``rpm`` (float64 bytes) squared, (rad/s)^2
+    (read-only)."""
+    w2 = (rpm_to_omega(np.frombuffer(rpm)) ** 2)[:, None, None]
+    w2.flags.writeable = False
+    return w2
 
 
 def _with_heat_release(engine: Engine, step: float) -> Engine:

@@ -1,5 +1,6 @@
 """What a fitted run hands the frame queue per frame (``FittedRun.queued``): the half-order
-masks and power sums it makes once per run are each frame's own."""
+masks and power sums it makes once per run are each frame's own; and its fits are those
+of each frame alone."""
 
 from __future__ import annotations
 
@@ -7,8 +8,12 @@ from typing import cast
 
 import numpy as np
 import pytest
+from support.estimator_harness import Body, frames, make_setup
 
-from estimator.fitted_runs import FittedRun
+from estimator import row_kernels
+from estimator.channel_fits import ChannelFits
+from estimator.fitted_runs import FittedRun, Screened, fit_run, run_end, run_readings
+from estimator.gating import OrderGates
 from estimator.pending_rows import FrameQueue
 from estimator.setup import EstimatorSetup
 
@@ -67,3 +72,50 @@ def test_queued_noise_variance_is_the_smoothed_one_floored_as_np_maximum_floors_
         want = np.maximum(np.maximum(smoothed, 1e-12), dsp[ks])
         assert np.array_equal(np.array(got), want, equal_nan=True)
         assert np.isnan(got[1]) == (frame == 4) and np.isnan(got[-1]) == (frame == 5)
+
+
+def test_a_runs_fits_are_its_frames_fitted_alone(monkeypatch: pytest.MonkeyPatch) -> None:
+    # the numpy path: a run's readings, motions and power are those of its frames fitted
+    # as runs of one (live) and RigidFit.fit's of each frame, bit for bit; the relative
+    # residual within rounding (RigidFit.fit_arrays copies a stack of frames to sum the
+    # channels' power, where a frame's is a view, and numpy's sums take another order)
+    monkeypatch.setattr(row_kernels, "USE", False)
+    body = Body()
+    setup = make_setup(body)
+    data = list(frames(body, np.linspace(1500.0, 4000.0, 14)))
+    channels = ChannelFits(setup)
+    run = [Screened(i, *s) for i, s in enumerate(channels.screen(data))]
+    assert run_end(data, run, 0) == len(run)
+    reason, fit = channels.choose(run[0].used, run[0].steps)
+    assert reason is None and fit is not None
+    r = fit_run(setup, OrderGates(setup), fit, data, run)
+    for j, (f, s) in enumerate(zip(data, run, strict=True)):
+        alone = fit_run(setup, OrderGates(setup), fit, [f], [s._replace(position=0)])
+        assert np.array_equal(r.readings[j], alone.readings[0])
+        assert np.array_equal(r.power[j], alone.power[0])
+        for name in ("gamma_o", "omega_dot", "residual_rms", "noise_var"):
+            assert np.array_equal(getattr(r.motions[j], name), getattr(alone.motions[0], name))
+        rel, rel_alone = r.motions[j].relative_residual, alone.motions[0].relative_residual
+        np.testing.assert_allclose(rel, rel_alone, rtol=1e-14, atol=0)
+        own = f.amplitudes[:, s.cols[s.used]]
+        one = fit.fit(own)
+        assert np.array_equal(r.readings[j], own)
+        for name in ("gamma_o", "omega_dot", "residual_rms", "noise_var"):
+            assert np.array_equal(getattr(r.motions[j], name), getattr(one, name)), name
+        assert np.array_equal(alone.motions[0].relative_residual, one.relative_residual)
+        assert r.power[j] == pytest.approx(np.mean(abs(own) ** 2, axis=1), rel=1e-14)
+
+
+def test_a_runs_readings_are_laid_out_as_its_frames_gathered_alone() -> None:
+    # the numpy fit's sums take their order from the memory layout: a run's readings
+    # must be the frames' own gathers stacked, in values and in strides
+    body = Body()
+    setup = make_setup(body)
+    for orders in ((1.0, 1.5, 2.0), (1.0, 2.0), (0.5, 1.0, 1.5, 2.0, 2.5, 3.0)):
+        data = list(frames(body, np.linspace(1500.0, 4000.0, 9), orders=orders))
+        data[4].channel_ok[6] = False  # (its own run: another channel set)
+        run = [Screened(i, *s) for i, s in enumerate(ChannelFits(setup).screen(data))]
+        for part in (run[:4], run[5:]):
+            got = run_readings([data[s.position] for s in part], part)
+            want = np.stack([data[s.position].amplitudes[:, s.cols[s.used]] for s in part])
+            assert np.array_equal(got, want) and got.strides == want.strides

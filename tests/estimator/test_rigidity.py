@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from support.estimator_runs import I3, run
 
+from estimator import row_kernels
 from estimator.channel_noise import RECENT, ChannelNoise, median_bias
 from estimator.kinematics import RigidFit
 from estimator.rigidity import (
@@ -106,10 +107,14 @@ def test_noise_alone_never_confirms_an_elastic_mode(snr_db: float, seed: int) ->
 
 
 @pytest.mark.parametrize("each_its_own", [False, True])
-def test_the_noise_levels_of_many_frames_are_those_of_each_frame_alone(each_its_own: bool) -> None:
+def test_the_noise_levels_of_many_frames_are_those_of_each_frame_alone(
+    each_its_own: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
     # the block path (noise_levels_many, excess_many) against the one-frame reference,
     # bit for bit: unknown noise (None, a NaN channel), nil noise and measured noise;
-    # or every frame its own measured noise (the rule along a sweep: a shorter path)
+    # or every frame its own measured noise (the rule along a sweep: a shorter path).
+    # The numpy path (the compiled one is within rounding: test_compiled_runs.py)
+    monkeypatch.setattr(row_kernels, "USE", False)
     pos, dirs = _geometry()
     rng = np.random.default_rng(8)
     fit = RigidFit.of(pos, dirs, rng.uniform(0.5, 2.0, 9)).on_channels(np.arange(9))

@@ -10,7 +10,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from estimator.fitted_runs import run_excitation, run_gas
+from estimator.fitted_runs import gas_moments, run_excitation, run_gas
 from ptinertia.config import load_bench
 from ptinertia.paths import EXAMPLES_DIR
 from ptinertia.to_estimator import PressureGas, estimator_setup
@@ -55,6 +55,13 @@ def test_a_run_of_pressure_spectra_gets_each_frames_own_gas_moment() -> None:
             continue
         assert g is not None and np.array_equal(g, setup.gas_moment(ORDERS, spectra[j]))
         assert np.array_equal(g, one_by_one[j])
+    # the moments as one array (fit_run adds them in one sum): the same rows, at the
+    # frames that have one; none from the plain function
+    given, at, stack = gas_moments(setup, frames, ORDERS)  # type: ignore[arg-type]
+    assert at == [j for j, g in enumerate(gas) if g is not None] and stack is not None
+    assert all(given[j] is gas[j] or np.array_equal(given[j], gas[j]) for j in at)
+    assert np.array_equal(stack, np.array([gas[j] for j in at]))
+    assert gas_moments(plain, frames, ORDERS)[1:] == ([], None)  # type: ignore[arg-type]
     # the gas torque is about the crank axis, and not nil
     g = gas[0]
     assert g is not None and np.allclose(np.cross(g.real, setup.crank_axis), 0.0)
