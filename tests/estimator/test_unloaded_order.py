@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 from support.estimator_harness import Body, channel_geometry, excitation, frames, make_setup
 
-from estimator.gating import UNLOADED_MODE_RATIO, responds
 from estimator.kinematics import RigidFit
+from estimator.order_evidence import UNLOADED_MODE_RATIO, responds
 from estimator.outcome import FrameOutcome
 from estimator.setup import Corrections
 from estimator.streaming import InertiaEstimator
