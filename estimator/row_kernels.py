@@ -294,7 +294,7 @@ def pair_rows(
                     for b in range(6):
                         dcu[a, b] += c * cu[k, b]
             for a in range(12):
-                for b in range(12):
+                for b in range(a + 1):  # (the lower triangle: all the Cholesky factor reads)
                     acc_r = 0.0
                     for k in range(6):
                         acc_r += dcu[a, k] * dm[b, 6 * half + k]
