@@ -56,8 +56,11 @@ TRACKED_ITEMS = 4
 # 65-78x wall with the dsp on the processing thread, 59-73x on its own (CPU 62-75x against
 # 52-64x); with PTINERTIA_NUMBA=1 95-98x against 89-91x, and again once the dsp's sums and
 # frame assembly and the estimator's rows were compiled: 144-145x against 137-142x (load 3,
-# benchmarks/bench_pipeline.py compiled_chain). So the dsp runs on the processing thread;
-# the threaded arrangement stays (tested) for stages that release the GIL.
+# benchmarks/bench_pipeline.py compiled_chain); after the per-block and per-run Python was
+# cut (2026-11-26, load 1.5): replay 151x against 157x, live with recording 86x against 79x
+# (under load 5 the thread won, 65-68x against 39-47x: a third busy thread takes a larger
+# share of a shared machine, not a gain of the design). So the dsp runs on the processing
+# thread; the threaded arrangement stays (tested) for stages that release the GIL.
 DSP_THREAD = False
 # How long a stopped run waits for the dsp thread to end the item it is in (a 0.5 s block
 # takes milliseconds; a wait this long means the dsp hangs, and a stop must not).
