@@ -203,6 +203,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     module = importlib.import_module(COMMANDS[args.command][0])
+    listener = None
     if os.environ.get("PTINERTIA_NUMBA") == "1":
         if importlib.util.find_spec("numba") is None:
             # asked for the compiled kernels without numba: the numpy ones run (same results)
@@ -212,7 +213,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 file=sys.stderr,
             )
         else:
-            announce_compiling(args.command)
+            listener = announce_compiling(args.command)
     try:
         return int(module.run(args) or 0)
     except user_error_types() as err:
@@ -226,6 +227,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
         return 0
+    finally:
+        if listener is not None:  # (main called again in one process: one listener, one line)
+            from numba.core import event
+
+            event.unregister("numba:compile", listener)
 
 
 if __name__ == "__main__":

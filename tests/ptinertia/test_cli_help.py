@@ -98,3 +98,16 @@ def test_a_numba_compile_is_announced_once_and_a_cache_load_is_not(capsys) -> No
         "ptinertia run: compiling the numba kernels (once after an install or an update, "
         "15-20 s; later runs load them from numba's cache)"
     ]
+
+
+def test_a_command_leaves_no_compile_listener_behind(monkeypatch, tmp_path) -> None:
+    # main called again in one process (tests, a notebook) registered one more listener a
+    # call, and the first compile then printed its line once per earlier call
+    pytest.importorskip("numba")
+    from numba.core import event
+
+    monkeypatch.setenv("PTINERTIA_NUMBA", "1")
+    before = list(event._registered["numba:compile"])
+    for _ in range(2):  # a user error: the command ends at once, through main's exits
+        assert main(["run", "--bench", str(tmp_path / "missing.toml"), "--rerun", "off"]) == 2
+    assert event._registered["numba:compile"] == before
