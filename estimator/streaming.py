@@ -126,9 +126,11 @@ class InertiaEstimator:
 
     def update_many(self, frames: Sequence[FrameLike]) -> list[FrameOutcome]:
         """:meth:`update` for consecutive frames (a block of a replay, a study, a file):
-        the same decisions and bits as one frame at a time, the arithmetic of runs of
-        frames fitted alike done together (:mod:`estimator.fitted_runs`); what
-        remembers earlier frames (the residual baseline, the elastic-mode window, the
+        the same decisions and bits as one frame at a time but a frame's relative residual
+        (within an ulp: numpy sums a run's stack of readings in another order than one
+        frame's; a replay feeds the live run's blocks, so it is bit-identical to it), the
+        arithmetic of runs of frames fitted alike done together (:mod:`estimator.fitted_runs`);
+        what remembers earlier frames (the residual baseline, the elastic-mode window, the
         smoothed noise, the relinearisations) runs frame by frame in stream order.
         """
         outcomes: list[FrameOutcome | None] = [None] * len(frames)
