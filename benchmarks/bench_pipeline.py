@@ -35,13 +35,13 @@ Prints:
    wall figures, but not nothing: the cores' caches are shared).
 8. the estimator alone on the 60 s log's frames (issue 24: <= 60 us per used frame), best of
    three: fed as the blocks replay and studies hand it, and one frame at a time as a live
-   run may, with the share of the row assembly (rows, sensitivities, RLS sums), with the
-   numpy rows and the compiled ones (estimator.row_kernels); and the replay of the log again,
-   best of three (>= 300x);
-9. the whole chain with every compiled kernel (``PTINERTIA_NUMBA=1``: simulator, dsp sums,
-   estimator rows), warmed up: live with recording and the replay of its log, best of three,
-   the replay with the dsp on the processing thread and on its own (issue 24, load 2.4:
-   live 86x, replay 145x, 137x with the dsp thread; numpy 53x and 95-99x at load 5).
+   run may, with the share of the row assembly (rows, sensitivities, RLS sums), numpy and
+   with every estimator kernel (estimator.row_kernels' switch: rows, fitted runs, gates,
+   channel noise); and the replay of the log again, best of three (>= 300x);
+9. the whole chain with every compiled kernel (``PTINERTIA_NUMBA=1``: simulator, dsp,
+   estimator), warmed up: live with recording and the replay of its log, best of three,
+   each with the dsp on the processing thread and on its own (issue 24, 2026-11-26, load
+   0.7: live 94x, 88x with the dsp thread, replay 164x, 158x; numpy 48x and 98x).
 
 Usage: python benchmarks/bench_pipeline.py [--hours 1.0] [--skip-long]
 """

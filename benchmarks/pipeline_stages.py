@@ -190,8 +190,11 @@ def estimator_alone(log: Path, repeat: int = 3) -> None:
     Measured (issue 24, load average 9-10 on the 2 cores, 1498 used frames): in blocks
     160-166 us per used frame with the numpy rows (row assembly and RLS sums 80-82; 163-183
     and 83-93 before the rows' rework), 117-120 compiled (39-40); one frame at a time
-    376-387 numpy (88-89; 371-406 and 89-103 before), 315-328 compiled (42-43)."""
+    376-387 numpy (88-89; 371-406 and 89-103 before), 315-328 compiled (42-43).
+    2026-11-26 (load 0.7), with the fitted runs, gates and channel noise compiled too: in
+    blocks 116 us numpy (71), 62 compiled (31); one frame at a time 282 numpy, 145 compiled."""
     from acquisition.stream import SourceEvent
+    from estimator import row_kernels
     from ptinertia.pipeline import as_recorded
     from ptinertia.runner import processing_chain
     from replay.source import McapSource
@@ -205,6 +208,15 @@ def estimator_alone(log: Path, repeat: int = 3) -> None:
     blocks.append(tracker.finish()[0])
 
     def once(single: bool, compiled: bool) -> tuple[float, float, int]:
+        # every estimator kernel (PTINERTIA_NUMBA=1's switch: the rows, the fitted runs'
+        # fit, gates and channel noise), the estimator built and fed with it
+        saved, row_kernels.USE = row_kernels.USE, compiled
+        try:
+            return _once(single, compiled)
+        finally:
+            row_kernels.USE = saved
+
+    def _once(single: bool, compiled: bool) -> tuple[float, float, int]:
         estimator = processing_chain(bench, source.layout)[1]
         estimator.rows.compiled = compiled  # the row assembly's kernels (estimator.row_kernels)
         rows = [0.0]
@@ -220,8 +232,6 @@ def estimator_alone(log: Path, repeat: int = 3) -> None:
         _feed(estimator, blocks, single)
         return time.process_time() - t0, rows[0], estimator.stats.used
 
-    from estimator import row_kernels
-
     print(f"(load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)")
     for compiled in (False, True) if row_kernels.AVAILABLE else (False,):
         if compiled:
@@ -230,7 +240,7 @@ def estimator_alone(log: Path, repeat: int = 3) -> None:
             best = min((once(single, compiled) for _ in range(repeat)), key=lambda r: r[0])
             cpu, rows, used = best
             how = "one frame at a time (live)" if single else "in blocks (replay, studies)"
-            rows_how = "compiled rows" if compiled else "numpy rows"
+            rows_how = "compiled" if compiled else "numpy"
             print(
                 f"estimator alone, {how}, {rows_how}: {1e6 * cpu / used:.0f} us per used frame "
                 f"(CPU, best of {repeat}, {used} frames), of which row assembly and RLS sums "
