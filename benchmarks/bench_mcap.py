@@ -152,16 +152,22 @@ def write(
             block.append(item)
             continue
         if block:
-            rec.on_frames([b[1] for b in block], [b[2] for b in block])
+            _frames(rec, block)
             block = []
         if isinstance(item, tuple):
             rec.on_estimate(item[1])
         else:
             rec.on_item(item)
     if block:
-        rec.on_frames([b[1] for b in block], [b[2] for b in block])
+        _frames(rec, block)
     rec.close(None)
     return rec
+
+
+def _frames(rec: McapRecorder, block: list[Any]) -> None:
+    rec.prepare_frames([b[1] for b in block])
+    for _, frame, outcome in block:
+        rec.on_frame(frame, outcome)
 
 
 def best_of(repeat: int, fn: Any) -> tuple[float, Any]:

@@ -40,7 +40,7 @@ import numpy as np
 from acquisition.stream import SampleBlock, Source, SourceEvent, StreamItem
 from estimator.result import Estimate, EstimateUpdate
 from estimator.streaming import InertiaEstimator
-from ptinertia.sinks import RunContext, Sink, on_frames
+from ptinertia.sinks import RunContext, Sink, prepare_frames
 
 _END = object()
 _FINISHED = object()  # the tracker's finish(): what it flushed follows
@@ -273,12 +273,17 @@ class Pipeline:
             return
         # The frames of one block are estimated together (same decisions as one by one,
         # less numpy overhead); the estimate is published after the block's last used frame.
-        outcomes = self.estimator.update_many(frames)
-        self.frames += len(frames)
-        for sink in self.sinks:
-            on_frames(sink, frames, outcomes)
-        used = [f for f, o in zip(frames, outcomes, strict=True) if o.reason is None]
-        last_used = used[-1] if used else None
+        for sink in self.sinks:  # (the recorder encodes the block's frames together)
+            prepare_frames(sink, frames)
+        last_used = None
+        for frame, outcome in zip(frames, self.estimator.update_many(frames), strict=True):
+            self.frames += 1
+            # each frame to every sink in turn: a sink writing through another (the scene
+            # through the recorder) keeps its messages beside the frame's in the file
+            for sink in self.sinks:
+                sink.on_frame(frame, outcome)
+            if outcome.reason is None:
+                last_used = frame
         for event in self.estimator.take_events():  # an elastic mode confirmed
             for sink in self.sinks:
                 sink.on_event(event)

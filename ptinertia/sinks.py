@@ -73,11 +73,10 @@ class Sink(Protocol):
         """An order frame (``dsp.frames.OrderFrame``) and what the estimator did with it."""
         return None
 
-    def on_frames(self, frames: Sequence[Any], outcomes: Sequence[FrameOutcome]) -> None:
-        """A block's frames and outcomes, in stream order: :meth:`on_frame` of each unless
-        the sink does better with the block at once (the recorder encodes it together)."""
-        for frame, outcome in zip(frames, outcomes, strict=True):
-            self.on_frame(frame, outcome)
+    def prepare_frames(self, frames: Sequence[Any]) -> None:
+        """A block's frames, before their :meth:`on_frame` calls: what a sink does better
+        with the block at once (the recorder encodes its frames together)."""
+        return None
 
     def on_estimate(self, update: EstimateUpdate) -> None:
         """The running estimate after a used frame."""
@@ -96,11 +95,8 @@ class Sink(Protocol):
         return None
 
 
-def on_frames(sink: Any, frames: Sequence[Any], outcomes: Sequence[FrameOutcome]) -> None:
-    """``sink.on_frames``, or ``on_frame`` of each frame for a sink that has only that
-    (a sink satisfies :class:`Sink` by shape and need not define every hook)."""
-    if hasattr(sink, "on_frames"):
-        sink.on_frames(frames, outcomes)
-    else:
-        for frame, outcome in zip(frames, outcomes, strict=True):
-            sink.on_frame(frame, outcome)
+def prepare_frames(sink: Any, frames: Sequence[Any]) -> None:
+    """``sink.prepare_frames`` where the sink has it (a sink satisfies :class:`Sink` by
+    shape and need not define every hook)."""
+    if hasattr(sink, "prepare_frames"):
+        sink.prepare_frames(frames)

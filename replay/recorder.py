@@ -39,12 +39,11 @@ wall-time bound is checked when a message arrives; a stalled stream adds
 nothing to lose.) The page cache survives the process, so there is no fsync:
 a power cut is a different matter.
 
-Cost to the processing thread. Chunks are compressed and written on the
-writer's thread (:class:`replay.mcapwriter.ThreadedWriter`; compression releases
-the GIL); frames and sample blocks are encoded without the protobuf classes
-(:mod:`replay.wire`), a block's frames at once (:meth:`McapRecorder.on_frames`:
-9 ms a minute for the 60 s bench log's 2997 frames, 29 ms one by one). In all
-0.11 s of the caller's CPU per minute of 10 channels at 25.6 kHz (bench_mcap).
+Cost to the processing thread. Chunks are compressed and written on the writer's
+thread (:class:`replay.mcapwriter.ThreadedWriter`; compression releases the GIL); frames
+and sample blocks are encoded without the protobuf classes (:mod:`replay.wire`), a
+block's frames together (:meth:`McapRecorder.prepare_frames`: 9 ms a minute for 2997
+frames, 29 ms one by one): 0.11 s of the caller's CPU a minute of 10 x 25.6 kHz (bench_mcap).
 
 A source's raw stream alone (``ptinertia simulate --out x.mcap``) is written
 through the same recorder by :mod:`replay.raw_writer`.
@@ -112,8 +111,7 @@ def _discard(fh: IO[bytes]) -> None:
 class McapRecorder:
     """A sink of the pipeline writing everything it is told to an MCAP file.
 
-    It has every hook of the app's ``Sink`` protocol, so the app takes it as
-    one; replay does not import the app.
+    It has every hook of the app's ``Sink`` protocol (replay does not import the app).
 
     Parameters
     ----------
@@ -171,6 +169,7 @@ class McapRecorder:
         self._chunker = TimeChunker(self.chunk_s, late, monotonic)
         self._last_source_event: SourceEvent | None = None
         self._gating_log = foxglove.GatingLog()
+        self._encoded: dict[int, tuple[OrderFrame, bytes]] = {}  # prepare_frames' block
         self._closed = False
         self._failed = False  # a write failed: reported once, close() only closes the file
         # on_can_frames comes from the acquisition thread, everything else from the
@@ -272,19 +271,20 @@ class McapRecorder:
         self._add(TOPIC_EVENTS, t, stream_codec.encode_event(event, "dsp", t), "result")
         self._log_event(event, "dsp", t)
 
-    def on_frame(self, frame: OrderFrame, outcome: FrameOutcome) -> None:
-        self.on_frames([frame], [outcome])
-
-    def on_frames(self, frames: Sequence[OrderFrame], outcomes: Sequence[FrameOutcome]) -> None:
-        """:meth:`on_frame` of a block's frames (the same messages; encoded together)."""
-        self._require_started()
+    def prepare_frames(self, frames: Sequence[OrderFrame]) -> None:
+        """Encode a block's frames together; their :meth:`on_frame` calls take the bytes."""
         encoded = results_codec.encode_frames(frames)
-        for frame, data, outcome in zip(frames, encoded, outcomes, strict=True):
-            self._add(TOPIC_ORDERS, frame.time_s, data, "result")
-            self._add(TOPIC_GATING, outcome.time_s, results_codec.encode_outcome(outcome), "result")
-            change = self._gating_log.update(outcome.reason, outcome.rpm)
-            if change is not None:
-                self._log(outcome.time_s, *change, "gating")
+        self._encoded = {id(f): (f, data) for f, data in zip(frames, encoded, strict=True)}
+
+    def on_frame(self, frame: OrderFrame, outcome: FrameOutcome) -> None:
+        self._require_started()
+        held = self._encoded.pop(id(frame), (None, b""))  # (held: the id stays the frame's)
+        data = held[1] if held[0] is frame else results_codec.encode_frame(frame)
+        self._add(TOPIC_ORDERS, frame.time_s, data, "result")
+        self._add(TOPIC_GATING, outcome.time_s, results_codec.encode_outcome(outcome), "result")
+        change = self._gating_log.update(outcome.reason, outcome.rpm)
+        if change is not None:
+            self._log(outcome.time_s, *change, "gating")
 
     def on_estimate(self, update: EstimateUpdate) -> None:
         self._require_started()

@@ -232,8 +232,10 @@ class FrameWire:
                 if spectrum is not None
                 else all(x is None for x in spectra)
             )
-        except (ValueError, TypeError):  # (ragged)
-            fits = False
+        except (ValueError, TypeError):  # ragged, or values numpy cannot convert
+            for frame in frames:
+                self._check(frame)  # names the frame that does not fit
+            raise  # (the shapes fit: the values are what numpy could not convert)
         if not fits:
             for frame in frames:
                 self._check(frame)  # names the frame that does not fit

@@ -283,3 +283,46 @@ def test_a_failed_run_waits_for_the_dsp_thread_to_leave_its_feed() -> None:
         _run(_items(10), tracker, SinkFailingInAFeed(tracker), queue_items=2)
     # nothing feeds the tracker once run() is over (it was: the dsp thread ran on)
     assert not tracker.feeding
+
+
+class Shared(Log):
+    """A sink writing its frame calls, and its block hook if ``prepares``, to a log shared
+    with other sinks (under its ``name``)."""
+
+    def __init__(self, shared: list[tuple[Any, ...]], name: str, prepares: bool) -> None:
+        super().__init__()
+        self.shared, self.name = shared, name
+        if prepares:
+            self.prepare_frames = self._prepare  # type: ignore[attr-defined]
+
+    def _prepare(self, frames: list[Any]) -> None:
+        self.shared.append((self.name, "prepare", tuple(f.time_s for f in frames)))
+
+    def on_frame(self, frame: Any, outcome: Any) -> None:
+        self.shared.append((self.name, "frame", frame.time_s))
+
+
+def test_each_frame_reaches_every_sink_before_the_next_frame() -> None:
+    # a sink writing through another (the Foxglove scene through the recorder) keeps its
+    # messages beside their frame's only if the frames go to the sinks one at a time;
+    # a block's prepare_frames comes before its frames, to the sinks that have it
+    shared: list[tuple[Any, ...]] = []
+    sinks = [Shared(shared, "recorder", prepares=True), Shared(shared, "scene", prepares=False)]
+    pipeline = Pipeline(
+        ListSource(_items(12), None), ScriptedTracker(), ScriptedEstimator(), sinks,
+        SimpleNamespace(), estimate_period_s=0.0, dsp_thread=False,
+    )  # fmt: skip
+    pipeline.run()
+    expected: list[tuple[Any, ...]] = []
+    for i in range(12):
+        block = tuple(i + j / 10 for j in range(i % 3))  # ScriptedTracker's frames
+        if block:
+            expected.append(("recorder", "prepare", block))
+        for t in block:
+            expected += [("recorder", "frame", t), ("scene", "frame", t)]
+    expected += [
+        ("recorder", "prepare", (1e6,)),
+        ("recorder", "frame", 1e6),
+        ("scene", "frame", 1e6),
+    ]
+    assert shared == expected

@@ -106,6 +106,18 @@ def test_a_frame_of_the_wrong_shape_in_a_block_is_named() -> None:
         results_codec.encode_frames([good[0], bad, good[1]])
 
 
+def test_amplitudes_numpy_cannot_convert_get_numpys_error() -> None:
+    # the right shapes, values that are no numbers: numpy's own error, not one of ours
+    # about shapes (nor a failure further on)
+    rng = np.random.default_rng(2)
+    good = [make_frame(t, rng) for t in (0.1, 0.2)]
+    text = np.full(np.shape(good[1].amplitudes), "x", dtype=object)
+    bad = dataclasses.replace(good[1], time_s=0.15, amplitudes=text)
+    for frames in ([bad], [good[0], bad, good[1]]):
+        with pytest.raises(ValueError, match="complex"):
+            results_codec.encode_frames(frames)
+
+
 @pytest.mark.parametrize(
     ("n_ch", "n", "first_index", "t0_s"),
     [(10, 2560, 0, 0.0), (1, 1, -5, 0.25), (3, 0, 7, -0.0), (2, 3, 2**40, 1e-300)],
