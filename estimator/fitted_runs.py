@@ -204,20 +204,13 @@ def run_excitation(
     return np.stack([f for f, _ in excitation]), np.stack([m for _, m in excitation])
 
 
-def run_gas(
-    setup: EstimatorSetup, frames: list[FrameLike], orders: np.ndarray
-) -> list[np.ndarray | None]:
-    """The measured gas moment (k, 3) of each of a run's frames, None for a frame
-    without a finite pressure spectrum (or without a pressure channel at all)."""
-    return gas_moments(setup, frames, orders)[0]
-
-
 def gas_moments(
     setup: EstimatorSetup, frames: list[FrameLike], orders: np.ndarray
 ) -> tuple[list[np.ndarray | None], list[int], np.ndarray | None]:
-    """:func:`run_gas`, and where the setup's gas moment has ``many`` the frames that
-    have one and their moments as one (m, k, 3) array (its rows are :func:`run_gas`'s),
-    else ``[]`` and None."""
+    """The measured gas moment (k, 3) of each of a run's frames, None for a frame
+    without a finite pressure spectrum (or without a pressure channel at all); and where
+    the setup's gas moment has ``many``, the frames that have one and their moments as
+    one (m, k, 3) array (the same rows), else ``[]`` and None."""
     gas: list[np.ndarray | None] = [None] * len(frames)
     if setup.gas_moment is None:
         return gas, [], None

@@ -10,7 +10,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from estimator.fitted_runs import gas_moments, run_excitation, run_gas
+from estimator.fitted_runs import gas_moments, run_excitation
 from ptinertia.config import load_bench
 from ptinertia.paths import EXAMPLES_DIR
 from ptinertia.to_estimator import PressureGas, estimator_setup
@@ -44,11 +44,11 @@ def test_a_run_of_pressure_spectra_gets_each_frames_own_gas_moment() -> None:
     spectra[4, 2] = np.nan  # a frame whose pressure lost samples: no measured gas
     frames = [SimpleNamespace(spectrum=p) for p in spectra]
     frames[7] = SimpleNamespace()  # a frame without a pressure channel
-    gas = run_gas(setup, frames, ORDERS)  # type: ignore[arg-type]
+    gas = gas_moments(setup, frames, ORDERS)[0]  # type: ignore[arg-type]
     assert gas[4] is None and gas[7] is None
     assert setup.gas_moment is not None
     plain = dataclasses.replace(setup, gas_moment=lambda o, p: setup.gas_moment(o, p))
-    one_by_one = run_gas(plain, frames, ORDERS)  # type: ignore[arg-type]
+    one_by_one = gas_moments(plain, frames, ORDERS)[0]  # type: ignore[arg-type]
     for j, g in enumerate(gas):
         if j in (4, 7):
             assert one_by_one[j] is None
