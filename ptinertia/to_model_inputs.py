@@ -93,20 +93,19 @@ def _gas_part(engine: Engine, about: np.ndarray) -> PairExcitationFn:
 def _per_pair(parts: Callable[[tuple[float, ...]], OrderExcitation]) -> PairExcitationFn:
     """``parts`` (the speed-split excitation of a set of orders, cached) evaluated for
     (frame, order) pairs at once: the gas part plus ``omega^2`` times the inertia part."""
-    # per set of orders: the sorted orders, the gas parts and the inertia parts, (K, 2, 3)
+    # per set of orders (sorted): the gas parts and the inertia parts, (K, 2, 3)
     # [force, moment] each (one gather per call instead of four)
-    by_orders: dict[tuple[float, ...], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    by_orders: dict[tuple[float, ...], tuple[np.ndarray, np.ndarray]] = {}
 
     def derivative(rpm: np.ndarray, orders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         key, at = _order_index(np.asarray(orders, float).tobytes())
         if key not in by_orders:
             ex = parts(key)
             by_orders[key] = (
-                np.array(key),
                 np.stack([ex.gas_force, ex.gas_moment], axis=1),
                 np.stack([ex.unit_inertia_force, ex.unit_inertia_moment], axis=1),
             )
-        _, gas, unit = by_orders[key]
+        gas, unit = by_orders[key]
         both = gas[at] + _speed_squared(np.asarray(rpm, float).tobytes()) * unit[at]
         return both[:, 0], both[:, 1]
 
