@@ -88,7 +88,6 @@ def add_sample_sets(
     frames_per_rev: int,
     taper_deg: float,
     compiled: bool | None = None,
-    cut: Cut | None = None,
 ) -> list[dict[int, Row]]:
     """:func:`add_samples` for several sets of channels and orders on the same samples.
 
@@ -97,13 +96,13 @@ def add_sample_sets(
     its own, bit for bit (its carriers and zone weights laid out as in that call).
     ``compiled``: the carriers and sums by :func:`dsp.kernels.piece_sums` (one pass,
     the orders of each set only; within 1e-12 of this numpy reference, see there);
-    None: :data:`dsp.kernels.USE`. ``cut``: :func:`cut_samples` of these arguments, made
-    beforehand (calls on the same samples share it), or None.
+    None: :data:`dsp.kernels.USE`. (:func:`dsp.segments.accumulate` calls its three
+    steps itself: groups on one sample clock share the cut, and the tracked channels'
+    packed rows are checked before they are merged.)
     """
     compiled = kernels.USE if compiled is None else compiled
-    if cut is None:
-        sizes = [xi.shape[1] for xi in sets[0].x]
-        cut = cut_samples(phi, omega, sizes, rate_hz, frames_per_rev, taper_deg, compiled)
+    sizes = [xi.shape[1] for xi in sets[0].x]
+    cut = cut_samples(phi, omega, sizes, rate_hz, frames_per_rev, taper_deg, compiled)
     packed = packed_rows(sets, cut, first_index, frames_per_rev, compiled)
     return [merge_rows(st.rows, cut.seg.mu, w) for st, w in zip(sets, packed, strict=True)]
 
