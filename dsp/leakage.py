@@ -128,8 +128,16 @@ def coupling(
     k = np.asarray(k2, dtype=np.int64)
     d_same = k[None, :] - k[:, None]  # 2 (h' - h), rows h, columns h'
     d_image = -(k[None, :] + k[:, None])  # 2 (-h' - h)
-    kap_same = kappa(d_same.astype(float), frac)
-    kap_image = kappa(d_image.astype(float), frac)
+    # kappa depends on the difference alone: evaluated once per distinct value (about 4n of
+    # the 2 n^2 entries; tracker set-up 8 -> 1.4 ms). The quadrature's product then has fewer
+    # columns, and BLAS may round a column's sum differently: up to 1e-16 absolute on
+    # kappas of 0.03-0.16 (the default and realistic runs' results are bit-identical).
+    distinct, at = np.unique(np.concatenate([d_same.ravel(), d_image.ravel()]), return_inverse=True)
+    kap = kappa(distinct.astype(float), frac)[at]
+    kap_same, kap_image = (
+        kap[: d_same.size].reshape(d_same.shape),
+        kap[d_same.size :].reshape(d_image.shape),
+    )
     j = np.arange(period)[:, None, None]
     # e^{i (h'-h) c_j} with c_j = 2 pi j / fpr: (h'-h) c_j = 2 pi d j / (2 fpr), reduced exactly
     same = np.exp(2j * np.pi * ((d_same[None] * j) % period) / period) * kap_same[None]

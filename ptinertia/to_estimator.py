@@ -193,12 +193,12 @@ def estimator_setup(
     def excitation_of(orders: npt.ArrayLike) -> OrderExcitation:
         key = tuple(np.asarray(orders, float).tolist())
         if key not in by_orders:
-            full = engine.order_excitation(key, about=reference)
-            if pressure is not None:  # the gas comes with each frame
-                gas_free = np.zeros_like(full.gas_moment)
-                full = OrderExcitation(
-                    gas_free, gas_free, full.unit_inertia_force, full.unit_inertia_moment
-                )
+            if pressure is None:
+                full = engine.order_excitation(key, about=reference)
+            else:  # the gas comes with each frame: the model's pressure cycle is not run
+                force, moment = engine.unit_inertia_orders(key, about=reference)
+                gas_free = np.zeros_like(moment)
+                full = OrderExcitation(gas_free, gas_free, force, moment)
             by_orders[key] = full
         return by_orders[key]
 
