@@ -16,6 +16,7 @@ torque with the slider-crank lever arm.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -82,12 +83,15 @@ class PressureCycle:
             raise PhysicsError(f"pressure cycle needs at least 8 samples, got shape {p.shape}")
         if not np.all(np.isfinite(p)) or p.min() <= 0:
             raise PhysicsError(f"pressure must be finite and positive (min {p.min():.4g} Pa)")
-        self.samples = p
         grid = np.linspace(0.0, CYCLE, p.size + 1)
         self._spline = CubicSpline(grid, np.append(p, p[0]), bc_type="periodic")
         self._grid = grid
         self._per_rad = p.size / CYCLE
         self._c = [np.ascontiguousarray(c) for c in self._spline.c]  # highest power first
+        # read-only: one cycle may serve many engines (ParametricGas.cycle)
+        self.samples = p.copy()
+        for a in (self.samples, grid, *self._c):
+            a.flags.writeable = False
 
     @property
     def pieces(self) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -221,8 +225,21 @@ class ParametricGas:
         return np.where(u >= self.blowdown_end, exchange, p)
 
     def cycle(self, geometry: CylinderGeometry, samples: int) -> PressureCycle:
-        """The pressure sampled on ``phi_j = 4 pi j / samples``."""
-        return PressureCycle(self.pressure(geometry, np.arange(samples) * CYCLE / samples))
+        """The pressure sampled on ``phi_j = 4 pi j / samples`` (shared: see
+        :func:`_parametric_cycle`)."""
+        return _parametric_cycle(self, geometry, samples)
+
+
+# A run's model-input derivatives take engines that differ in a mass or the crankcase
+# pressure only (the same gas and geometry), and a campaign or a study runs the same engine
+# again and again: each pressure cycle (its first law on a 40001-point grid, ~3-7 ms) is
+# computed once per process. The gas and the geometry are frozen dataclasses of numbers;
+# the cycle's arrays are read-only.
+@functools.lru_cache(maxsize=16)
+def _parametric_cycle(
+    gas: ParametricGas, geometry: CylinderGeometry, samples: int
+) -> PressureCycle:
+    return PressureCycle(gas.pressure(geometry, np.arange(samples) * CYCLE / samples))
 
 
 @dataclass(frozen=True)

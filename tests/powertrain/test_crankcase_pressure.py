@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from powertrain.gas import CYCLE, PressureCycle
 from ptinertia.config import ConfigError, load_bench, loads_bench
 from ptinertia.paths import EXAMPLES_DIR
 from ptinertia.to_physics import build_model, build_simulated_model
@@ -64,3 +65,16 @@ def test_a_bad_crankcase_pressure_is_a_config_error() -> None:
     )
     with pytest.raises(ConfigError, match="crankcase_pressure_pa"):
         loads_bench(text, base_dir=I4.parent)
+
+
+def test_engines_differing_in_crankcase_pressure_share_one_pressure_cycle() -> None:
+    # the cycle is p(phi) of the gas and the geometry alone: computed once, the same values
+    # as a fresh evaluation of the first law, and read-only since engines share it
+    a = build_model(_with_crankcase(None)).engine
+    b = build_model(_with_crankcase(1.0e5)).engine
+    assert a.pressure_cycle is b.pressure_cycle
+    n = a.samples_per_cycle
+    fresh = PressureCycle(a.gas.pressure(a.geometry, np.arange(n) * CYCLE / n))
+    np.testing.assert_array_equal(a.pressure_cycle.samples, fresh.samples)
+    with pytest.raises(ValueError, match="read-only"):
+        a.pressure_cycle.samples[0] = 0.0
