@@ -40,7 +40,7 @@ import numpy as np
 from acquisition.stream import SampleBlock, Source, SourceEvent, StreamItem
 from estimator.result import Estimate, EstimateUpdate
 from estimator.streaming import InertiaEstimator
-from ptinertia.sinks import RunContext, Sink, prepare_frames
+from ptinertia.sinks import RunContext, Sink, prepare_frames, wants_estimates
 
 _END = object()
 _FINISHED = object()  # the tracker's finish(): what it flushed follows
@@ -239,6 +239,7 @@ class Pipeline:
         self.tracker = tracker
         self.estimator = estimator
         self.sinks = list(sinks)
+        self._estimate_sinks = [s for s in self.sinks if wants_estimates(s)]
         self.context = context
         self.live = live
         self.queue: queue.Queue[Any] = queue.Queue(maxsize=0 if live else queue_items)
@@ -287,15 +288,17 @@ class Pipeline:
         for event in self.estimator.take_events():  # an elastic mode confirmed
             for sink in self.sinks:
                 sink.on_event(event)
-        if last_used is not None and (
-            last_used.time_s - self._last_estimate_t >= self.estimate_period_s
+        if (
+            last_used is not None
+            and self._estimate_sinks
+            and last_used.time_s - self._last_estimate_t >= self.estimate_period_s
         ):
             self._last_estimate_t = last_used.time_s
             self._published = True
             update = EstimateUpdate(
                 last_used.time_s, last_used.rpm, self.estimator.estimate(final=False)
             )
-            for sink in self.sinks:
+            for sink in self._estimate_sinks:
                 sink.on_estimate(update)
 
     def _backlog(self, enqueued: float) -> None:

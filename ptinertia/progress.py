@@ -24,6 +24,7 @@ class ProgressLine(Sink):
     def __init__(self, stream: TextIO | None = None, quiet: bool = False) -> None:
         self.stream = stream or sys.stderr
         self.quiet = quiet
+        self.wants_estimates = not quiet  # a quiet line shows nothing
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.period = 0.2 if self.tty else 10.0
         self._last = 0.0
