@@ -239,7 +239,6 @@ class Pipeline:
         self.tracker = tracker
         self.estimator = estimator
         self.sinks = list(sinks)
-        self._estimate_sinks = [s for s in self.sinks if wants_estimates(s)]
         self.context = context
         self.live = live
         self.queue: queue.Queue[Any] = queue.Queue(maxsize=0 if live else queue_items)
@@ -288,17 +287,18 @@ class Pipeline:
         for event in self.estimator.take_events():  # an elastic mode confirmed
             for sink in self.sinks:
                 sink.on_event(event)
-        if (
-            last_used is not None
-            and self._estimate_sinks
-            and last_used.time_s - self._last_estimate_t >= self.estimate_period_s
+        if last_used is not None and (
+            last_used.time_s - self._last_estimate_t >= self.estimate_period_s
         ):
+            readers = [sink for sink in self.sinks if wants_estimates(sink)]
+            if not readers:  # computed for nobody (see Sink.wants_estimates)
+                return
             self._last_estimate_t = last_used.time_s
             self._published = True
             update = EstimateUpdate(
                 last_used.time_s, last_used.rpm, self.estimator.estimate(final=False)
             )
-            for sink in self._estimate_sinks:
+            for sink in readers:
                 sink.on_estimate(update)
 
     def _backlog(self, enqueued: float) -> None:

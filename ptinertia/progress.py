@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from typing import Any, TextIO
 
 from acquisition.stream import SourceEvent
@@ -21,10 +22,15 @@ from ptinertia.sinks import RunContext, Sink
 class ProgressLine(Sink):
     """Progress on stderr; events (gaps, re-syncs, backlog) as their own lines."""
 
-    def __init__(self, stream: TextIO | None = None, quiet: bool = False) -> None:
+    def __init__(
+        self,
+        stream: TextIO | None = None,
+        quiet: bool = False,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.stream = stream or sys.stderr
         self.quiet = quiet
-        self.wants_estimates = not quiet  # a quiet line shows nothing
+        self.clock = clock  # s, monotonic (injectable for tests)
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.period = 0.2 if self.tty else 10.0
         self._last = 0.0
@@ -34,9 +40,10 @@ class ProgressLine(Sink):
         self.rejected = 0
         self.estimate: Estimate | None = None
         self._dirty = False
+        self._fresh = False  # an estimate came since the last rewrite
 
     def start(self, context: RunContext) -> None:
-        self._t0 = time.monotonic()
+        self._t0 = self.clock()
 
     def on_frame(self, frame: object, outcome: FrameOutcome) -> None:
         self.time_s = outcome.time_s
@@ -49,6 +56,15 @@ class ProgressLine(Sink):
 
     def on_estimate(self, update: EstimateUpdate) -> None:
         self.estimate = update.estimate
+        self._fresh = True
+
+    def wants_estimates(self) -> bool:
+        # only what the line will show: none when quiet; else one estimate per rewrite,
+        # taken in the last second before it is due (on a terminal's 0.2 s: right after
+        # the previous rewrite), so the line is never more than a second behind
+        if self.quiet or self._fresh:
+            return False
+        return self.clock() - self._last >= self.period - min(1.0, self.period)
 
     def on_event(self, event: SourceEvent) -> None:
         if not self.quiet:
@@ -71,7 +87,7 @@ class ProgressLine(Sink):
         return text
 
     def _tick(self) -> None:
-        now = time.monotonic()
+        now = self.clock()
         self._dirty = True
         if self.quiet or now - self._last < self.period:
             return
@@ -85,6 +101,7 @@ class ProgressLine(Sink):
             self.stream.write(self.line() + "\n")
         self.stream.flush()
         self._dirty = False
+        self._fresh = False
 
     def _clear(self) -> None:
         if self.tty:
@@ -93,6 +110,9 @@ class ProgressLine(Sink):
     def close(self, final: Estimate | None) -> None:
         if self.quiet:
             return
+        if final is not None:  # the last line shows the run's final estimate
+            self.estimate = final
+            self._dirty = True
         if self._dirty or self.tty:
             self._write()
         if self.tty:

@@ -61,13 +61,6 @@ class Sink(Protocol):
     abstract to mypy, and a subclass must be free to override only what it needs.
     """
 
-    #: Whether the sink reads the running estimates (:meth:`on_estimate`). When no sink of a
-    #: run does (a quiet replay, a campaign's runs), the pipeline does not compute them: a
-    #: published estimate costs a flush and a solve (about 0.04 s a minute of log, 79
-    #: estimates). The final estimate has the same bits either way, since the estimator's
-    #: sums do not depend on when its queued frames are flushed (a test pins it).
-    wants_estimates: bool = True
-
     def start(self, context: RunContext) -> None:
         """Called once before the first item."""
         return None
@@ -86,7 +79,8 @@ class Sink(Protocol):
         return None
 
     def on_estimate(self, update: EstimateUpdate) -> None:
-        """The running estimate after a used frame."""
+        """The running estimate after a used frame (to the sinks that want it: a sink may
+        say with an optional ``wants_estimates()``, see :func:`wants_estimates`)."""
         return None
 
     def on_event(self, event: SourceEvent) -> None:
@@ -103,8 +97,16 @@ class Sink(Protocol):
 
 
 def wants_estimates(sink: Any) -> bool:
-    """``sink.wants_estimates``, True where the sink does not say (see :class:`Sink`)."""
-    return bool(getattr(sink, "wants_estimates", True))
+    """Whether ``sink`` reads the next running estimate: its ``wants_estimates()`` where it
+    has one (an optional hook, asked before each estimate), else True.
+
+    When no sink of a run wants it (a quiet replay, a campaign's runs), the pipeline does
+    not compute the estimate: a published estimate costs a flush and a solve (about 0.04 s
+    a minute of log at 79 estimates). The final estimate has the same bits either way,
+    since the estimator's sums do not depend on when its queued frames are flushed
+    (``tests/ptinertia/test_published_estimates.py`` pins it).
+    """
+    return not hasattr(sink, "wants_estimates") or bool(sink.wants_estimates())
 
 
 def prepare_frames(sink: Any, frames: Sequence[Any]) -> None:

@@ -24,8 +24,11 @@ from ptinertia.sources import open_source
 
 class Updates(Sink):
     def __init__(self, wants: bool) -> None:
-        self.wants_estimates = wants
+        self.wants = wants
         self.updates: list[EstimateUpdate] = []
+
+    def wants_estimates(self) -> bool:
+        return self.wants
 
     def on_estimate(self, update: EstimateUpdate) -> None:
         self.updates.append(update)
