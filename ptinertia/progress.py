@@ -87,9 +87,11 @@ class ProgressLine(Sink):
         return text
 
     def _tick(self) -> None:
-        now = self.clock()
         self._dirty = True
-        if self.quiet or now - self._last < self.period:
+        if self.quiet:
+            return
+        now = self.clock()
+        if now - self._last < self.period:
             return
         self._last = now
         self._write()
