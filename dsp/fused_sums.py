@@ -249,7 +249,7 @@ def _sums1(x, c, s0, n, e, rp, r0, sums, top, clipping):
 # theirs change this file too (tests/dsp/test_kernels.py recomputes it and fails with
 # the new value), so a stale cache is never loaded.
 HELPERS = ("fused_segments.py", "spectrum_lanes.py", "vec8.py")
-HELPERS_SHA256 = "660480a5676d4244f8070e61c3f97819055ca21b3a178299b1e80e4a5cb421d3"
+HELPERS_SHA256 = "c30f3a6503c5985d5b790ce00aa99736d04dc3107eb48baf089454fedf5910b5"
 
 # one signature, compiled (or loaded from numba's cache) when this module is imported, so
 # after the helpers above: the samples as any 2-d layout (blocks come channel-fastest,
