@@ -9,7 +9,7 @@ into segments (:func:`segment_cuts`), the angle lookup of the samples
 :func:`grid_values`), the times of the frames' window ends (:func:`cubic_times`), the
 frames' window sums and amplitudes (:func:`window_sums`, :func:`group_amplitudes`), their
 speed and leakage figures (:func:`frame_figures`), the
-leakage correction's ramps (:func:`ramp_slopes`, :mod:`dsp.ramp_slopes`), the angle
+leakage correction's ramps and coupling (:func:`ramp_slopes`, :func:`apply_ramps`), the angle
 table's coefficients (:func:`cubic_pieces`), the pressure votes' candidate sums
 (:func:`pressure_sums`) and the wheel decoder's interval pass (:func:`wheel_intervals`).
 Every compiled function releases the GIL (``nogil=True``).
@@ -129,6 +129,13 @@ def piece_sums(*args: Any) -> None:
     from dsp import fused_sums
 
     fused_sums.piece_sums(*args)
+
+
+def apply_ramps(*args: Any) -> None:
+    """:func:`dsp.fused_ramps.apply_ramps`: the leakage correction's coupling applied."""
+    from dsp import fused_ramps  # imports numba: see piece_sums
+
+    fused_ramps.apply_ramps(*args)
 
 
 def segment_cuts(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import importlib
 import itertools
 import os
 from pathlib import Path
@@ -282,19 +283,20 @@ def test_compiled_sums_take_read_only_samples():
         assert all(np.array_equal(a[m], b[m], equal_nan=True) for m in a)
 
 
-def test_the_compiled_sums_name_their_helpers_hash():
-    """numba's cache watches only fused_sums.py's own bytes: the hash of the helpers it
-    inlines is written in it, so editing a helper must change it (else a warm cache runs
-    the old machine code and every test here compares that, not the edit)."""
-    from dsp import fused_sums
-
+@pytest.mark.parametrize("name", ["fused_sums", "fused_ramps"])
+def test_the_compiled_sums_name_their_helpers_hash(name):
+    """numba's cache watches only a kernel module's own bytes (dsp.fused_sums,
+    dsp.fused_ramps): the hash of the helpers it inlines is written in it, so editing a
+    helper must change it (else a warm cache runs the old machine code and every test
+    here compares that, not the edit)."""
+    module = importlib.import_module(f"dsp.{name}")
     digest = hashlib.sha256()
-    for name in fused_sums.HELPERS:
+    for helper in module.HELPERS:
         digest.update(
-            name.encode() + b"\0" + (Path(fused_sums.__file__).parent / name).read_bytes()
+            helper.encode() + b"\0" + (Path(module.__file__).parent / helper).read_bytes()
         )
-    assert digest.hexdigest() == fused_sums.HELPERS_SHA256, (
-        "a helper of dsp/fused_sums.py changed: set HELPERS_SHA256 there to "
+    assert digest.hexdigest() == module.HELPERS_SHA256, (
+        f"a helper of dsp/{name}.py changed: set HELPERS_SHA256 there to "
         f"{digest.hexdigest()!r} so numba's cache is rebuilt"
     )
 
