@@ -7,6 +7,9 @@ search per piece and evaluates each piece's cubic over its samples. At 25.6 kHz 
 block holds 12 800 samples over some 1 400 pieces: the times and the searches took about
 50 us of a step's 1 ms (issue 24). :func:`grid_values` walks samples and pieces together
 (both are sorted) and makes the times, angles, speeds, flags and runs in the same pass.
+It evaluates each piece's cubic over its samples as a slice indexed from 0, which numba
+vectorises (issue 24, second pass: 36 -> 28 us of CPU a 0.5 s block at 25.6 kHz, the
+same bits).
 
 The same numbers as the numpy path, bit for bit: each time is ``t0 + (k / rate)`` (the
 index converted exactly, one division, one addition, as numpy's arrays), a sample belongs
@@ -65,26 +68,36 @@ def grid_values(
     # the pieces of one run follow each other: every sample from the first piece on is inside
     one_run = runs[p] == runs[end - 1] and t[n - 1] < t_hi[end - 1]
     run0 = runs[p]
-    for i in range(n):
-        ti = t[i]
-        while p + 1 < end and t_lo[p + 1] <= ti:
-            p += 1
-        if ti < t_lo[p]:  # before the first piece
-            ok[i] = False
-            phi[i] = 0.0
-            omega[i] = 0.0
-            run[i] = 0
-            continue
-        tau = ti - t_lo[p]
-        a1, a2, a3 = c1[p], c2[p], c3[p]
-        phi[i] = ((tau * a3 + a2) * tau + a1) * tau + phi_lo[p]
-        omega[i] = (tau * (3.0 * a3) + 2.0 * a2) * tau + a1
-        if one_run:
-            ok[i] = True
-            run[i] = run0
-        else:
-            ok[i] = ti < t_hi[p]
-            run[i] = runs[p]
+    i = 0
+    while i < n and t[i] < t_lo[p]:  # before the first piece
+        ok[i] = False
+        phi[i] = 0.0
+        omega[i] = 0.0
+        run[i] = 0
+        i += 1
+    # piece by piece: a sample belongs to the last piece that starts at or before it
+    while i < n:
+        j = n
+        if p + 1 < end:
+            j = i
+            while j < n and t[j] < t_lo[p + 1]:
+                j += 1
+        # the piece's samples as slices indexed from 0: numba then knows no index is
+        # negative and vectorises the loop (from the piece's first sample it checked
+        # each index for wrap-around and ran scalar)
+        tl, pl, a1, a2, a3 = t_lo[p], phi_lo[p], c1[p], c2[p], c3[p]
+        a3x3 = 3.0 * a3
+        a2x2 = 2.0 * a2
+        ts, ps, ws = t[i:j], phi[i:j], omega[i:j]
+        for k in range(ts.size):
+            tau = ts[k] - tl
+            ps[k] = ((tau * a3 + a2) * tau + a1) * tau + pl
+            ws[k] = (tau * a3x3 + a2x2) * tau + a1
+        for k in range(i, j):
+            ok[k] = True if one_run else t[k] < t_hi[p]
+            run[k] = run0 if one_run else runs[p]
+        i = j
+        p += 1
 
 
 def cubic_pieces(

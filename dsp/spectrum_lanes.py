@@ -39,14 +39,16 @@ def lane_sums(x, c, s0, n, nz, pb_re, pb_im, pq, fall, k2, px, lanes, acc_a, acc
     n8 = (n + 7) // 8 * 8
     nz8 = (nz + 7) // 8 * 8
     zx = n8  # where the zone's weighted samples begin in px
+    # slices indexed from 0: no wrap-around checks, so numba vectorises the copies
+    xs, pxz = x[c, s0 : s0 + n], px[zx : zx + nz8]
     for s in range(n):
-        px[s] = x[c, s0 + s]
+        px[s] = xs[s]
     for s in range(n, n8):
         px[s] = 0.0
     for s in range(nz):
-        px[zx + s] = px[s] * fall[s]
+        pxz[s] = px[s] * fall[s]
     for s in range(nz, nz8):
-        px[zx + s] = 0.0
+        pxz[s] = 0.0
     lanes[:] = 0.0
     zd = 8 * n_rows  # where the zone's sums begin in lanes
     s = 0
