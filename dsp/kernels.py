@@ -10,7 +10,7 @@ into segments (:func:`segment_cuts`), the angle lookup of the samples
 frames' window sums and amplitudes (:func:`window_sums`, :func:`group_amplitudes`), their
 speed and leakage figures (:func:`frame_figures`), the
 leakage correction's ramps and coupling (:func:`ramp_slopes`, :func:`apply_ramps`), the angle
-table's coefficients (:func:`cubic_pieces`), the pressure votes' candidate sums
+table's new knots and coefficients (:func:`append_knots`), the pressure votes' candidate sums
 (:func:`pressure_sums`) and the wheel decoder's interval pass (:func:`wheel_intervals`).
 Every compiled function releases the GIL (``nogil=True``).
 
@@ -97,7 +97,7 @@ from typing import Any, TypeVar, cast
 
 import numpy as np
 
-from dsp.angle_loops import cubic_pieces as pieces_loops
+from dsp.angle_loops import append_knots as knots_loops
 from dsp.angle_loops import grid_values as grid_loops
 from dsp.frame_figures import frame_figures as figures_loops
 from dsp.frames import RISE_GRID, RISE_SLOPE, RISE_TABLE
@@ -152,11 +152,9 @@ def segment_cuts(
     return mu, starts, ends, zone_end, per_piece.tolist(), delta, half32
 
 
-def cubic_pieces(t: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`dsp.angle.cubic_pieces` in one compiled pass (:func:`dsp.angle_loops.cubic_pieces`)."""
-    c1, c2, c3 = np.empty(t.size - 3), np.empty(t.size - 3), np.empty(t.size - 3)
-    _jit(pieces_loops)(t, phi, c1, c2, c3)
-    return c1, c2, c3
+def append_knots(*args: Any) -> tuple[np.ndarray, ...]:
+    """:func:`dsp.angle_loops.append_knots` compiled (on the first call, as :func:`piece_sums`)."""
+    return cast(tuple[np.ndarray, ...], _jit(knots_loops)(*args))
 
 
 def pressure_sums(
