@@ -41,10 +41,8 @@ and the correction's: 8 half orders, 119 calls; CPU, best of 7, load 3-9 on 2 co
 kernel's calls 36-38 ms before (scalar sums), 23 ms with vector sums one channel at a
 time, 19 ms with four channels and fused multiply-add, 14.6 ms with the clip flags on the
 sums' pass, 12-13 ms with the rows packed here (which also spares the numpy packing of
-every block). Samples read through slices indexed from 0 (issue 24, second pass): numba
-checks an index for wrap-around unless it knows it is not negative, which kept the loops
-over ``s0 + s`` scalar and busy; the same bits, the tracked channels' calls about 1 ms a
-minute faster (noisy: load 8). ``nogil``: every function here releases the GIL.
+every block). Samples read through slices indexed from 0 (issue 24: no wrap-around checks,
+the same bits, ~1 ms a minute); the pieces sliced here (2 -> 1 ms). ``nogil`` throughout.
 """
 
 from __future__ import annotations
@@ -268,21 +266,22 @@ _H1 = nt.float32[::1]
 _SIGNATURE = nt.void(
     _SAMPLES, _F1, _F1, _H1, _H1, _F1, _I1, _I1, _I1, nt.float64, _I1, nt.boolean,
     nt.int64, nt.int64, nt.float64, _F1, _F1, _F1, _I1, _F1, _F1, nt.float64[:, ::1],
+    nt.int64, nt.int64, nt.int64,
 )  # fmt: skip
 
 
 @njit(_SIGNATURE, cache=True, nogil=True)
 def piece_sums(
     x, phi, q, cos_half, sin_half, c_lo, starts, ends, zone_end, taper_rad, k2, tracked,
-    power_from, power_stride, clip_level, grid, table, slope, mu, turn_re, turn_im, w,
+    power_from, power_stride, clip_level, grid, table, slope, mu, turn_re, turn_im, w, p0, i0, i1,
 ):  # fmt: skip
     """Add the sums of the segments of one piece (one set of channels) to ``out``.
 
-    ``x`` (n_ch, n) the piece's samples, ``phi`` (rad) and ``q = omega dt`` (rad) (n,);
-    ``cos_half``, ``sin_half`` (n,) float32 the carriers' base ``exp(-i delta / 2)`` as
+    ``x`` (n_ch, n) the piece's samples, ``p0 .. p0 + n - 1`` of the call's ``phi`` (rad),
+    ``q = omega dt`` (rad), ``cos_half``, ``sin_half`` (float32) the carriers' base ``exp(-i delta / 2)`` as
     :func:`dsp.sum_sets.base_parts` makes it (``cos - i sin``, widened here); per segment
-    (seg,): ``c_lo`` the start of its zone ``c_m - tau / 2`` (rad), ``starts``, ``ends``,
-    ``zone_end`` sample indices within the piece. ``taper_rad`` the zone's width,
+    (the call's; the piece's are ``i0 .. i1 - 1``): ``c_lo`` the start of its zone
+    ``c_m - tau / 2`` (rad), ``starts``, ``ends``, ``zone_end`` (samples). ``taper_rad`` the zone's width,
     ``k2`` (no,) ascending (0 the mean). ``tracked``: the zone weight multiplies the
     carrier, and the mean square (samples ``power_from + power_stride * i``) and the
     clip flags (``|x| >= clip_level``; NaN for none) are summed; else it multiplies the
@@ -295,10 +294,12 @@ def piece_sums(
     rotated, their weights, mean square, count and clip flags, as
     :func:`dsp.sums.add_sample_sets` packs the numpy path's.
     """
+    phi, q = phi[p0 : p0 + x.shape[1]], q[p0 : p0 + x.shape[1]]  # the piece's, from 0
+    cos_half, sin_half = cos_half[p0 : p0 + x.shape[1]], sin_half[p0 : p0 + x.shape[1]]
     no = k2.size
     n_ch = x.shape[0]
     longest = 0
-    for i in range(starts.size):
+    for i in range(i0, i1):
         longest = max(longest, ends[i] - starts[i])
     longest8 = (longest + 7) // 8 * 8
     # the carriers of a segment, a sample per row of e: Re of order j in column j, Im in
@@ -331,10 +332,10 @@ def piece_sums(
     # channels: 18 vector multiply-adds a sample, not 24)
     five = tracked and n_ch >= 5 and n_ch % 4 == 1
     quads = (n_ch // 4 - 1 if five else (n_ch + 3) // 4) if tracked and n_ch >= 4 else 0
-    for i in range(starts.size):
-        s0 = starts[i]
-        n = ends[i] - s0
-        nz = zone_end[i] - s0
+    for i in range(i0, i1):
+        s0 = starts[i] - p0
+        n = ends[i] - starts[i]
+        nz = zone_end[i] - starts[i]
         total = 0.0
         ch_s, sh_s, q_s = cos_half[s0 : s0 + n], sin_half[s0 : s0 + n], q[s0 : s0 + n]
         for s in range(n):

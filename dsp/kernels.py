@@ -340,14 +340,13 @@ def compiled_rows(
         w = np.zeros((seg.mu.size, row_size(st.x[0].shape[0], st.k2.size)))
         level = math.nan if st.clip_level is None else st.clip_level
         i = 0
-        pieces = zip(st.x, seg.cuts[:-1], seg.cuts[1:], seg.per_piece, strict=True)
-        for xp, p0, p1, count in pieces:
-            s = slice(i, i + count)
+        # the whole call's arrays and where the piece is in them (sliced in the kernel)
+        for xp, p0, count in zip(st.x, seg.cuts[:-1], seg.per_piece, strict=True):
             piece_sums(
-                xp, phi[p0:p1], q[p0:p1], cos_half[p0:p1], sin_half[p0:p1], c_lo[s],
-                seg.starts[s] - p0, seg.ends[s] - p0, seg.zone_end[s] - p0, 2.0 * seg.half,
-                st.k2, st.tracked, (-(first_index + p0)) % POWER_STRIDE, POWER_STRIDE, level,
-                RISE_GRID, RISE_TABLE, RISE_SLOPE, seg.mu[s], turn_re, turn_im, w[s],
+                xp, phi, q, cos_half, sin_half, c_lo, seg.starts, seg.ends, seg.zone_end,
+                2.0 * seg.half, st.k2, st.tracked, (-(first_index + p0)) % POWER_STRIDE,
+                POWER_STRIDE, level, RISE_GRID, RISE_TABLE, RISE_SLOPE, seg.mu, turn_re,
+                turn_im, w, p0, i, i + count,
             )  # fmt: skip
             i += count
         out.append(w)
