@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -115,10 +115,21 @@ def cubic_pieces(t: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, ...]:
     return c1, c2, c3
 
 
+# the table's fields in order: its columns, then its tail
+_COLUMNS = tuple(f.name for f in fields(AngleTable))
+
+
 def add_knots(table: AngleTable, t: np.ndarray, phi: np.ndarray, run: np.ndarray) -> AngleTable:
     """Append committed knots; form every interval whose 4-knot stencil lies in one run."""
     if t.size == 0:
         return table
+    if kernels.USE:
+        # one compiled pass, the same bits (dsp.angle_loops.append_knots)
+        columns = kernels.append_knots(
+            table.t_lo, table.t_hi, table.phi_lo, table.phi_hi, table.c1, table.c2, table.c3,
+            table.run, table.tail_t, table.tail_phi, table.tail_run, t, phi, run,
+        )  # fmt: skip
+        return evolve(table, **dict(zip(_COLUMNS, columns, strict=True)))
     kt = np.concatenate((table.tail_t, t))
     kp = np.concatenate((table.tail_phi, phi))
     kr = np.concatenate((table.tail_run, run))
@@ -129,8 +140,7 @@ def add_knots(table: AngleTable, t: np.ndarray, phi: np.ndarray, run: np.ndarray
     for a, b in itertools.pairwise(bounds):
         if b - a >= 4:
             st, sp = kt[a:b], kp[a:b]
-            pieces = kernels.cubic_pieces if kernels.USE else cubic_pieces  # the same bits
-            c1, c2, c3 = pieces(st, sp)
+            c1, c2, c3 = cubic_pieces(st, sp)
             # intervals j = 1 .. k-3 of the run: from knot j to knot j + 1
             parts.append((st[1:-2], st[2:-1], sp[1:-2], sp[2:-1], c1, c2, c3, kr[a + 1 : b - 2]))
     a = bounds[-2]

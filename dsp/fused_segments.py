@@ -49,12 +49,24 @@ def segment_cuts(phi, cuts, spacing, half):
         for k in range(per_piece[p]):
             ends[i + k] = starts[i + k + 1] if k + 1 < per_piece[p] else p1
             zone_end[i + k] = min(max(zone_end[i + k], starts[i + k]), ends[i + k])
-            c = mu[i + k] * spacing
-            for s in range(starts[i + k], ends[i + k]):
-                delta[s] = phi[s] - c
-                half32[s] = np.float32(0.5 * delta[s])
+            a, b = starts[i + k], ends[i + k]
+            _angles(phi[a:b], mu[i + k] * spacing, delta[a:b], half32[a:b])
         i += per_piece[p]
     return mu, starts, ends, zone_end, per_piece, delta, half32
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _angles(phi, c, delta, half32):
+    """``delta = phi - c`` and ``half32 = float32(delta / 2)`` of one segment's samples.
+
+    On slices, indexed from 0: numba then knows no index is negative, LLVM vectorises the
+    loop (issue 24: :func:`segment_cuts` on a 0.5 s block of 25.6 kHz, 15.3 -> 4.6 us of
+    CPU); indexed from the segment's start it checked each index for wrap-around and ran
+    scalar. The same operations, so the same bits."""
+    for s in range(phi.size):
+        d = phi[s] - c
+        delta[s] = d
+        half32[s] = np.float32(0.5 * d)
 
 
 @njit(cache=True, nogil=True)

@@ -9,8 +9,8 @@ into segments (:func:`segment_cuts`), the angle lookup of the samples
 :func:`grid_values`), the times of the frames' window ends (:func:`cubic_times`), the
 frames' window sums and amplitudes (:func:`window_sums`, :func:`group_amplitudes`), their
 speed and leakage figures (:func:`frame_figures`), the
-leakage correction's ramps (:func:`ramp_slopes`, :mod:`dsp.ramp_slopes`), the angle
-table's coefficients (:func:`cubic_pieces`), the pressure votes' candidate sums
+leakage correction's ramps and coupling (:func:`ramp_slopes`, :func:`apply_ramps`), the angle
+table's new knots and coefficients (:func:`append_knots`), the pressure votes' candidate sums
 (:func:`pressure_sums`) and the wheel decoder's interval pass (:func:`wheel_intervals`).
 Every compiled function releases the GIL (``nogil=True``).
 
@@ -97,7 +97,7 @@ from typing import Any, TypeVar, cast
 
 import numpy as np
 
-from dsp.angle_loops import cubic_pieces as pieces_loops
+from dsp.angle_loops import append_knots as knots_loops
 from dsp.angle_loops import grid_values as grid_loops
 from dsp.frame_figures import frame_figures as figures_loops
 from dsp.frames import RISE_GRID, RISE_SLOPE, RISE_TABLE
@@ -131,6 +131,13 @@ def piece_sums(*args: Any) -> None:
     fused_sums.piece_sums(*args)
 
 
+def apply_ramps(*args: Any) -> None:
+    """:func:`dsp.fused_ramps.apply_ramps`: the leakage correction's coupling applied."""
+    from dsp import fused_ramps  # imports numba: see piece_sums
+
+    fused_ramps.apply_ramps(*args)
+
+
 def segment_cuts(
     phi: np.ndarray, cuts: np.ndarray, spacing: float, half: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int], np.ndarray, np.ndarray]:
@@ -145,11 +152,9 @@ def segment_cuts(
     return mu, starts, ends, zone_end, per_piece.tolist(), delta, half32
 
 
-def cubic_pieces(t: np.ndarray, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`dsp.angle.cubic_pieces` in one compiled pass (:func:`dsp.angle_loops.cubic_pieces`)."""
-    c1, c2, c3 = np.empty(t.size - 3), np.empty(t.size - 3), np.empty(t.size - 3)
-    _jit(pieces_loops)(t, phi, c1, c2, c3)
-    return c1, c2, c3
+def append_knots(*args: Any) -> tuple[np.ndarray, ...]:
+    """:func:`dsp.angle_loops.append_knots` compiled (on the first call, as :func:`piece_sums`)."""
+    return cast(tuple[np.ndarray, ...], _jit(knots_loops)(*args))
 
 
 def pressure_sums(
@@ -335,14 +340,13 @@ def compiled_rows(
         w = np.zeros((seg.mu.size, row_size(st.x[0].shape[0], st.k2.size)))
         level = math.nan if st.clip_level is None else st.clip_level
         i = 0
-        pieces = zip(st.x, seg.cuts[:-1], seg.cuts[1:], seg.per_piece, strict=True)
-        for xp, p0, p1, count in pieces:
-            s = slice(i, i + count)
+        # the whole call's arrays and where the piece is in them (sliced in the kernel)
+        for xp, p0, count in zip(st.x, seg.cuts[:-1], seg.per_piece, strict=True):
             piece_sums(
-                xp, phi[p0:p1], q[p0:p1], cos_half[p0:p1], sin_half[p0:p1], c_lo[s],
-                seg.starts[s] - p0, seg.ends[s] - p0, seg.zone_end[s] - p0, 2.0 * seg.half,
-                st.k2, st.tracked, (-(first_index + p0)) % POWER_STRIDE, POWER_STRIDE, level,
-                RISE_GRID, RISE_TABLE, RISE_SLOPE, seg.mu[s], turn_re, turn_im, w[s],
+                xp, phi, q, cos_half, sin_half, c_lo, seg.starts, seg.ends, seg.zone_end,
+                2.0 * seg.half, st.k2, st.tracked, (-(first_index + p0)) % POWER_STRIDE,
+                POWER_STRIDE, level, RISE_GRID, RISE_TABLE, RISE_SLOPE, seg.mu, turn_re,
+                turn_im, w, p0, i, i + count,
             )  # fmt: skip
             i += count
         out.append(w)

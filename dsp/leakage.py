@@ -146,6 +146,34 @@ def coupling(
     return same, image
 
 
+_REAL: dict[int, tuple[np.ndarray, np.ndarray, tuple[np.ndarray, int]]] = {}
+
+
+def real_coupling(same: np.ndarray, image: np.ndarray) -> tuple[np.ndarray, int]:
+    """:func:`coupling`'s ``same``, ``image`` (P, n, n) as one real matrix per phase, for
+    :func:`dsp.fused_ramps.apply_ramps`: ``corr = same @ b + image @ conj(b)`` is
+    ``Re corr = (S_r + I_r) Re b + (I_i - S_i) Im b``, ``Im corr = (S_i + I_i) Re b +
+    (S_r - I_r) Im b``. Returned transposed (row ``k`` a source: ``Re b_k``, then ``Im b_k``
+    from row ``n``; columns the real parts, then the imaginary parts, zeros up to ``m8``,
+    a multiple of 8), flattened (P 2 n m8,), and ``m8``. Made once per pair (a plan's
+    arrays, never modified) and kept."""
+    hit = _REAL.get(id(same))
+    if hit is not None and hit[0] is same and hit[1] is image:
+        return hit[2]
+    n = same.shape[1]
+    m8 = (2 * n + 7) // 8 * 8
+    out = np.zeros((same.shape[0], 2 * n, m8))
+    sr, si, ir, ii = same.real, same.imag, image.real, image.imag
+    out[:, :n, :n] = (sr + ir).transpose(0, 2, 1)
+    out[:, :n, n : 2 * n] = (si + ii).transpose(0, 2, 1)
+    out[:, n:, :n] = (ii - si).transpose(0, 2, 1)
+    out[:, n:, n : 2 * n] = (sr - ir).transpose(0, 2, 1)
+    if len(_REAL) > 16:
+        _REAL.clear()  # plans come and go in studies: keep a few
+    _REAL[id(same)] = (same, image, (out.ravel(), m8))
+    return out.ravel(), m8
+
+
 def ramp_correction(
     history: tuple[np.ndarray, ...],
     js: np.ndarray,
@@ -194,6 +222,12 @@ def ramp_correction(
         kernels.ramp_slopes(
             all_j, all_c, all_x, js, chains, tacho_bad, period, SLOPE_PERIODS, b, good
         )
+        # the two coupling products as one real product per frame and channel, compiled
+        # (dsp.fused_ramps: not these bits, within 1e-12)
+        out = np.empty((f, n_int, n_ch), complex)
+        coupling, m8 = real_coupling(same, image)
+        kernels.apply_ramps(x, b, js % period, coupling, m8, out, np.empty(m8))
+        return history, out, good
     else:
         b, good = _slopes(all_j, all_c, all_x, js, chains, tacho_bad, period)
     phase = js % period

@@ -10,8 +10,12 @@ numba in a few microseconds; the coupling products that follow stay numpy's.
 Equal to the numpy reference in which frames are corrected (exactly) and in ``b``
 within 1e-12 relative (the divisions by the distances in windows round as numba's
 complex arithmetic does, not as numpy's complex-by-real loop; measured: within 2e-16,
-``tests/dsp/test_kernels.py``). Plain Python: the loops run uncompiled too (slowly),
-which is how the tests can step through them.
+``tests/dsp/test_kernels.py``). Those divisions are written out as numba's complex
+division computes them, which skips them where the distance is one window and halves
+exactly where it is two (the rule): the same bits, 14.4 -> 7.2 us of CPU a step of 25
+frames for the tracked channels, 4.2 -> 2.5 us for the spectrum channel (issue 24).
+Plain Python: the loops run uncompiled too (slowly, now with the compiled bits: numpy's
+scalars divided their own way), which is how the tests can step through them.
 """
 
 from __future__ import annotations
@@ -85,14 +89,39 @@ def ramp_slopes(
             # how far back, in windows: the frames sit at u = 0, -d1, -d2
             d1 = (j - all_j[ref]) / period
             d2 = (j - all_j[ref2]) / period if ref2 >= 0 else 0.0
+            d21 = d2 - d1
             for h in range(n_int):
                 x0 = all_x[base, h, c]
                 x1 = all_x[ref, h, c]
-                s1 = (x0 - x1) / d1  # the chord's slope: the ramp half a chord back
+                # the chord's slope (x0 - x1) / d1: the ramp half a chord back. Each
+                # complex-by-real quotient z / d written out as numba's (and CPython's)
+                # complex division by d + 0j computes it for d > 0 (ratio 0, denominator
+                # d): (Re z + Im z 0) / d, (Im z - Re z 0) / d; no division where d is 1,
+                # an exact halving where it is 2 (the rule: frames one and two cycles
+                # back), the same bits (issue 24: the divisions were half of this loop)
+                zr, zi = x0.real - x1.real, x0.imag - x1.imag
+                qr, qi = zr + zi * 0.0, zi - zr * 0.0
+                if d1 == 2.0:
+                    qr, qi = qr * 0.5, qi * 0.5
+                elif d1 != 1.0:
+                    qr, qi = qr / d1, qi / d1
+                s1 = complex(qr, qi)
                 if ref2 >= 0:
-                    # the parabola through the three frames has the slope s1 + c d1 at u = 0
+                    # the parabola through the three frames has the slope s1 + c d1 at u = 0:
+                    # c = (s1 - (x1 - x2) / (d2 - d1)) / d2
                     x2 = all_x[ref2, h, c]
-                    bend = (s1 - (x1 - x2) / (d2 - d1)) / d2
-                    b[i, h, c] = s1 + bend * d1
+                    zr, zi = x1.real - x2.real, x1.imag - x2.imag
+                    qr, qi = zr + zi * 0.0, zi - zr * 0.0
+                    if d21 == 2.0:
+                        qr, qi = qr * 0.5, qi * 0.5
+                    elif d21 != 1.0:
+                        qr, qi = qr / d21, qi / d21
+                    zr, zi = s1.real - qr, s1.imag - qi
+                    qr, qi = zr + zi * 0.0, zi - zr * 0.0
+                    if d2 == 2.0:
+                        qr, qi = qr * 0.5, qi * 0.5
+                    elif d2 != 1.0:
+                        qr, qi = qr / d2, qi / d2
+                    b[i, h, c] = s1 + complex(qr, qi) * d1
                 else:
                     b[i, h, c] = s1

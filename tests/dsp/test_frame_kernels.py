@@ -1,5 +1,6 @@
 """The compiled frame assembly (dsp.kernels: window sums, amplitudes, speed and leakage
-figures) against the numpy path: the same bits, and whole frames within 1e-12."""
+figures, the leakage correction's coupling) against the numpy path: the same bits (the
+coupling within 1e-12), and whole frames within 1e-12."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from dsp import assemble, kernels
 from dsp.config import OrderTrackerConfig
 from dsp.driver import track_items
 from dsp.frames import OrderFrame
+from dsp.leakage import coupling, real_coupling
 from dsp.sum_rows import window_sums
 from dsp.sum_sets import SumSet
 from dsp.sums import add_sample_sets
@@ -32,6 +34,37 @@ def _rows(fpr: int) -> tuple[dict[int, np.ndarray], int]:
     k2 = np.array([1, 2, 3, 4])
     sets = [SumSet({}, [x[:, :5000], x[:, 5000:]], k2, 8.5)]
     return add_sample_sets(sets, phi, omega, 1001, 25_600.0, fpr, 45.0, compiled=False)[0], 4
+
+
+@pytest.mark.parametrize(
+    ("k2", "n_ch", "fpr"),
+    [(range(1, 9), 9, 1), (range(0, 19), 1, 1), (range(1, 4), 2, 2), ([2], 3, 4)],
+)
+def test_compiled_coupling_agrees_with_numpy(k2, n_ch, fpr):
+    """The leakage correction's coupling (dsp.fused_ramps: one real product per frame and
+    channel, columns padded to eight lanes) against numpy's complex products of
+    dsp.leakage.ramp_correction: within 1e-12 of the largest correction, for eight orders
+    (two columns of lanes), the spectrum's 19 (five, the last part padding), three and
+    one; NaN amplitudes stay NaN, a frame with zero ramps keeps its amplitudes exactly."""
+    rng = np.random.default_rng(n_ch)
+    k2 = np.array(k2)
+    same, image = coupling(k2, fpr, 45.0)
+    f, n = 7, k2.size
+    phase = rng.integers(0, 2 * fpr, f)
+    b = rng.standard_normal((f, n, n_ch)) + 1j * rng.standard_normal((f, n, n_ch))
+    b[2] = 0.0
+    x = rng.standard_normal((f, n, n_ch)) + 1j * rng.standard_normal((f, n, n_ch))
+    x[3, 0, 0] = np.nan
+    corr = same[phase] @ b + image[phase] @ np.conj(b)
+    want = x - corr
+    flat, m8 = real_coupling(same, image)
+    assert m8 % 8 == 0 and m8 >= 2 * n
+    got = np.empty_like(x)
+    kernels.apply_ramps(x, b, phase, flat, m8, got, np.empty(m8))
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+    assert np.isnan(want).sum() == 1
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(corr).max())
+    np.testing.assert_array_equal(got[2], x[2])
 
 
 @pytest.mark.parametrize("fpr", [1, 2, 4])

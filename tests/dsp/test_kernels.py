@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import importlib
 import itertools
 import os
 from pathlib import Path
@@ -282,19 +283,20 @@ def test_compiled_sums_take_read_only_samples():
         assert all(np.array_equal(a[m], b[m], equal_nan=True) for m in a)
 
 
-def test_the_compiled_sums_name_their_helpers_hash():
-    """numba's cache watches only fused_sums.py's own bytes: the hash of the helpers it
-    inlines is written in it, so editing a helper must change it (else a warm cache runs
-    the old machine code and every test here compares that, not the edit)."""
-    from dsp import fused_sums
-
+@pytest.mark.parametrize("name", ["fused_sums", "fused_ramps"])
+def test_the_compiled_sums_name_their_helpers_hash(name):
+    """numba's cache watches only a kernel module's own bytes (dsp.fused_sums,
+    dsp.fused_ramps): the hash of the helpers it inlines is written in it, so editing a
+    helper must change it (else a warm cache runs the old machine code and every test
+    here compares that, not the edit)."""
+    module = importlib.import_module(f"dsp.{name}")
     digest = hashlib.sha256()
-    for name in fused_sums.HELPERS:
+    for helper in module.HELPERS:
         digest.update(
-            name.encode() + b"\0" + (Path(fused_sums.__file__).parent / name).read_bytes()
+            helper.encode() + b"\0" + (Path(module.__file__).parent / helper).read_bytes()
         )
-    assert digest.hexdigest() == fused_sums.HELPERS_SHA256, (
-        "a helper of dsp/fused_sums.py changed: set HELPERS_SHA256 there to "
+    assert digest.hexdigest() == module.HELPERS_SHA256, (
+        f"a helper of dsp/{name}.py changed: set HELPERS_SHA256 there to "
         f"{digest.hexdigest()!r} so numba's cache is rebuilt"
     )
 
@@ -336,17 +338,30 @@ def test_compiled_grid_lookup_gives_the_numpy_bits(seed, monkeypatch):
 
 
 @pytest.mark.parametrize("seed", range(3))
-def test_compiled_cubic_pieces_and_pressure_sums_give_the_numpy_bits(seed, monkeypatch):
-    """dsp.kernels.cubic_pieces and the compiled dsp.cycle.pressure_sums give the numpy
-    path's coefficients and candidate sums bit for bit (pressure with NaN samples, a
-    wheel's candidates and four pulses', a block that meets no candidate)."""
+def test_compiled_knots_and_pressure_sums_give_the_numpy_bits(seed, monkeypatch):
+    """dsp.angle.add_knots compiled (dsp.angle_loops.append_knots: one pass) and the
+    compiled dsp.cycle.pressure_sums give the numpy path's tables and candidate sums bit
+    for bit: knots in blocks of 1 to 60 across runs of 2 to 200 knots (stretches too
+    short to form an interval, a tail carried over a run change), pressure with NaN
+    samples, a wheel's candidates and four pulses', a block that meets no candidate."""
     rng = np.random.default_rng(400 + seed)
-    t = np.cumsum(rng.uniform(0.9, 1.1, 500) * 1e-3)
-    phi = np.cumsum(rng.uniform(0.09, 0.11, 500))
-    want = ang.cubic_pieces(t, phi)
-    got = kernels.cubic_pieces(t, phi)
-    for w, g in zip(want, got, strict=True):
-        np.testing.assert_array_equal(g, w)
+    lengths = [200, 2, 3, 5, 120, 1, 4, 90]
+    t = np.cumsum(rng.uniform(0.9, 1.1, sum(lengths)) * 1e-3)
+    phi = np.cumsum(rng.uniform(0.09, 0.11, t.size))
+    run = np.repeat(np.arange(len(lengths)), lengths)
+    tables = {False: ang.AngleTable(), True: ang.AngleTable()}
+    a = 0
+    while a < t.size:
+        b = min(a + int(rng.integers(1, 61)), t.size)
+        for compiled in tables:
+            monkeypatch.setattr(kernels, "USE", compiled)
+            tables[compiled] = ang.add_knots(tables[compiled], t[a:b], phi[a:b], run[a:b])
+        for name in ang._COLUMNS:
+            want, got = getattr(tables[False], name), getattr(tables[True], name)
+            assert got.dtype == want.dtype
+            np.testing.assert_array_equal(got, want)
+        a = b
+    assert np.unique(tables[True].run).size == 5  # the runs of four knots or more
     phi_w = 3.0 + np.cumsum(rng.uniform(0.001, 0.004, 20_000))  # some 9 revolutions
     pressure = rng.uniform(-2.0, 50.0, phi_w.size)
     pressure[rng.integers(0, phi_w.size, 40)] = np.nan
