@@ -67,9 +67,33 @@ _MESSAGE_KEY = struct.Struct("<HIQ")  # channel id, sequence, log time (at byte 
 # opcode, record length, start time, end time, uncompressed size, crc, compression name length
 _CHUNK = struct.Struct("<BQQQQII")
 
+
+class LateBytes:
+    """A message's data whose bytes are made on the writer thread, when its chunk is joined.
+
+    Its length is known when the message is added (the chunk's size bound and the record
+    header need it); :meth:`parts` gives the bytes-like pieces, joined in as they are.
+    What a subclass holds must not change until the chunk is written.
+    """
+
+    __slots__ = ("size",)
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+
+    def __len__(self) -> int:
+        return self.size
+
+    def parts(self) -> tuple[Any, ...]:
+        """The data as bytes-like objects (``bytes``, a C-contiguous array ...), ``size`` bytes."""
+        raise NotImplementedError
+
+
+Payload = bytes | LateBytes  # a message's data
+
 # (record header, data) pairs of the open chunk: a message is its header and
 # payload, a schema or channel record is its bytes and b""
-Records = list[tuple[bytes, bytes]]
+Records = list[tuple[bytes, Payload]]
 
 
 class McapOutput:
@@ -134,7 +158,19 @@ class McapOutput:
         )
 
     def chunk(self, records: Records) -> None:
-        """Write one chunk record and its message indexes; flush the stream."""
+        """Write one chunk record and its message indexes; flush the stream.
+
+        The data of a message may be :class:`LateBytes`, made here.
+        """
+        # the late data first: if it fails, nothing here has counted the chunk yet
+        pieces: list[tuple[Any, ...]] = list(records)
+        for i, (head, late) in enumerate(records):
+            if type(late) is not bytes:
+                assert isinstance(late, LateBytes)
+                made = late.parts()
+                if sum(memoryview(p).nbytes for p in made) != late.size:
+                    raise ValueError(f"late message data: not the {late.size} bytes declared")
+                pieces[i] = (head, *made)
         index: dict[int, list[int]] = {}  # channel id -> [log time, offset, ...]
         counts = self.message_counts
         start, end = None, 0
@@ -153,7 +189,7 @@ class McapOutput:
         self.end_time = max(self.end_time, end)
         self.message_count += sum(len(v) for v in index.values()) // 2
 
-        payload = b"".join(chain.from_iterable(records))
+        payload = b"".join(chain.from_iterable(pieces))
         crc = zlib.crc32(payload)
         data = self._compressed(payload)
         name = self.compression.encode()

@@ -43,7 +43,9 @@ from replay.mcap_output import (
     MESSAGE_HEADER,
     OP_MESSAGE,
     ZSTD_LEVEL,
+    LateBytes,
     McapOutput,
+    Payload,
     Records,
 )
 
@@ -137,10 +139,17 @@ class ThreadedWriter:
         return channel.id
 
     def add_message(
-        self, channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int = 0
+        self,
+        channel_id: int,
+        log_time: int,
+        data: Payload,
+        publish_time: int,
+        sequence: int = 0,
     ) -> None:
-        """Append a message to the open chunk."""
-        data = bytes(data)  # free for bytes; a bytearray must not change under the writer
+        """Append a message to the open chunk (``data`` as :class:`LateBytes`: its bytes are
+        made on the writer thread)."""
+        if not isinstance(data, LateBytes):  # (late bytes are made on the writer thread)
+            data = bytes(data)  # free for bytes; a bytearray must not change under the writer
         head = MESSAGE_HEADER.pack(
             OP_MESSAGE, 22 + len(data), channel_id, sequence, log_time, publish_time
         )

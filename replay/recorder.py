@@ -39,11 +39,11 @@ wall-time bound is checked when a message arrives; a stalled stream adds
 nothing to lose.) The page cache survives the process, so there is no fsync:
 a power cut is a different matter.
 
-Cost to the processing thread. Chunks are compressed and written on the writer's
-thread (:class:`replay.mcapwriter.ThreadedWriter`; compression releases the GIL); frames
-and sample blocks are encoded without the protobuf classes (:mod:`replay.wire`), a
-block's frames together (:meth:`McapRecorder.prepare_frames`: 9 ms a minute for 2997
-frames, 29 ms one by one): 0.11 s of the caller's CPU a minute of 10 x 25.6 kHz (bench_mcap).
+Cost to the processing thread. Chunks are compressed and written on the writer thread
+(:class:`replay.mcapwriter.ThreadedWriter`), sample blocks cast to float32 there too
+(:class:`replay.stream_codec.LateSamples`); a block's frames are encoded together
+(:meth:`McapRecorder.prepare_frames`, :mod:`replay.wire`: 9 ms a minute). The hooks cost
+the caller 0.051-0.059 s of CPU a minute of 9 x 25.6 kHz (0.075 s casting here).
 
 A source's raw stream alone (``ptinertia simulate --out x.mcap``) is written
 through the same recorder by :mod:`replay.raw_writer`.
@@ -51,6 +51,7 @@ through the same recorder by :mod:`replay.raw_writer`.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 import time
@@ -67,7 +68,7 @@ from estimator.outcome import FrameOutcome
 from estimator.result import Estimate, EstimateUpdate
 from replay import foxglove, results_codec, stream_codec
 from replay.errors import LogError
-from replay.mcap_output import check_level
+from replay.mcap_output import Payload, check_level
 from replay.mcapwriter import ThreadedWriter
 from replay.recording_head import check_topics, end_metadata, ptinertia_version, write_head
 from replay.schemas import (
@@ -102,10 +103,8 @@ class RecorderStats:
 
 def _discard(fh: IO[bytes]) -> None:
     """Close a file after a failure, which is what gets reported (a full disk fails again here)."""
-    try:
+    with contextlib.suppress(OSError):
         fh.close()
-    except OSError:
-        pass
 
 
 class McapRecorder:
@@ -249,7 +248,8 @@ class McapRecorder:
         if isinstance(item, SampleBlock):
             group = layout.group(item.group)
             t = stream_codec.sample_time(item, group)
-            self._add(raw_topic(item.group), t, stream_codec.encode_samples(item, group), "raw")
+            data = stream_codec.encode_samples_late(item, group)  # cast on the writer thread
+            self._add(raw_topic(item.group), t, data, "raw")
         elif isinstance(item, EdgeBlock):
             t = float(item.times_s[0]) if len(item.times_s) else self._t_last
             self._add(edge_topic(item.channel), t, stream_codec.encode_edges(item, t), "raw")
@@ -334,7 +334,7 @@ class McapRecorder:
             raise RuntimeError("McapRecorder: message after close()")
         return self._layout
 
-    def _add(self, topic: str, t: float, data: bytes, kind: str, late_ok: bool = False) -> None:
+    def _add(self, topic: str, t: float, data: Payload, kind: str, late_ok: bool = False) -> None:
         with self._lock:
             if self._closed:
                 if late_ok:
@@ -342,7 +342,7 @@ class McapRecorder:
                 raise RuntimeError("McapRecorder: message after close()")
             self._add_locked(topic, t, data, kind)
 
-    def _add_locked(self, topic: str, t: float, data: bytes, kind: str) -> None:
+    def _add_locked(self, topic: str, t: float, data: Payload, kind: str) -> None:
         """File a message in its stream-time chunk; write the chunks that are complete.
 
         ``kind`` is ``"raw"`` (the stream, kept in its order) or ``"result"``.

@@ -30,6 +30,7 @@ from acquisition.stream import (
 )
 from replay import wire
 from replay.errors import BadMessage
+from replay.mcap_output import LateBytes
 from replay.schemas import wire_class
 
 # -- raw items ---------------------------------------------------------------------------------
@@ -58,6 +59,51 @@ def encode_samples(block: SampleBlock, group: SampleGroup) -> bytes:
         block.n_samples,
         data.tobytes(),
     )
+
+
+class LateSamples(LateBytes):
+    """``/raw/<group>`` as :func:`encode_samples` gives it, the float32 cast and the copy
+    left to the writer thread (:class:`replay.mcap_output.LateBytes`).
+
+    The block's array is kept, not copied, until its chunk is written: the pipeline's
+    arrays are its own and nothing writes to them again (``ptinertia.pipeline``).
+    Measured (rec_whole.py, 60 s of 9 channels at 25.6 kHz, 360 blocks): the cast and the
+    two copies cost the processing thread 41 ms a minute; the head is about 4 ms.
+    """
+
+    __slots__ = ("data", "head")
+
+    def __init__(self, head: bytes, data: np.ndarray) -> None:
+        super().__init__(len(head) + 4 * data.size)
+        self.head, self.data = head, data
+
+    def parts(self) -> tuple[bytes, np.ndarray]:
+        # numpy's cast releases the GIL: it runs beside the processing thread
+        return self.head, np.ascontiguousarray(self.data, dtype="<f4")
+
+
+def encode_samples_late(block: SampleBlock, group: SampleGroup) -> bytes | LateSamples:
+    """:func:`encode_samples` as :class:`LateSamples` (plain bytes for an array that is not
+    a numeric one, whose conversion may fail: that fails here, on the caller's thread)."""
+    data = block.data
+    if not (isinstance(data, np.ndarray) and data.dtype.kind in "fiu" and data.ndim == 2):
+        return encode_samples(block, group)
+    if data.shape != (len(group.channels), block.n_samples):
+        raise ValueError(
+            f"sample block of group {group.name!r}: expected {len(group.channels)} channels, "
+            f"got data of shape {data.shape}"
+        )
+    head = wire.sample_block_head(
+        sample_time(block, group),
+        group.name,
+        int(block.first_index),
+        group.rate_hz,
+        group.t0_s,
+        [c.name for c in group.channels],
+        block.n_samples,
+        4 * data.size,
+    )
+    return LateSamples(head, data)
 
 
 def encode_samples_reference(block: SampleBlock, group: SampleGroup) -> bytes:

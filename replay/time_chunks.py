@@ -29,9 +29,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 # (channel id, log time ns, data, publish time ns) of one message waiting for its chunk
-Pending = tuple[int, int, bytes, int]
+Pending = tuple[int, int, Any, int]  # data: bytes or replay.mcap_output.LateBytes
 
 
 @dataclass

@@ -91,6 +91,24 @@ def sample_block(
 
     The bytes the protobuf class gives, with the array copied once instead of three times.
     """
+    head = sample_block_head(
+        time_s, group, first_index, rate_hz, t0_s, channels, n_samples, len(data)
+    )
+    return head + data
+
+
+def sample_block_head(
+    time_s: float,
+    group: str,
+    first_index: int,
+    rate_hz: float,
+    t0_s: float,
+    channels: tuple[str, ...] | list[str],
+    n_samples: int,
+    n_bytes: int,
+) -> bytes:
+    """:func:`sample_block` without its float32 bytes (``n_bytes`` of them): the message is
+    this head followed by the array's bytes, which can then be joined in later."""
     return b"".join(
         (
             double_field(1, time_s),
@@ -100,7 +118,7 @@ def sample_block(
             double_field(5, t0_s),
             *(element(6, c.encode()) for c in channels),
             int_field(7, n_samples),
-            bytes_field(8, data),
+            key(8, _LEN) + varint(n_bytes) if n_bytes else b"",
         )
     )
 

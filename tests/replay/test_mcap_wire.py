@@ -132,6 +132,9 @@ def test_sample_block_is_the_protobuf_libraries_bytes(
     block = SampleBlock("acc", first_index, data)
     fast = stream_codec.encode_samples(block, group)
     assert fast == stream_codec.encode_samples_reference(block, group)
+    late = stream_codec.encode_samples_late(block, group)  # joined on the writer thread
+    assert isinstance(late, stream_codec.LateSamples) and len(late) == len(fast)
+    assert b"".join(late.parts()) == fast
     public = message_class("SampleBlock").FromString(fast)
     assert np.array(public.data, np.float32).tobytes() == data.astype("<f4").tobytes()
     assert wire_class("SampleBlock").FromString(fast).first_index == first_index

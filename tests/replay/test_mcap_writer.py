@@ -21,8 +21,10 @@ from mcap.writer import CompressionType, Writer
 from support.mcap_logs import BENCH_TEXT, assert_same_items, synthetic_items, synthetic_layout
 from support.mcap_writer_calls import drive
 
-from acquisition.stream import SampleBlock
+from acquisition.stream import ChannelSpec, SampleBlock, SampleGroup
+from replay import stream_codec
 from replay.errors import LogError
+from replay.mcap_output import LateBytes
 from replay.mcap_records import MAGIC
 from replay.mcapwriter import ThreadedWriter
 from replay.reader import open_log
@@ -54,6 +56,36 @@ def test_same_bytes_as_the_mcap_writer(compression: str, seed: int) -> None:
     assert summary is not None and summary.statistics is not None
     assert summary.statistics.message_count == 2000
     assert len(summary.chunk_indexes) > 20  # size-bound and flushed chunks both happened
+
+
+def test_late_sample_data_is_written_as_the_bytes_it_stands_for() -> None:
+    """The recorder hands sample blocks over uncast (``stream_codec.LateSamples``); the
+    writer thread casts and joins them: the file is the one their bytes give."""
+    group = SampleGroup("acc", 100.0, tuple(ChannelSpec(f"c{i}", "V") for i in range(3)))
+    rng = np.random.default_rng(5)
+    wide = rng.standard_normal((3, 4000))
+    blocks = [SampleBlock("acc", 50 * k, wide[:, k : k + 50 * (k % 4)]) for k in range(200)]
+    files = []
+    for encode in (stream_codec.encode_samples, stream_codec.encode_samples_late):
+        out = io.BytesIO()
+        writer = ThreadedWriter(out, chunk_size=20_000)
+        writer.start()
+        channel = writer.register_channel(
+            "/raw/acc", "protobuf", writer.register_schema("s", "protobuf", b"x")
+        )
+        for k, block in enumerate(blocks):
+            data = encode(block, group)
+            writer.add_message(channel, k, data, k)
+            if k % 37 == 0:
+                writer.flush()
+        writer.finish()
+        files.append(out.getvalue())
+    assert isinstance(stream_codec.encode_samples_late(blocks[1], group), LateBytes)
+    assert files[1] == files[0]
+    summary = make_reader(io.BytesIO(files[1])).get_summary()
+    assert summary is not None and summary.statistics is not None
+    assert summary.statistics.message_count == 200
+    assert len(summary.chunk_indexes) > 10  # size-bound and flushed chunks both happened
 
 
 def test_an_empty_file_is_the_mcap_writers_too() -> None:
