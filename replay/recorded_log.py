@@ -195,8 +195,8 @@ class RecordedLog:
 
     # -- iteration ------------------------------------------------------------------------
     def messages(
-        self, topics: Iterable[str], reference: bool = False
-    ) -> Iterator[tuple[str, str, int, bytes]]:
+        self, topics: Iterable[str], reference: bool = False, views: bool = False
+    ) -> Iterator[tuple[str, str, int, Any]]:
         """``(topic, schema name, log_time ns, data)`` of ``topics``, in file order.
 
         Stops cleanly at the truncation point of an unfinished log (already
@@ -204,7 +204,8 @@ class RecordedLog:
         fails to read raises :class:`LogError`. ``reference=True`` reads with
         the mcap library's own readers (seeking for a finished log,
         non-seeking for an unfinished one) instead of :mod:`replay.chunks`:
-        slower, same messages.
+        slower, same messages. ``views=True``: the data as memoryviews of the chunks
+        (:class:`replay.chunks.MessageWalk`), not bytes.
         """
         wanted = {t for t in topics if t in self.topics}
 
@@ -224,6 +225,7 @@ class RecordedLog:
                 self.chunk_records,
                 self.channels,
                 check_crcs=not self.data_verified,
+                views=views,
             )
         )
         for topic, name, log_time, data in source:
@@ -250,7 +252,7 @@ class RecordedLog:
     def items(self) -> Iterator[StreamItem]:
         """The raw stream (sample blocks, edge blocks, source events) in its original order."""
         kinds = self.raw_topics
-        for topic, name, _, data in self.messages(kinds):
+        for topic, name, _, data in self.messages(kinds, views=True):
             try:
                 if name == full_name("SampleBlock"):
                     yield stream_codec.decode_samples(data, self.layout)

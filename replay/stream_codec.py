@@ -126,29 +126,39 @@ def encode_samples_reference(block: SampleBlock, group: SampleGroup) -> bytes:
 MAX_INDEX = 2**53
 
 
-def decode_samples(data: bytes, layout: StreamLayout) -> SampleBlock:
-    """A :class:`SampleBlock` with float64 data holding the recorded float32 values."""
-    msg = wire_class("SampleBlock").FromString(data)
+def decode_samples(data: bytes | memoryview, layout: StreamLayout) -> SampleBlock:
+    """A :class:`SampleBlock` with float64 data holding the recorded float32 values.
+
+    The message is read by :func:`replay.wire.read_sample_block`, its samples cast from a
+    view of ``data`` (the protobuf class copied them three times: FromString and each read
+    of ``msg.data``); what that reader does not take, the protobuf class parses.
+    """
     try:
-        group = layout.group(msg.group)
+        _, name, first_index, _, _, channels, n, samples = wire.read_sample_block(data)
+    except wire.Unparsed:
+        msg = wire_class("SampleBlock").FromString(data)
+        name, first_index, channels = msg.group, msg.first_index, list(msg.channels)
+        samples, n = memoryview(msg.data), msg.n_samples
+    try:
+        group = layout.group(name)
     except KeyError:
-        raise BadMessage(f"sample group {msg.group!r} is not in the recorded layout") from None
+        raise BadMessage(f"sample group {name!r} is not in the recorded layout") from None
     names = tuple(c.name for c in group.channels)
-    if tuple(msg.channels) != names:
+    if tuple(channels) != names:
         raise BadMessage(
-            f"group {msg.group!r}: channels {list(msg.channels)} differ from the layout's {list(names)}"
+            f"group {name!r}: channels {list(channels)} differ from the layout's {list(names)}"
         )
-    n_ch, n = len(names), int(msg.n_samples)
-    if len(msg.data) != 4 * n_ch * n:
+    n_ch, n = len(names), int(n)
+    if len(samples) != 4 * n_ch * n:
         raise BadMessage(
-            f"group {msg.group!r}: {len(msg.data)} data bytes, expected {4 * n_ch * n} "
+            f"group {name!r}: {len(samples)} data bytes, expected {4 * n_ch * n} "
             f"({n_ch} channels x {n} samples x 4)"
         )
-    if not 0 <= msg.first_index < MAX_INDEX:
-        raise BadMessage(f"group {msg.group!r}: first sample index {msg.first_index} out of range")
+    if not 0 <= first_index < MAX_INDEX:
+        raise BadMessage(f"group {name!r}: first sample index {first_index} out of range")
     with np.errstate(invalid="ignore"):  # a signalling NaN stays a NaN: a sample known bad
-        values = np.frombuffer(msg.data, dtype="<f4").reshape(n_ch, n).astype(np.float64)
-    return SampleBlock(group.name, int(msg.first_index), values)
+        values = np.frombuffer(samples, dtype="<f4").reshape(n_ch, n).astype(np.float64)
+    return SampleBlock(group.name, int(first_index), values)
 
 
 def encode_edges(block: EdgeBlock, time_s: float) -> bytes:

@@ -14,11 +14,13 @@ import math
 
 import numpy as np
 import pytest
+from google.protobuf.message import DecodeError
 from support.mcap_logs import make_frame
 
-from acquisition.stream import ChannelSpec, SampleBlock, SampleGroup
+from acquisition.stream import ChannelSpec, SampleBlock, SampleGroup, StreamLayout
 from dsp.frames import OrderFrame
-from replay import results_codec, stream_codec
+from replay import results_codec, stream_codec, wire
+from replay.errors import BadMessage
 from replay.schemas import message_class, wire_class
 
 
@@ -138,3 +140,63 @@ def test_sample_block_is_the_protobuf_libraries_bytes(
     public = message_class("SampleBlock").FromString(fast)
     assert np.array(public.data, np.float32).tobytes() == data.astype("<f4").tobytes()
     assert wire_class("SampleBlock").FromString(fast).first_index == first_index
+
+
+def test_sample_blocks_read_as_the_protobuf_library_reads_them() -> None:
+    """``wire.read_sample_block`` (the replay's fast reader) against the protobuf class, on
+    our writer's bytes and on valid messages laid out otherwise; what it does not take
+    (unknown fields, bad UTF-8, truncation) goes to the library, which decides."""
+    group = SampleGroup("acc", 100.0, (ChannelSpec("x", "V"), ChannelSpec("y", "V")), 0.5)
+    data = np.arange(6, dtype="<f4").reshape(2, 3) - 2.5
+    fast = stream_codec.encode_samples(SampleBlock("acc", 7, data), group)
+    fields = [
+        wire.double_field(1, 0.57),
+        wire.string_field(2, "acc"),
+        wire.int_field(3, 7),
+        wire.double_field(4, 100.0),
+        wire.double_field(5, 0.5),
+        wire.element(6, b"x"),
+        wire.element(6, b"y"),
+        wire.int_field(7, 3),
+        wire.bytes_field(8, data.tobytes()),
+    ]
+    taken = {
+        "ours": fast,
+        "reversed": b"".join(fields[:6:-1] + fields[5:7] + fields[4::-1]),  # channels in order
+        "index twice": fast + wire.int_field(3, 9),  # the last one wins
+        "negative index": fast + wire.int_field(3, -5),
+        "n_samples past 32 bits": fast + wire.int_field(7, 2**32 + 3),
+    }
+    refused = {
+        "unknown field": fast + wire.int_field(9, 1),
+        "bad UTF-8": fast + wire.element(2, b"\xff"),
+        "truncated": fast[:-3],
+    }
+    cls = wire_class("SampleBlock")
+    for name, message in {**taken, **refused}.items():
+        try:
+            msg = cls.FromString(message)
+            expected = (msg.time_s, msg.group, msg.first_index, msg.rate_hz, msg.t0_s)
+            expected += (list(msg.channels), msg.n_samples, msg.data)
+        except DecodeError:
+            expected = None
+        try:
+            got = wire.read_sample_block(memoryview(message))
+        except wire.Unparsed:
+            assert name in refused
+            continue
+        assert name in taken, name
+        assert (*got[:7], bytes(got[7])) == expected, name
+    assert stream_codec.decode_samples(taken["ours"], group_layout(group)).first_index == 7
+    assert stream_codec.decode_samples(taken["index twice"], group_layout(group)).first_index == 9
+    block = stream_codec.decode_samples(refused["unknown field"], group_layout(group))
+    assert block.first_index == 7 and block.data.tobytes() == data.astype(float).tobytes()
+    with pytest.raises(BadMessage, match="out of range"):
+        stream_codec.decode_samples(taken["negative index"], group_layout(group))
+    for name in ("bad UTF-8", "truncated"):
+        with pytest.raises(DecodeError):
+            stream_codec.decode_samples(refused[name], group_layout(group))
+
+
+def group_layout(group: SampleGroup) -> StreamLayout:
+    return StreamLayout((group,), ())
