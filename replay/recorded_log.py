@@ -28,6 +28,7 @@ from estimator.result import Estimate, EstimateUpdate
 from replay import results_codec, stream_codec
 from replay.chunks import READ_ERRORS, Skipped, walk_messages
 from replay.errors import BadMessage, LogError, describe
+from replay.integrity import DataCheck
 from replay.schemas import (
     TOPIC_CAN,
     TOPIC_ESTIMATE,
@@ -165,6 +166,8 @@ class RecordedLog:
         checked summary of a finished log (None: read front to back).
     data_verified : the data section's CRC matched when the log was opened, which
         vouches for every chunk (the walk skips their CRCs).
+    data_check : the same check still running (``open_log(check_later=True)``);
+        :meth:`verify` waits for it.
     """
 
     path: Path
@@ -183,6 +186,7 @@ class RecordedLog:
     channels: dict[int, tuple[str, str]] = field(default_factory=dict)
     chunk_records: list[tuple[int, int]] | None = None
     data_verified: bool = False
+    data_check: DataCheck | None = None
 
     @property
     def finished(self) -> bool:
@@ -192,6 +196,11 @@ class RecordedLog:
     def raw_topics(self) -> dict[str, str]:
         """Raw topic -> message type, from the layout."""
         return stream_topics(self.layout)
+
+    def verify(self) -> bool:
+        """Whether the data section's CRC matched; raises :class:`LogError` when it failed
+        and no damaged chunk explains it (waits for a check still running)."""
+        return self.data_check.result() if self.data_check is not None else self.data_verified
 
     # -- iteration ------------------------------------------------------------------------
     def messages(
@@ -208,6 +217,7 @@ class RecordedLog:
         (:class:`replay.chunks.MessageWalk`), not bytes.
         """
         wanted = {t for t in topics if t in self.topics}
+        verified = self.verify()
 
         def stop(err: BaseException) -> None:
             if self.report.finished:
@@ -224,7 +234,7 @@ class RecordedLog:
                 self.report.skip,
                 self.chunk_records,
                 self.channels,
-                check_crcs=not self.data_verified,
+                check_crcs=not verified,
                 views=views,
             )
         )
