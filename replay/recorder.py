@@ -299,7 +299,7 @@ class McapRecorder:
                 f"write_view: {topic} is not a view topic ({', '.join(foxglove.TOPICS)})"
             )
         self._require_started()
-        self._add(topic, t, data, "result")
+        self._add(topic, t, bytes(data), "result")  # (free for bytes: the data must not change)
 
     def _log_event(self, event: SourceEvent, origin: str, t: float) -> None:
         repeat = f" (x{event.count})" if event.count > 1 else ""
@@ -361,10 +361,8 @@ class McapRecorder:
         """Hand complete chunks to the writer, which compresses and writes them on its thread."""
         assert self._writer is not None
         for chunk in chunks:
-            for channel_id, log_time, data, publish_time in chunk:
-                self._writer.add_message(channel_id, log_time, data, publish_time)
             try:
-                self._writer.flush()  # raises what the writer thread met, if anything
+                self._writer.add_chunk(chunk)  # raises what the writer thread met, if anything
             except OSError as err:
                 raise self._write_error(err) from err
         if chunks:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -136,7 +137,8 @@ def test_sample_block_is_the_protobuf_libraries_bytes(
     assert fast == stream_codec.encode_samples_reference(block, group)
     late = stream_codec.encode_samples_late(block, group)  # joined on the writer thread
     assert isinstance(late, stream_codec.LateSamples) and len(late) == len(fast)
-    assert b"".join(late.parts()) == fast
+    head, samples = late.parts()
+    assert head + samples.tobytes() == fast
     public = message_class("SampleBlock").FromString(fast)
     assert np.array(public.data, np.float32).tobytes() == data.astype("<f4").tobytes()
     assert wire_class("SampleBlock").FromString(fast).first_index == first_index
@@ -176,8 +178,10 @@ def test_sample_blocks_read_as_the_protobuf_library_reads_them() -> None:
     for name, message in {**taken, **refused}.items():
         try:
             msg = cls.FromString(message)
-            expected = (msg.time_s, msg.group, msg.first_index, msg.rate_hz, msg.t0_s)
-            expected += (list(msg.channels), msg.n_samples, msg.data)
+            expected: tuple[Any, ...] | None = (
+                *(msg.time_s, msg.group, msg.first_index, msg.rate_hz, msg.t0_s),
+                *(list(msg.channels), msg.n_samples, msg.data),
+            )
         except DecodeError:
             expected = None
         try:

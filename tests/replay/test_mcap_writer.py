@@ -88,6 +88,40 @@ def test_late_sample_data_is_written_as_the_bytes_it_stands_for() -> None:
     assert len(summary.chunk_indexes) > 10  # size-bound and flushed chunks both happened
 
 
+def test_a_chunk_handed_over_whole_is_what_its_messages_one_by_one_give() -> None:
+    """``add_chunk`` (the recorder's: records packed on the writer thread) against
+    ``add_message`` for each message and ``flush``: the same file, size-bound splits and
+    the channel records waiting for the first message included."""
+    rng = np.random.default_rng(3)
+    groups = [
+        [
+            (1 + int(rng.integers(2)), 1000 * g + k, rng.bytes(int(rng.integers(0, 900))), 7)
+            for k in range(int(rng.integers(1, 30)))
+        ]
+        for g in range(40)
+    ]
+    files, chunks = [], []
+    for whole in (False, True):
+        out = io.BytesIO()
+        writer = ThreadedWriter(out, chunk_size=4_000)
+        writer.start()
+        schema = writer.register_schema("s", "protobuf", b"x")
+        writer.register_channel("/a", "protobuf", schema)
+        writer.register_channel("/b", "protobuf", schema)
+        for group in groups:
+            if whole:
+                writer.add_chunk(group)
+                continue
+            for channel, log_time, data, publish_time in group:
+                writer.add_message(channel, log_time, data, publish_time)
+            writer.flush()
+        writer.finish()
+        files.append(out.getvalue())
+        chunks.append(writer.chunks)
+    assert files[1] == files[0]
+    assert chunks[1] == chunks[0] > len(groups)  # some groups were split by size
+
+
 def test_an_empty_file_is_the_mcap_writers_too() -> None:
     ours, theirs = io.BytesIO(), io.BytesIO()
     for writer in (ThreadedWriter(ours), Writer(theirs, enable_data_crcs=True)):
