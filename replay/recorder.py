@@ -39,12 +39,11 @@ wall-time bound is checked when a message arrives; a stalled stream adds
 nothing to lose.) The page cache survives the process, so there is no fsync:
 a power cut is a different matter.
 
-Cost to the processing thread. The writer thread (:class:`replay.mcapwriter.ThreadedWriter`)
-packs the closed slices' records, casts the sample blocks to float32
-(:class:`replay.stream_codec.LateSamples`), compresses and writes; a block's frames are
-encoded together (:meth:`McapRecorder.prepare_frames`). The hooks cost the caller 0.043 s
-of CPU a minute of 9 x 25.6 kHz (0.075 s before those moves). Raw stream alone
-(``ptinertia simulate --out x.mcap``): the same recorder, through :mod:`replay.raw_writer`.
+Cost to the processing thread. The writer thread packs the closed slices' records, casts
+the sample blocks to float32 (``stream_codec.LateSamples``), compresses and writes; a block's
+frames are encoded together (``prepare_frames``), the gating from a layout per structure
+(``results_codec.encode_outcome``). The hooks cost the caller 0.036 s of CPU a minute of
+9 x 25.6 kHz (0.075 s before; rec_whole.py). :mod:`replay.raw_writer` records a raw stream alone.
 """
 
 from __future__ import annotations

@@ -20,6 +20,7 @@ from support.mcap_logs import make_frame
 
 from acquisition.stream import ChannelSpec, SampleBlock, SampleGroup, StreamLayout
 from dsp.frames import OrderFrame
+from estimator.outcome import FrameOutcome
 from replay import results_codec, stream_codec, wire
 from replay.errors import BadMessage
 from replay.schemas import message_class, wire_class
@@ -204,3 +205,30 @@ def test_sample_blocks_read_as_the_protobuf_library_reads_them() -> None:
 
 def group_layout(group: SampleGroup) -> StreamLayout:
     return StreamLayout((group,), ())
+
+
+def test_gating_is_the_protobuf_libraries_bytes() -> None:
+    """``results_codec.encode_outcome`` lays ``/gating`` out from a layout per structure:
+    the protobuf class's bytes, on the cases where proto3 leaves fields out (zeros, false,
+    empty strings) and where it does not (-0.0, NaN), each structure twice (the layout
+    made, then reused with other values)."""
+    nan = math.nan
+    outcomes = [
+        FrameOutcome(1.25, 3000.0, (1.0, 2.0), {}, None, {1.0: 0.01, 2.0: 0.2}),
+        FrameOutcome(0.0, -0.0, (), {1.0: "weak", 1.5: "residual"}, "no used order", {1.5: nan}),
+        FrameOutcome(2.5, 900.0, (0.0, 1.5), {2.0: ""}, None, {0.0: 0.0, 1.5: -0.0}),
+        FrameOutcome(3.0, 1e300, (3.0,), {2.0: "é" * 200}, "", {}),  # long, non-ASCII, empty
+        FrameOutcome(4.0, 1.0, (1.0,), {}, None, {}),
+        FrameOutcome(5.0, 2.0, (1.0, 1.5), {2.0: "weak"}, None, {1.0: 1e-3, 1.5: nan, 2.0: 4.0}),
+    ]
+    for outcome in outcomes:
+        again = dataclasses.replace(outcome, time_s=outcome.time_s + 0.5, rpm=outcome.rpm * 2)
+        for case in (outcome, again):
+            fast = results_codec.encode_outcome(case)
+            assert fast == results_codec.encode_outcome_reference(case), case
+            back = results_codec.decode_outcome(fast)
+            assert (back.time_s, back.reason, back.used_orders) == (
+                case.time_s,
+                case.reason,
+                case.used_orders,
+            )
