@@ -87,10 +87,8 @@ def sample_block(
     n_samples: int,
     data: bytes,
 ) -> bytes:
-    """A serialised ``SampleBlock``: ``data`` is the (n_channels, n_samples) float32 bytes.
-
-    The bytes the protobuf class gives, with the array copied once instead of three times.
-    """
+    """A serialised ``SampleBlock`` (``data``: the (n_channels, n_samples) float32 bytes):
+    the protobuf class's bytes, with the array copied once instead of three times."""
     head = sample_block_head(
         time_s, group, first_index, rate_hz, t0_s, channels, n_samples, len(data)
     )
@@ -108,19 +106,29 @@ def sample_block_head(
     n_bytes: int,
 ) -> bytes:
     """:func:`sample_block` without its float32 bytes (``n_bytes`` of them): the message is
-    this head followed by the array's bytes, which can then be joined in later."""
+    this head followed by the array's bytes, which can then be joined in later. The
+    group's own fields are laid out once (:func:`_group_fields`)."""
+    rates = struct.pack("<dd", rate_hz, t0_s)  # (bits, not floats: -0.0 is written, 0.0 not)
+    group_field, layout_fields = _group_fields(group, rates, tuple(channels))
     return b"".join(
         (
             double_field(1, time_s),
-            string_field(2, group),
+            group_field,
             int_field(3, first_index),
-            double_field(4, rate_hz),
-            double_field(5, t0_s),
-            *(element(6, c.encode()) for c in channels),
+            layout_fields,
             int_field(7, n_samples),
             key(8, _LEN) + varint(n_bytes) if n_bytes else b"",
         )
     )
+
+
+@lru_cache(maxsize=64)
+def _group_fields(group: str, rates: bytes, channels: tuple[str, ...]) -> tuple[bytes, bytes]:
+    """A group's fields of ``SampleBlock``: ``group`` (2), then ``rate_hz``, ``t0_s`` (their
+    float64 bytes) and ``channels`` (4-6), the same in every block (3.6 ms a minute built)."""
+    rate_hz, t0_s = struct.unpack("<dd", rates)
+    layout = double_field(4, rate_hz) + double_field(5, t0_s)
+    return string_field(2, group), layout + b"".join(element(6, c.encode()) for c in channels)
 
 
 class Unparsed(ValueError):

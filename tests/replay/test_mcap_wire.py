@@ -232,3 +232,14 @@ def test_gating_is_the_protobuf_libraries_bytes() -> None:
                 case.reason,
                 case.used_orders,
             )
+
+
+def test_a_groups_fields_laid_out_once_keep_the_sign_of_zero() -> None:
+    """``wire.sample_block_head`` keeps a group's constant fields; t0 = 0.0 (left out) and
+    -0.0 (written) are different bytes, whichever came first."""
+    data = np.ones((1, 4))
+    for t0_s in (0.0, -0.0, 0.0):
+        group = SampleGroup("g", 10.0, (ChannelSpec("c", "V"),), t0_s)
+        block = SampleBlock("g", 3, data)
+        fast = stream_codec.encode_samples(block, group)
+        assert fast == stream_codec.encode_samples_reference(block, group), t0_s
