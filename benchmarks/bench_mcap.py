@@ -28,7 +28,7 @@ single-threaded (process CPU time; the data CRC of McapSource runs on a thread o
 Measured (issue 24, 60 s, best of 3, two runs each side by side, load 4.7-6.6): write, full
 run, calling thread 0.108-0.118 s on main (0142dad) -> 0.070-0.077 s (both threads 0.172-0.186
 -> 0.127-0.147 s): sample blocks cast and records packed on the writer thread, the gating from
-a layout, CRCs through ISA-L; read raw items 0.040 -> 0.027-0.031 s, McapSource 0.039-0.041 ->
+a layout (and CRCs through ISA-L, since taken out again); read raw items 0.040 -> 0.027-0.031 s, McapSource 0.039-0.041 ->
 0.028-0.032 s: sample blocks read without the protobuf class, the data CRC beside the set-up.
 """
 

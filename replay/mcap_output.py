@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import struct
 import tempfile
+import zlib
 from collections.abc import Callable
 from itertools import chain
 from typing import IO, Any
@@ -39,7 +40,7 @@ from mcap.records import (
     SummaryOffset,
 )
 
-from replay.mcap_records import MAGIC, crc32
+from replay.mcap_records import MAGIC
 
 COMPRESSIONS = ("zstd", "lz4", "")
 # zstandard.compress's (and so mcap's) default level; the recorder chooses its own
@@ -129,7 +130,7 @@ class McapOutput:
             n = len(view) if n is None else n
             self.pos += n
             if self.data_crc is not None:
-                self.data_crc = crc32(view[:n], self.data_crc)
+                self.data_crc = zlib.crc32(view[:n], self.data_crc)
             view = view[n:]
 
     def flush(self) -> None:
@@ -189,7 +190,7 @@ class McapOutput:
         self.message_count += sum(len(v) for v in index.values()) // 2
 
         payload = b"".join(chain.from_iterable(pieces))
-        crc = crc32(payload)
+        crc = zlib.crc32(payload)
         data = self._compressed(payload)
         name = self.compression.encode()
         length = 8 + 8 + 8 + 4 + 4 + len(name) + 8 + len(data)
@@ -273,7 +274,7 @@ class McapOutput:
         summary = builder.end()
         footer_start = summary_start if summary else 0
         footer_head = struct.pack("<BQQQ", Opcode.FOOTER, 20, footer_start, offset_start)
-        crc = crc32(footer_head, crc32(summary))
+        crc = zlib.crc32(footer_head, zlib.crc32(summary))
         self.write(summary)
         self._record(Footer(footer_start, offset_start, crc))
         self.write(MAGIC)
