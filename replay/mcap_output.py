@@ -69,12 +69,9 @@ _CHUNK = struct.Struct("<BQQQQII")
 
 
 class LateBytes:
-    """A message's data whose bytes are made on the writer thread, when its chunk is joined.
-
-    Its length is known when the message is added (the chunk's size bound and the record
-    header need it); :meth:`parts` gives the bytes-like pieces, joined in as they are.
-    What a subclass holds must not change until the chunk is written.
-    """
+    """A message's data whose bytes are made on the writer thread, in its chunk's buffer;
+    its length is known when the message is added (the chunk's size bound and the record
+    header need it). What a subclass holds must not change until the chunk is written."""
 
     __slots__ = ("size",)
 
@@ -84,8 +81,8 @@ class LateBytes:
     def __len__(self) -> int:
         return self.size
 
-    def parts(self) -> tuple[Any, ...]:
-        """The data as bytes-like objects (``bytes``, a C-contiguous array ...), ``size`` bytes."""
+    def write_into(self, view: memoryview) -> None:
+        """Write the data into ``view`` (``size`` bytes)."""
         raise NotImplementedError
 
 
@@ -109,13 +106,14 @@ class McapOutput:
         # bytes in memory 0.2 KB (1.4 MB an hour, grown by reallocation)
         self.chunk_index_records = SpilledBytes()
         self.chunk_count = 0
+        self._buffer = bytearray()  # the chunk payload's (_payload)
         self.attachment_indexes: list[AttachmentIndex] = []
         self.metadata_indexes: list[MetadataIndex] = []
         self.message_counts: dict[int, int] = {}  # per channel, in order of first message
         self.message_count = 0
         self.start_time = 0
         self.end_time = 0
-        self._compress: Callable[[bytes], bytes] | None = None
+        self._compress: Callable[[Any], bytes] | None = None
         self.data_crc: int | None = 0  # CRC of the data section so far; None after it
         # set by cut(): log time of the last message kept (None: none), and whether the
         # file was closed readable there
@@ -158,38 +156,31 @@ class McapOutput:
         )
 
     def chunk(self, records: Records) -> None:
-        """Write one chunk record and its message indexes; flush the stream.
-
-        The data of a message may be :class:`LateBytes`, made here.
-        """
-        # the late data first: if it fails, nothing here has counted the chunk yet
-        pieces: list[tuple[Any, ...]] = list(records)
-        for i, (head, late) in enumerate(records):
-            if type(late) is not bytes:
-                assert isinstance(late, LateBytes)
-                made = late.parts()
-                if sum(memoryview(p).nbytes for p in made) != late.size:
-                    raise ValueError(f"late message data: not the {late.size} bytes declared")
-                pieces[i] = (head, *made)
+        """Write one chunk record (late data made in :meth:`_payload`), its indexes; flush."""
         index: dict[int, list[int]] = {}  # channel id -> [log time, offset, ...]
-        counts = self.message_counts
+        late: list[int] = []  # records whose data is LateBytes
         start, end = None, 0
         offset = 0
-        for head, data in records:
+        for i, (head, data) in enumerate(records):
             if head[0] == OP_MESSAGE:
                 channel_id, _, log_time = _MESSAGE_KEY.unpack_from(head, 9)
                 index.setdefault(channel_id, []).extend((log_time, offset))
-                counts[channel_id] = counts.get(channel_id, 0) + 1
                 start = log_time if start is None else min(start, log_time)
                 end = max(end, log_time)
+                if type(data) is not bytes:
+                    late.append(i)
             offset += len(head) + len(data)
         assert start is not None, "a chunk without messages"
+        # (nothing counted before the payload is made: a failure leaves the statistics whole)
+        payload = self._payload(records, late, offset)
+        counts = self.message_counts
+        for channel_id, entries in index.items():
+            counts[channel_id] = counts.get(channel_id, 0) + len(entries) // 2
         end_before = self.end_time if self.chunk_count else None
         self.start_time = start if not self.message_count else min(self.start_time, start)
         self.end_time = max(self.end_time, end)
         self.message_count += sum(len(v) for v in index.values()) // 2
 
-        payload = b"".join(chain.from_iterable(pieces))
         crc = zlib.crc32(payload)
         data = self._compressed(payload)
         name = self.compression.encode()
@@ -231,6 +222,32 @@ class McapOutput:
         ).write(record)
         self.chunk_index_records.append(record.end())
         self.chunk_count += 1
+
+    def _payload(self, records: Records, late: list[int], size: int) -> bytes | memoryview:
+        """The chunk's records in one buffer reused from chunk to chunk, the late data made
+        in place (a sample block cast straight into it): the cast array, the joined payload
+        and the fresh 0.5 MB they took each chunk cost page faults, the join's with the GIL
+        held (writer thread 0.073-0.077 -> 0.067-0.073 s of CPU a minute, ab_rec.py)."""
+        if not late:
+            return b"".join(chain.from_iterable(records))  # type: ignore[arg-type]
+        if len(self._buffer) < size:
+            self._buffer = bytearray(size)
+        view = memoryview(self._buffer)[:size]
+        pos = begin = 0
+        for i in [*late, len(records)]:
+            if i > begin:  # the records before it, as they are
+                run = b"".join(chain.from_iterable(records[begin:i]))  # type: ignore[arg-type]
+                view[pos : pos + len(run)] = run
+                pos += len(run)
+            if i < len(records):
+                head, data = records[i]
+                view[pos : pos + len(head)] = head
+                pos += len(head)
+                assert isinstance(data, LateBytes)
+                data.write_into(view[pos : pos + data.size])
+                pos += data.size
+            begin = i + 1
+        return view
 
     def summary(self, schemas: list[Schema], channels: list[Channel]) -> None:
         """Data end, the summary section (as ``mcap.writer.Writer.finish``), footer, magic."""
@@ -310,7 +327,7 @@ class McapOutput:
         self.write(data)
         return len(data)
 
-    def _compressed(self, payload: bytes) -> bytes:
+    def _compressed(self, payload: bytes | memoryview) -> bytes:
         if self._compress is None:
             if self.compression == "zstd":
                 self._compress = zstandard.ZstdCompressor(level=self.level).compress

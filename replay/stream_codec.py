@@ -77,9 +77,12 @@ class LateSamples(LateBytes):
         super().__init__(len(head) + 4 * data.size)
         self.head, self.data = head, data
 
-    def parts(self) -> tuple[bytes, np.ndarray]:
-        # numpy's cast releases the GIL: it runs beside the processing thread
-        return self.head, np.ascontiguousarray(self.data, dtype="<f4")
+    def write_into(self, view: memoryview) -> None:
+        n = len(self.head)
+        view[:n] = self.head
+        if self.data.size:  # numpy's cast releases the GIL: it runs beside the processing thread
+            out = np.frombuffer(view, dtype="<f4", count=self.data.size, offset=n)
+            np.copyto(out.reshape(self.data.shape), self.data, casting="unsafe")
 
 
 def encode_samples_late(block: SampleBlock, group: SampleGroup) -> bytes | LateSamples:

@@ -138,8 +138,9 @@ def test_sample_block_is_the_protobuf_libraries_bytes(
     assert fast == stream_codec.encode_samples_reference(block, group)
     late = stream_codec.encode_samples_late(block, group)  # joined on the writer thread
     assert isinstance(late, stream_codec.LateSamples) and len(late) == len(fast)
-    head, samples = late.parts()
-    assert head + samples.tobytes() == fast
+    made = bytearray(len(late))
+    late.write_into(memoryview(made))
+    assert made == fast
     public = message_class("SampleBlock").FromString(fast)
     assert np.array(public.data, np.float32).tobytes() == data.astype("<f4").tobytes()
     assert wire_class("SampleBlock").FromString(fast).first_index == first_index
