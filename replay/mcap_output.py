@@ -14,8 +14,9 @@ keeps the indexes and statistics the summary needs.
 
 from __future__ import annotations
 
+import io
+import os
 import struct
-import tempfile
 import zlib
 from collections.abc import Callable
 from itertools import chain
@@ -41,6 +42,7 @@ from mcap.records import (
 )
 
 from replay.mcap_records import MAGIC
+from replay.spilled_bytes import SpilledBytes
 
 COMPRESSIONS = ("zstd", "lz4", "")
 # zstandard.compress's (and so mcap's) default level; the recorder chooses its own
@@ -131,6 +133,30 @@ class McapOutput:
                 self.data_crc = zlib.crc32(view[:n], self.data_crc)
             view = view[n:]
 
+    def write_parts(self, parts: list[bytes]) -> None:
+        """:meth:`write` of the parts joined; to a plain file (``io.FileIO`` itself, whose
+        ``write`` nothing overrides) with ``os.writev``, one system call without the copy:
+        joining a chunk's ~0.5 MB into fresh memory held the GIL, page faults included
+        (writer thread 0.077-0.082 -> 0.072-0.077 s of CPU a minute, ab_rec.py)."""
+        if type(self.stream) is not io.FileIO:
+            self.write(b"".join(parts))
+            return
+        n = os.writev(self.stream.fileno(), parts)
+        self.pos += n
+        for i, part in enumerate(parts):
+            if n >= len(part):
+                if self.data_crc is not None:
+                    self.data_crc = zlib.crc32(part, self.data_crc)
+                n -= len(part)
+                continue
+            view = memoryview(part)  # a short write (a disk filling up): the rest as write's
+            if self.data_crc is not None:
+                self.data_crc = zlib.crc32(view[:n], self.data_crc)
+            self.write(view[n:])
+            for rest in parts[i + 1 :]:
+                self.write(rest)
+            return
+
     def flush(self) -> None:
         self.stream.flush()
 
@@ -200,10 +226,10 @@ class McapOutput:
             )
             pos += len(parts[-1])
         # one write, one system call: each call that releases the GIL costs the caller's
-        # thread a GIL hand-over when it takes it back (the copy of ~0.5 MB costs less)
+        # thread a GIL hand-over when it takes it back
         crc_before = self.data_crc
         try:
-            self.write(b"".join(parts))
+            self.write_parts(parts)
             self.flush()
         except OSError:
             self.cut(chunk_offset, crc_before, end_before)
@@ -336,63 +362,3 @@ class McapOutput:
             else:
                 self._compress = bytes
         return self._compress(payload)
-
-
-class SpilledBytes:
-    """Bytes appended during a recording and read once at its end, held in an unnamed
-    temporary file (``tempfile.TemporaryFile``: not linked, gone when closed), so that a
-    recording's memory does not grow with its length. If the temporary directory
-    cannot take them (full, read-only) they move to memory instead: nothing is lost."""
-
-    def __init__(self) -> None:
-        self._memory: bytearray | None = None
-        self._file: IO[bytes] | None = None
-        self._size = 0  # bytes appended to the file in full
-        try:
-            # unbuffered: an append that fails leaves nothing pending in a buffer
-            self._file = tempfile.TemporaryFile(prefix="ptinertia-index-", buffering=0)
-        except OSError:
-            self._memory = bytearray()
-
-    def append(self, data: bytes) -> None:
-        if self._file is not None:
-            try:
-                view = memoryview(data)
-                while view:
-                    view = view[self._file.write(view) or 0 :]
-                self._size += len(data)
-                return
-            except OSError:
-                self._to_memory()  # what was written in full; this append follows
-        assert self._memory is not None
-        self._memory += data
-
-    def getvalue(self) -> bytes:
-        """Everything appended so far."""
-        self._to_memory()
-        assert self._memory is not None
-        return bytes(self._memory)
-
-    def _to_memory(self) -> None:
-        if self._file is None:
-            return
-        f, self._file = self._file, None
-        try:
-            # the appends made in full (a failed one may have left part of itself after them)
-            f.seek(0)
-            self._memory = bytearray()
-            while len(self._memory) < self._size:
-                got = f.read(self._size - len(self._memory))  # raw reads may return less
-                if not got:
-                    raise OSError(
-                        f"temporary index file: {len(self._memory)} of {self._size} bytes read back"
-                    )
-                self._memory += got
-        finally:
-            f.close()
-
-    def close(self) -> None:
-        """Let go of the bytes (the temporary file, or the memory)."""
-        if self._file is not None:
-            self._file.close()
-        self._file, self._memory, self._size = None, bytearray(), 0

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import errno
 import io
+import os
 import threading
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,7 @@ from support.mcap_logs import BENCH_TEXT, assert_same_items, synthetic_items, sy
 from support.mcap_writer_calls import drive
 
 from acquisition.stream import ChannelSpec, SampleBlock, SampleGroup
-from replay import stream_codec
+from replay import mcap_output, stream_codec
 from replay.errors import LogError
 from replay.mcap_output import LateBytes
 from replay.mcap_records import MAGIC
@@ -205,6 +206,33 @@ def test_a_full_disk_leaves_the_complete_chunks_readable(tmp_path: Path) -> None
     assert len(data) <= 20_000 and data.endswith(MAGIC)
     times = [m.log_time for _, _, m in make_reader(io.BytesIO(data)).iter_messages()]
     assert times == list(range(kept_until + 1))  # every complete chunk, in order, nothing else
+
+
+def test_a_chunk_written_in_pieces_is_the_joined_chunk(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """To a plain file a chunk goes out with ``os.writev`` (no joined copy); a short count
+    (a disk filling up) is completed by ``write``: the file is the one a BytesIO gets."""
+    real_writev = os.writev
+    calls = []
+
+    def short_writev(fd: int, parts: list[bytes]) -> int:
+        calls.append(len(parts))
+        if len(calls) % 2:
+            return real_writev(fd, parts)
+        joined = b"".join(parts)
+        return os.write(fd, joined[: len(joined) // 3])
+
+    monkeypatch.setattr(mcap_output.os, "writev", short_writev)
+    files = []
+    for to_file in (False, True):
+        path = tmp_path / "pieces.mcap"
+        stream: Any = open(path, "wb", buffering=0) if to_file else io.BytesIO()
+        drive(ThreadedWriter(stream, chunk_size=50_000), 1)
+        files.append(path.read_bytes() if to_file else stream.getvalue())
+        stream.close()
+    assert len(calls) > 4  # chunks went out through writev, whole and short
+    assert files[1] == files[0]
 
 
 class FullDiskFile(io.FileIO):
