@@ -23,7 +23,13 @@ the share of each topic. Writing takes two threads (the recorder compresses
 and writes chunks on its own): the figure that matters to a live run is the
 CPU time of the calling thread, the one that runs the pipeline; the CPU
 time of both threads and the wall time are printed beside it. Reading is
-single-threaded: process CPU time.
+single-threaded (process CPU time; the data CRC of McapSource runs on a thread of its own).
+
+Measured (issue 24, 60 s, best of 3, two runs each side by side, load 4.7-6.6): write, full
+run, calling thread 0.108-0.118 s on main (0142dad) -> 0.070-0.077 s (both threads 0.172-0.186
+-> 0.127-0.147 s): sample blocks cast and records packed on the writer thread, the gating from
+a layout (and CRCs through ISA-L, since taken out again); read raw items 0.040 -> 0.027-0.031 s, McapSource 0.039-0.041 ->
+0.028-0.032 s: sample blocks read without the protobuf class, the data CRC beside the set-up.
 """
 
 from __future__ import annotations

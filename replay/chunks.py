@@ -30,7 +30,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from io import BytesIO
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 import zstandard
 from mcap.data_stream import ReadDataStream
@@ -44,7 +44,6 @@ from replay.mcap_records import (
     RECORD_HEAD,
     BadChunk,
     chunk_payload,
-    chunk_records,
     ends_data,
     looks_like_index,
     parse_definition,
@@ -52,8 +51,11 @@ from replay.mcap_records import (
     records,
 )
 
-# (topic, schema name, log time ns, data)
-MessageTuple = tuple[str, str, int, bytes]
+_MESSAGE = int(Opcode.MESSAGE)
+_UNKNOWN = ("", "")  # a channel not looked up yet in this chunk
+
+# (topic, schema name, log time ns, data: bytes, or a memoryview with ``views=True``)
+MessageTuple = tuple[str, str, int, Any]
 
 
 @dataclass
@@ -107,6 +109,8 @@ class MessageWalk:
     channels : channel id -> (topic, schema name) known before the walk (from the
         summary, or the first chunk), so a damaged first chunk does not lose them.
     check_crcs : check each chunk's CRC (False: the data section's CRC matched).
+    views : a chunk's messages as memoryviews of its payload, not copies (each holds the
+        chunk's bytes; replay decodes and drops them: 0.46 MB copied per sample block saved).
     """
 
     def __init__(
@@ -117,9 +121,11 @@ class MessageWalk:
         chunks: list[tuple[int, int]] | None = None,
         channels: dict[int, tuple[str, str]] | None = None,
         check_crcs: bool = True,
+        views: bool = False,
     ) -> None:
         self.path = Path(path)
         self.check_crcs = check_crcs
+        self.views = views
         self.topics = topics
         self.on_skip = on_skip
         self.chunks = chunks
@@ -201,23 +207,44 @@ class MessageWalk:
         return topic, self.schemas.get(schema_id, "")
 
     def _chunk(self, payload: bytes, offset: int) -> Iterator[MessageTuple]:
-        unpack_message = MESSAGE_HEAD.unpack_from
+        """The wanted messages of a chunk. Its records are framed here, with the checks of
+        :func:`replay.mcap_records.chunk_records`: most messages of a recording (frames,
+        gating) are not the raw stream a replay wants, and skipping each through that
+        generator cost about 3 us (items() of a 60 s log: 26 -> 19 ms of CPU)."""
+        view = memoryview(payload)
+        unpack_record, unpack_message = RECORD_HEAD.unpack_from, MESSAGE_HEAD.unpack_from
         wanted: dict[int, tuple[str, str] | None] = {}  # per channel, for this chunk
+        pos, end, last_ns = 0, len(view), self._last_ns
         try:
-            for opcode, content in chunk_records(payload):
-                if opcode == Opcode.MESSAGE:
-                    channel_id, _, log_time, _ = unpack_message(content, 0)
-                    self._seen(log_time)
-                    if channel_id not in wanted:
-                        wanted[channel_id] = self._wanted(channel_id)
-                    out = wanted[channel_id]
+            while pos < end:
+                if pos + RECORD_HEAD.size > end:
+                    raise BadChunk("chunk ends inside a record header")
+                opcode, length = unpack_record(view, pos)
+                pos += RECORD_HEAD.size
+                if pos + length > end:
+                    raise BadChunk(f"chunk record of {length} bytes runs past the chunk's end")
+                if opcode == _MESSAGE:
+                    if length < MESSAGE_HEAD.size:
+                        raise BadChunk(f"message record of {length} bytes inside a chunk")
+                    channel_id, _, last_ns, _ = unpack_message(view, pos)
+                    if self._open:
+                        self._seen(last_ns)
+                    out = wanted.get(channel_id, _UNKNOWN)
+                    if out is _UNKNOWN:
+                        out = wanted[channel_id] = self._wanted(channel_id)
                     if out is not None:
-                        yield out[0], out[1], log_time, bytes(content[MESSAGE_HEAD.size :])
+                        data = view[pos + MESSAGE_HEAD.size : pos + length]
+                        yield out[0], out[1], last_ns, data if self.views else bytes(data)
                 elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
-                    self._define(parse_definition(opcode, content))
+                    self._define(parse_definition(opcode, view[pos : pos + length]))
                     wanted.clear()
+                else:
+                    raise BadChunk(f"record with opcode {opcode:#04x} inside a chunk")
+                pos += length
         except READ_ERRORS as err:  # a CRC-clean chunk that is not ours: crafted
+            self._last_ns = last_ns
             self._skip(offset, f"damaged chunk ({type(err).__name__}: {err})")
+        self._last_ns = last_ns
 
 
 def walk_messages(
@@ -228,9 +255,10 @@ def walk_messages(
     chunks: list[tuple[int, int]] | None = None,
     channels: dict[int, tuple[str, str]] | None = None,
     check_crcs: bool = True,
+    views: bool = False,
 ) -> Iterator[MessageTuple]:
     """:class:`MessageWalk` that hands a read error to ``on_stop`` and ends instead of raising."""
-    it = iter(MessageWalk(path, topics, on_skip, chunks, channels, check_crcs))
+    it = iter(MessageWalk(path, topics, on_skip, chunks, channels, check_crcs, views))
     while True:
         try:
             item = next(it)

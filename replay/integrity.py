@@ -11,9 +11,10 @@ is what the writer wrote. See ``docs/recording-format.md``.
 from __future__ import annotations
 
 import struct
+import threading
 import zlib
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
@@ -69,14 +70,15 @@ def check_data_crc(
     if data_end_offset is None or data_crc == 0:
         return False
     crc = 0
-    with open(path, "rb") as fh:
+    buffer = memoryview(bytearray(1 << 20))  # one buffer: fresh blocks cost page faults
+    with open(path, "rb", buffering=0) as fh:
         remaining = data_end_offset
         while remaining > 0:
-            block = fh.read(min(remaining, 1 << 20))
-            if not block:
+            n = fh.readinto(buffer[: min(remaining, len(buffer))])
+            if not n:
                 break
-            crc = zlib.crc32(block, crc)
-            remaining -= len(block)
+            crc = zlib.crc32(buffer[:n], crc)
+            remaining -= n
         if crc == data_crc:
             return True
         if explained:  # a damaged attachment
@@ -102,3 +104,43 @@ def _chunk_records(fh: IO[bytes]) -> list[tuple[int, int]]:
         return [(o - 9, n + 9) for op, o, n in records(fh) if op == Opcode.CHUNK]
     except READ_ERRORS:
         return []
+
+
+class DataCheck:
+    """:func:`check_data_crc` on a thread of its own, started at once; :meth:`result` waits.
+
+    Opening a log for a replay (:class:`replay.source.McapSource`) starts it, and the
+    first message read waits for it, so the CRC of the whole file (17 ms of CPU for a
+    60 s log, file reads and ``zlib.crc32`` releasing the GIL) runs on the other core
+    while the pipeline sets up: a replay of a 60 s log started that much later before.
+    A mismatch stops the replay before its first item with the same :class:`LogError`.
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        data_end_offset: int | None,
+        data_crc: int,
+        chunks: list[tuple[int, int]] | None,
+        explained: bool = False,
+    ) -> None:
+        self._verified = False
+        self._error: BaseException | None = None
+        args = (path, data_end_offset, data_crc, chunks, explained)
+        # a daemon: a replay abandoned before its first item must not hold the exit
+        self._thread = threading.Thread(target=self._run, args=args, daemon=True)
+        self._thread.name = "ptinertia-data-crc"
+        self._thread.start()
+
+    def _run(self, *args: Any) -> None:
+        try:
+            self._verified = check_data_crc(*args)
+        except BaseException as err:  # handed to the reading thread by result()
+            self._error = err
+
+    def result(self) -> bool:
+        """What :func:`check_data_crc` returned; raises what it raised."""
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        return self._verified

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import queue
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import IO, Any
 
 from mcap.data_stream import RecordBuilder
@@ -43,7 +43,9 @@ from replay.mcap_output import (
     MESSAGE_HEADER,
     OP_MESSAGE,
     ZSTD_LEVEL,
+    LateBytes,
     McapOutput,
+    Payload,
     Records,
 )
 
@@ -94,7 +96,8 @@ class ThreadedWriter:
         self._thread = threading.Thread(target=self._run, name="mcap-writer", daemon=True)
         self._error: BaseException | None = None
         self._started = self._stopped = False
-        self.chunks = 0  # chunks handed to the writer thread
+        self._handed = 0  # chunks handed to the writer thread
+        self._packed = 0  # chunks made on it (add_chunk)
 
     # -- calls of mcap.writer.Writer ---------------------------------------------------------
     def start(self, profile: str = "", library: str = "") -> None:
@@ -137,10 +140,17 @@ class ThreadedWriter:
         return channel.id
 
     def add_message(
-        self, channel_id: int, log_time: int, data: bytes, publish_time: int, sequence: int = 0
+        self,
+        channel_id: int,
+        log_time: int,
+        data: Payload,
+        publish_time: int,
+        sequence: int = 0,
     ) -> None:
-        """Append a message to the open chunk."""
-        data = bytes(data)  # free for bytes; a bytearray must not change under the writer
+        """Append a message to the open chunk (``data`` as :class:`LateBytes`: its bytes are
+        made on the writer thread)."""
+        if not isinstance(data, LateBytes):  # (late bytes are made on the writer thread)
+            data = bytes(data)  # free for bytes; a bytearray must not change under the writer
         head = MESSAGE_HEADER.pack(
             OP_MESSAGE, 22 + len(data), channel_id, sequence, log_time, publish_time
         )
@@ -149,6 +159,35 @@ class ThreadedWriter:
         self._size += 31 + len(data)
         if self._size > self.chunk_size:
             self._close_chunk()
+
+    def add_chunk(self, messages: Sequence[tuple[int, int, Payload, int]]) -> None:
+        """:meth:`add_message` of each ``(channel id, log time, data, publish time)``, then
+        :meth:`flush`; the records are packed on the writer thread (the data is kept as it
+        is: bytes or :class:`LateBytes`). The same chunks as those calls, one job: packing
+        6554 messages a minute cost the caller about 7 ms."""
+        records, size, count = self._records, self._size, self._messages
+        self._records, self._size, self._messages = [], 0, 0
+        self._submit(self._pack, records, size, count, messages)
+        self._raise_error()
+
+    def _pack(
+        self, records: Records, size: int, count: int, messages: Sequence[tuple[int, int, Any, int]]
+    ) -> None:
+        """The writer thread's :meth:`add_message` calls and :meth:`flush` for :meth:`add_chunk`."""
+        pack, limit = MESSAGE_HEADER.pack, self.chunk_size
+        for channel_id, log_time, data, publish_time in messages:
+            records.append(
+                (pack(OP_MESSAGE, 22 + len(data), channel_id, 0, log_time, publish_time), data)
+            )
+            count += 1
+            size += 31 + len(data)
+            if size > limit:
+                self._packed += 1
+                self._out.chunk(records)
+                records, size, count = [], 0, 0
+        if count:
+            self._packed += 1
+            self._out.chunk(records)
 
     def flush(self) -> None:
         """Close the open chunk (if it has a message) and hand it to the writer thread."""
@@ -171,6 +210,12 @@ class ThreadedWriter:
         self._raise_error()
 
     # -- more ------------------------------------------------------------------------------
+    @property
+    def chunks(self) -> int:
+        """Chunks handed to the writer thread (those :meth:`add_chunk` hands over as they
+        are made there)."""
+        return self._handed + self._packed
+
     def sync(self) -> None:
         """Wait until everything handed over is written and the stream flushed."""
         self._submit(self._out.flush)
@@ -208,7 +253,7 @@ class ThreadedWriter:
             return
         records = self._records
         self._records, self._size, self._messages = [], 0, 0
-        self.chunks += 1
+        self._handed += 1
         self._submit(self._out.chunk, records)
 
     def _submit(self, job: Callable[..., None], *args: Any) -> None:

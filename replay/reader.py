@@ -35,7 +35,7 @@ from acquisition.stream import StreamLayout
 from replay import stream_codec
 from replay.chunks import READ_ERRORS
 from replay.errors import LogError, describe
-from replay.integrity import check_data_crc, check_summary_crc
+from replay.integrity import DataCheck, check_data_crc, check_summary_crc
 from replay.mcap_records import (
     MAGIC,
     BadChunk,
@@ -100,13 +100,17 @@ class NoSummary(McapError):
     writes when it must stop early (a full disk, ``McapOutput.cut``)."""
 
 
-def open_log(path: str | Path) -> RecordedLog:
+def open_log(path: str | Path, check_later: bool = False) -> RecordedLog:
     """Open a recording; raises :class:`LogError` when nothing replayable is in it.
 
     Parameters
     ----------
     path : an ``.mcap`` file written by :class:`replay.recorder.McapRecorder`
         (or :func:`replay.raw_writer.record_source`), finished or cut short.
+    check_later : check the data section's CRC on a thread of its own
+        (:class:`replay.integrity.DataCheck`): the first message read, or
+        :meth:`RecordedLog.verify`, waits for it and raises its error. For a replay,
+        whose set-up does not depend on a damaged byte being found first.
     """
     path = Path(path)
     if not path.exists():
@@ -151,10 +155,17 @@ def open_log(path: str | Path) -> RecordedLog:
     report.time_origin_ns = _origin(scan)
     for line in scan.notes:
         report.note(line)
-    scan.data_verified = check_data_crc(
-        path, scan.data_end_offset, scan.data_crc, scan.chunk_records, bool(scan.notes)
-    )
-    log = _build(path, scan, report)
+    crc_args = (path, scan.data_end_offset, scan.data_crc, scan.chunk_records, bool(scan.notes))
+    if check_later:
+        check = DataCheck(*crc_args)
+        try:
+            log = _build(path, scan, report, check)
+        except LogError:
+            check.result()  # damaged metadata: the CRC's error is the one that says so
+            raise
+    else:
+        scan.data_verified = check_data_crc(*crc_args)
+        log = _build(path, scan, report)
     until = report.recorded_until_s
     where = f" up to t = {until:.2f} s" if until is not None else ""
     if closed_early:
@@ -264,7 +275,9 @@ def _define(scan: _Scan, record: Schema | Channel) -> None:
         scan.channels[record.id] = record
 
 
-def _build(path: Path, scan: _Scan, report: ReadReport) -> RecordedLog:
+def _build(
+    path: Path, scan: _Scan, report: ReadReport, check: DataCheck | None = None
+) -> RecordedLog:
     run = scan.metadata.get(META_RUN)
     if run is None or run.get("format") != FORMAT:
         found = ", ".join(sorted(scan.metadata)) or "none"
@@ -335,6 +348,7 @@ def _build(path: Path, scan: _Scan, report: ReadReport) -> RecordedLog:
         channels=channels,
         chunk_records=scan.chunk_records,
         data_verified=scan.data_verified,
+        data_check=check,
         bench_text=bench.decode("utf-8", errors="replace") if bench is not None else None,
         attachments=scan.attachments,
         metadata=scan.metadata,

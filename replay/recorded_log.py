@@ -28,6 +28,7 @@ from estimator.result import Estimate, EstimateUpdate
 from replay import results_codec, stream_codec
 from replay.chunks import READ_ERRORS, Skipped, walk_messages
 from replay.errors import BadMessage, LogError, describe
+from replay.integrity import DataCheck
 from replay.schemas import (
     TOPIC_CAN,
     TOPIC_ESTIMATE,
@@ -165,6 +166,8 @@ class RecordedLog:
         checked summary of a finished log (None: read front to back).
     data_verified : the data section's CRC matched when the log was opened, which
         vouches for every chunk (the walk skips their CRCs).
+    data_check : the same check still running (``open_log(check_later=True)``);
+        :meth:`verify` waits for it.
     """
 
     path: Path
@@ -183,6 +186,7 @@ class RecordedLog:
     channels: dict[int, tuple[str, str]] = field(default_factory=dict)
     chunk_records: list[tuple[int, int]] | None = None
     data_verified: bool = False
+    data_check: DataCheck | None = None
 
     @property
     def finished(self) -> bool:
@@ -193,10 +197,15 @@ class RecordedLog:
         """Raw topic -> message type, from the layout."""
         return stream_topics(self.layout)
 
+    def verify(self) -> bool:
+        """Whether the data section's CRC matched; raises :class:`LogError` when it failed
+        and no damaged chunk explains it (waits for a check still running)."""
+        return self.data_check.result() if self.data_check is not None else self.data_verified
+
     # -- iteration ------------------------------------------------------------------------
     def messages(
-        self, topics: Iterable[str], reference: bool = False
-    ) -> Iterator[tuple[str, str, int, bytes]]:
+        self, topics: Iterable[str], reference: bool = False, views: bool = False
+    ) -> Iterator[tuple[str, str, int, Any]]:
         """``(topic, schema name, log_time ns, data)`` of ``topics``, in file order.
 
         Stops cleanly at the truncation point of an unfinished log (already
@@ -204,9 +213,11 @@ class RecordedLog:
         fails to read raises :class:`LogError`. ``reference=True`` reads with
         the mcap library's own readers (seeking for a finished log,
         non-seeking for an unfinished one) instead of :mod:`replay.chunks`:
-        slower, same messages.
+        slower, same messages. ``views=True``: the data as memoryviews of the chunks
+        (:class:`replay.chunks.MessageWalk`), not bytes.
         """
         wanted = {t for t in topics if t in self.topics}
+        verified = self.verify()
 
         def stop(err: BaseException) -> None:
             if self.report.finished:
@@ -223,7 +234,8 @@ class RecordedLog:
                 self.report.skip,
                 self.chunk_records,
                 self.channels,
-                check_crcs=not self.data_verified,
+                check_crcs=not verified,
+                views=views,
             )
         )
         for topic, name, log_time, data in source:
@@ -250,7 +262,7 @@ class RecordedLog:
     def items(self) -> Iterator[StreamItem]:
         """The raw stream (sample blocks, edge blocks, source events) in its original order."""
         kinds = self.raw_topics
-        for topic, name, _, data in self.messages(kinds):
+        for topic, name, _, data in self.messages(kinds, views=True):
             try:
                 if name == full_name("SampleBlock"):
                     yield stream_codec.decode_samples(data, self.layout)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+import struct
 from collections.abc import Sequence
 from typing import Any
 
@@ -134,7 +135,66 @@ def decode_frame(data: bytes) -> OrderFrame:
 
 
 def encode_outcome(outcome: FrameOutcome) -> bytes:
-    """``/gating``: an ``estimator.streaming.FrameOutcome`` (without the fitted motion)."""
+    """``/gating``: an ``estimator.streaming.FrameOutcome`` (without the fitted motion).
+
+    The bytes :func:`encode_outcome_reference` gets from the protobuf class (a test
+    compares them), from a layout per structure (:class:`_GatingLayout`: the reason, the
+    orders and what was said of each), the doubles packed into it by one ``struct`` call:
+    1.0 us a frame against 2.9 us through the class (9 ms a minute of the recorder's
+    caller). A double that is zero, which proto3 leaves out, goes through the class.
+    """
+    residual = outcome.relative_residual
+    key = (
+        outcome.reason,
+        tuple(outcome.used_orders),
+        tuple(residual),
+        tuple(outcome.rejected.items()),
+    )
+    layout = _GATING.get(key)
+    if layout is None:
+        if len(_GATING) >= 256:  # a bound, for a run whose rejections keep changing
+            _GATING.clear()
+        layout = _GATING[key] = _GatingLayout(outcome)
+    values = [outcome.time_s, outcome.rpm, *[residual.get(h, math.nan) for h in layout.orders]]
+    if 0.0 in values:
+        return encode_outcome_reference(outcome)
+    args: list[Any] = [None] * (2 * len(values) + 1)
+    args[0::2] = layout.constants
+    args[1::2] = values
+    return layout.pack(*args)
+
+
+class _GatingLayout:
+    """The ``Gating`` message of one structure, as constant bytes around its doubles:
+    ``time_s``, ``rpm`` and each order's ``relative_residual`` (NaN without one), all
+    taken as non-zero (written)."""
+
+    def __init__(self, outcome: FrameOutcome) -> None:
+        used = set(outcome.used_orders)
+        residual, rejected = outcome.relative_residual, outcome.rejected
+        self.orders = list(residual) + [h for h in rejected if h not in residual]
+        head = wire.string_field(4, outcome.reason) if outcome.reason is not None else b""
+        head = (wire.key(3, 0) + b"\x01" if outcome.reason is None else b"") + head
+        if outcome.used_orders:
+            packed = np.asarray(outcome.used_orders, "<f8").tobytes()
+            head += wire.key(5, 2) + wire.varint(len(packed)) + packed
+        constants = [wire.key(1, 1), wire.key(2, 1), head]  # then each entry around its slot
+        for h in self.orders:
+            before = wire.double_field(1, h) + (wire.key(2, 0) + b"\x01" if h in used else b"")
+            before += wire.string_field(3, rejected.get(h, "")) + wire.key(4, 1)
+            after = wire.key(5, 0) + b"\x01" if h in residual else b""
+            size = len(before) + 8 + len(after)
+            constants[-1] += wire.key(6, 2) + wire.varint(size) + before
+            constants.append(after)
+        self.constants = constants
+        self.pack = struct.Struct("<" + "d".join(f"{len(c)}s" for c in constants)).pack
+
+
+_GATING: dict[tuple[Any, ...], _GatingLayout] = {}
+
+
+def encode_outcome_reference(outcome: FrameOutcome) -> bytes:
+    """:func:`encode_outcome` through the protobuf class, for the tests to compare with."""
     msg = wire_class("Gating")(
         time_s=outcome.time_s,
         rpm=outcome.rpm,

@@ -17,7 +17,14 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 from acquisition.channels import ChannelNeed, check_channels
-from acquisition.stream import EdgeBlock, SampleBlock, Source, StreamItem, StreamLayout
+from acquisition.stream import (
+    EdgeBlock,
+    SampleBlock,
+    Source,
+    SourceError,
+    StreamItem,
+    StreamLayout,
+)
 from replay.errors import LogError
 from replay.reader import open_log
 from replay.recorded_log import ReadReport, RecordedLog
@@ -64,7 +71,9 @@ class McapSource(Source):
         super().__init__()
         if speed is not None and not (speed > 0 and math.isfinite(speed)):
             raise LogError(f"speed: expected a positive factor of real time, got {speed}")
-        self.log = log if isinstance(log, RecordedLog) else open_log(log)
+        # the data CRC on a thread of its own, beside the pipeline's set-up: the first item
+        # waits for it (replay.integrity.DataCheck)
+        self.log = log if isinstance(log, RecordedLog) else open_log(log, check_later=True)
         self.speed = speed
         self._monotonic = monotonic
         self._sleep = sleep
@@ -133,5 +142,9 @@ def open_replay(
         A required channel is missing from the recording.
     """
     source = McapSource(path, speed=speed)
-    check_channels(source.layout, required, str(path))
+    try:
+        check_channels(source.layout, required, str(path))
+    except SourceError:
+        source.log.verify()  # a damaged layout: the CRC's error is the one that says so
+        raise
     return source

@@ -87,7 +87,7 @@ def parse_speed(text: str) -> float | None:
 
 
 def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None) -> int:
-    log = open_log(log_path)
+    log = open_log(log_path, check_later=True)  # the data CRC beside the set-up
     bench, bench_text = replay_bench(log, log_path, args.bench, args.mount_scale)
     source: Any = McapSource(log, speed=parse_speed(args.speed))
     if args.dbc:

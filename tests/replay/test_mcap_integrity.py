@@ -43,6 +43,7 @@ from replay.raw_writer import record_source
 from replay.reader import open_log
 from replay.recording_head import RecordingInfo, run_metadata
 from replay.schemas import META_RUN, full_name, schema_data, stream_topics
+from replay.source import McapSource
 
 EXAMPLE_BENCH = Path(__file__).resolve().parents[2] / "examples" / "i3-bench.toml"
 
@@ -145,6 +146,25 @@ def test_damaged_run_metadata_is_refused_in_one_line(
     code, doc, err = replay(log, tmp_path / "r.json", capsys)
     assert (code, doc) == (2, None)
     assert len(err) == 1 and "data section's CRC does not match" in err[0]
+
+
+def test_a_crc_checked_beside_the_set_up_stops_the_replay_before_its_first_item(
+    clean_run: CleanRun, tmp_path: Path
+) -> None:
+    """``open_log(check_later=True)`` (a replay's) opens damaged run metadata, but nothing
+    is read from it: the first message waits for the CRC and gets its error."""
+    at = clean_run.data.index(b'"rate_hz": ') + len(b'"rate_hz": ') + 1
+    log = tmp_path / "meta.mcap"
+    log.write_bytes(flipped(clean_run.data, at, 0))
+    with pytest.raises(LogError, match="CRC does not match"):
+        open_log(log)
+    opened = open_log(log, check_later=True)
+    for read in (lambda: next(opened.items()), opened.verify, lambda: next(iter(McapSource(log)))):
+        with pytest.raises(LogError, match="data section's CRC does not match"):
+            read()
+    good = open_log(clean_run.log, check_later=True)
+    assert not good.data_verified and good.verify()  # checked, on its thread
+    assert sum(1 for _ in good.items()) == sum(1 for _ in open_log(clean_run.log).items()) > 0
 
 
 def test_a_damaged_bench_attachment_is_dropped_and_said(

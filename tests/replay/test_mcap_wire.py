@@ -11,14 +11,18 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 import numpy as np
 import pytest
+from google.protobuf.message import DecodeError
 from support.mcap_logs import make_frame
 
-from acquisition.stream import ChannelSpec, SampleBlock, SampleGroup
+from acquisition.stream import ChannelSpec, SampleBlock, SampleGroup, StreamLayout
 from dsp.frames import OrderFrame
-from replay import results_codec, stream_codec
+from estimator.outcome import FrameOutcome
+from replay import results_codec, stream_codec, wire
+from replay.errors import BadMessage
 from replay.schemas import message_class, wire_class
 
 
@@ -132,6 +136,111 @@ def test_sample_block_is_the_protobuf_libraries_bytes(
     block = SampleBlock("acc", first_index, data)
     fast = stream_codec.encode_samples(block, group)
     assert fast == stream_codec.encode_samples_reference(block, group)
+    late = stream_codec.encode_samples_late(block, group)  # joined on the writer thread
+    assert isinstance(late, stream_codec.LateSamples) and len(late) == len(fast)
+    made = bytearray(len(late))
+    late.write_into(memoryview(made))
+    assert made == fast
     public = message_class("SampleBlock").FromString(fast)
     assert np.array(public.data, np.float32).tobytes() == data.astype("<f4").tobytes()
     assert wire_class("SampleBlock").FromString(fast).first_index == first_index
+
+
+def test_sample_blocks_read_as_the_protobuf_library_reads_them() -> None:
+    """``wire.read_sample_block`` (the replay's fast reader) against the protobuf class, on
+    our writer's bytes and on valid messages laid out otherwise; what it does not take
+    (unknown fields, bad UTF-8, truncation) goes to the library, which decides."""
+    group = SampleGroup("acc", 100.0, (ChannelSpec("x", "V"), ChannelSpec("y", "V")), 0.5)
+    data = np.arange(6, dtype="<f4").reshape(2, 3) - 2.5
+    fast = stream_codec.encode_samples(SampleBlock("acc", 7, data), group)
+    fields = [
+        wire.double_field(1, 0.57),
+        wire.string_field(2, "acc"),
+        wire.int_field(3, 7),
+        wire.double_field(4, 100.0),
+        wire.double_field(5, 0.5),
+        wire.element(6, b"x"),
+        wire.element(6, b"y"),
+        wire.int_field(7, 3),
+        wire.bytes_field(8, data.tobytes()),
+    ]
+    taken = {
+        "ours": fast,
+        "reversed": b"".join(fields[:6:-1] + fields[5:7] + fields[4::-1]),  # channels in order
+        "index twice": fast + wire.int_field(3, 9),  # the last one wins
+        "negative index": fast + wire.int_field(3, -5),
+        "n_samples past 32 bits": fast + wire.int_field(7, 2**32 + 3),
+    }
+    refused = {
+        "unknown field": fast + wire.int_field(9, 1),
+        "bad UTF-8": fast + wire.element(2, b"\xff"),
+        "truncated": fast[:-3],
+    }
+    cls = wire_class("SampleBlock")
+    for name, message in {**taken, **refused}.items():
+        try:
+            msg = cls.FromString(message)
+            expected: tuple[Any, ...] | None = (
+                *(msg.time_s, msg.group, msg.first_index, msg.rate_hz, msg.t0_s),
+                *(list(msg.channels), msg.n_samples, msg.data),
+            )
+        except DecodeError:
+            expected = None
+        try:
+            got = wire.read_sample_block(memoryview(message))
+        except wire.Unparsed:
+            assert name in refused
+            continue
+        assert name in taken, name
+        assert (*got[:7], bytes(got[7])) == expected, name
+    assert stream_codec.decode_samples(taken["ours"], group_layout(group)).first_index == 7
+    assert stream_codec.decode_samples(taken["index twice"], group_layout(group)).first_index == 9
+    block = stream_codec.decode_samples(refused["unknown field"], group_layout(group))
+    assert block.first_index == 7 and block.data.tobytes() == data.astype(float).tobytes()
+    with pytest.raises(BadMessage, match="out of range"):
+        stream_codec.decode_samples(taken["negative index"], group_layout(group))
+    for name in ("bad UTF-8", "truncated"):
+        with pytest.raises(DecodeError):
+            stream_codec.decode_samples(refused[name], group_layout(group))
+
+
+def group_layout(group: SampleGroup) -> StreamLayout:
+    return StreamLayout((group,), ())
+
+
+def test_gating_is_the_protobuf_libraries_bytes() -> None:
+    """``results_codec.encode_outcome`` lays ``/gating`` out from a layout per structure:
+    the protobuf class's bytes, on the cases where proto3 leaves fields out (zeros, false,
+    empty strings) and where it does not (-0.0, NaN), each structure twice (the layout
+    made, then reused with other values)."""
+    nan = math.nan
+    outcomes = [
+        FrameOutcome(1.25, 3000.0, (1.0, 2.0), {}, None, {1.0: 0.01, 2.0: 0.2}),
+        FrameOutcome(0.0, -0.0, (), {1.0: "weak", 1.5: "residual"}, "no used order", {1.5: nan}),
+        FrameOutcome(2.5, 900.0, (0.0, 1.5), {2.0: ""}, None, {0.0: 0.0, 1.5: -0.0}),
+        FrameOutcome(3.0, 1e300, (3.0,), {2.0: "é" * 200}, "", {}),  # long, non-ASCII, empty
+        FrameOutcome(4.0, 1.0, (1.0,), {}, None, {}),
+        FrameOutcome(5.0, 2.0, (1.0, 1.5), {2.0: "weak"}, None, {1.0: 1e-3, 1.5: nan, 2.0: 4.0}),
+    ]
+    for outcome in outcomes:
+        again = dataclasses.replace(outcome, time_s=outcome.time_s + 0.5, rpm=outcome.rpm * 2)
+        for case in (outcome, again):
+            fast = results_codec.encode_outcome(case)
+            assert fast == results_codec.encode_outcome_reference(case), case
+            back = results_codec.decode_outcome(fast)
+            assert (back.time_s, back.reason, back.used_orders) == (
+                case.time_s,
+                case.reason,
+                case.used_orders,
+            )
+
+
+def test_a_groups_fields_laid_out_once_keep_the_sign_of_zero() -> None:
+    """``wire.sample_block_head`` keeps a group's constant fields; t0 = 0.0 (left out) and
+    -0.0 (written) are different bytes, whichever came first."""
+    data = np.ones((1, 4))
+    for t0_s in (0.0, -0.0, 0.0):
+        group = SampleGroup("g", 10.0, (ChannelSpec("c", "V"),), t0_s)
+        block = SampleBlock("g", 3, data)
+        fast = stream_codec.encode_samples(block, group)
+        assert fast == stream_codec.encode_samples_reference(block, group), t0_s

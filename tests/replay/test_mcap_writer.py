@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import errno
 import io
+import os
 import threading
 from pathlib import Path
 from typing import Any
@@ -21,8 +22,10 @@ from mcap.writer import CompressionType, Writer
 from support.mcap_logs import BENCH_TEXT, assert_same_items, synthetic_items, synthetic_layout
 from support.mcap_writer_calls import drive
 
-from acquisition.stream import SampleBlock
+from acquisition.stream import ChannelSpec, SampleBlock, SampleGroup
+from replay import mcap_output, stream_codec
 from replay.errors import LogError
+from replay.mcap_output import LateBytes
 from replay.mcap_records import MAGIC
 from replay.mcapwriter import ThreadedWriter
 from replay.reader import open_log
@@ -54,6 +57,70 @@ def test_same_bytes_as_the_mcap_writer(compression: str, seed: int) -> None:
     assert summary is not None and summary.statistics is not None
     assert summary.statistics.message_count == 2000
     assert len(summary.chunk_indexes) > 20  # size-bound and flushed chunks both happened
+
+
+def test_late_sample_data_is_written_as_the_bytes_it_stands_for() -> None:
+    """The recorder hands sample blocks over uncast (``stream_codec.LateSamples``); the
+    writer thread casts and joins them: the file is the one their bytes give."""
+    group = SampleGroup("acc", 100.0, tuple(ChannelSpec(f"c{i}", "V") for i in range(3)))
+    rng = np.random.default_rng(5)
+    wide = rng.standard_normal((3, 4000))
+    blocks = [SampleBlock("acc", 50 * k, wide[:, k : k + 50 * (k % 4)]) for k in range(200)]
+    files = []
+    for encode in (stream_codec.encode_samples, stream_codec.encode_samples_late):
+        out = io.BytesIO()
+        writer = ThreadedWriter(out, chunk_size=20_000)
+        writer.start()
+        channel = writer.register_channel(
+            "/raw/acc", "protobuf", writer.register_schema("s", "protobuf", b"x")
+        )
+        for k, block in enumerate(blocks):
+            data = encode(block, group)
+            writer.add_message(channel, k, data, k)
+            if k % 37 == 0:
+                writer.flush()
+        writer.finish()
+        files.append(out.getvalue())
+    assert isinstance(stream_codec.encode_samples_late(blocks[1], group), LateBytes)
+    assert files[1] == files[0]
+    summary = make_reader(io.BytesIO(files[1])).get_summary()
+    assert summary is not None and summary.statistics is not None
+    assert summary.statistics.message_count == 200
+    assert len(summary.chunk_indexes) > 10  # size-bound and flushed chunks both happened
+
+
+def test_a_chunk_handed_over_whole_is_what_its_messages_one_by_one_give() -> None:
+    """``add_chunk`` (the recorder's: records packed on the writer thread) against
+    ``add_message`` for each message and ``flush``: the same file, size-bound splits and
+    the channel records waiting for the first message included."""
+    rng = np.random.default_rng(3)
+    groups = [
+        [
+            (1 + int(rng.integers(2)), 1000 * g + k, rng.bytes(int(rng.integers(0, 900))), 7)
+            for k in range(int(rng.integers(1, 30)))
+        ]
+        for g in range(40)
+    ]
+    files, chunks = [], []
+    for whole in (False, True):
+        out = io.BytesIO()
+        writer = ThreadedWriter(out, chunk_size=4_000)
+        writer.start()
+        schema = writer.register_schema("s", "protobuf", b"x")
+        writer.register_channel("/a", "protobuf", schema)
+        writer.register_channel("/b", "protobuf", schema)
+        for group in groups:
+            if whole:
+                writer.add_chunk(group)
+                continue
+            for channel, log_time, data, publish_time in group:
+                writer.add_message(channel, log_time, data, publish_time)
+            writer.flush()
+        writer.finish()
+        files.append(out.getvalue())
+        chunks.append(writer.chunks)
+    assert files[1] == files[0]
+    assert chunks[1] == chunks[0] > len(groups)  # some groups were split by size
 
 
 def test_an_empty_file_is_the_mcap_writers_too() -> None:
@@ -139,6 +206,33 @@ def test_a_full_disk_leaves_the_complete_chunks_readable(tmp_path: Path) -> None
     assert len(data) <= 20_000 and data.endswith(MAGIC)
     times = [m.log_time for _, _, m in make_reader(io.BytesIO(data)).iter_messages()]
     assert times == list(range(kept_until + 1))  # every complete chunk, in order, nothing else
+
+
+def test_a_chunk_written_in_pieces_is_the_joined_chunk(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """To a plain file a chunk goes out with ``os.writev`` (no joined copy); a short count
+    (a disk filling up) is completed by ``write``: the file is the one a BytesIO gets."""
+    real_writev = os.writev
+    calls = []
+
+    def short_writev(fd: int, parts: list[bytes]) -> int:
+        calls.append(len(parts))
+        if len(calls) % 2:
+            return real_writev(fd, parts)
+        joined = b"".join(parts)
+        return os.write(fd, joined[: len(joined) // 3])
+
+    monkeypatch.setattr(mcap_output.os, "writev", short_writev)
+    files = []
+    for to_file in (False, True):
+        path = tmp_path / "pieces.mcap"
+        stream: Any = open(path, "wb", buffering=0) if to_file else io.BytesIO()
+        drive(ThreadedWriter(stream, chunk_size=50_000), 1)
+        files.append(path.read_bytes() if to_file else stream.getvalue())
+        stream.close()
+    assert len(calls) > 4  # chunks went out through writev, whole and short
+    assert files[1] == files[0]
 
 
 class FullDiskFile(io.FileIO):

@@ -1,5 +1,5 @@
 """The chunk index records of a recording wait in a temporary file until the summary
-(replay.mcap_output.SpilledBytes): the same bytes come back, and a temporary directory
+(replay.spilled_bytes.SpilledBytes): the same bytes come back, and a temporary directory
 that fills up mid-recording loses none of them."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import io
 
 import pytest
 
-from replay import mcap_output
-from replay.mcap_output import SpilledBytes
+from replay import spilled_bytes
+from replay.spilled_bytes import SpilledBytes
 
 
 def _records(n: int) -> list[bytes]:
@@ -52,7 +52,7 @@ def test_a_full_temporary_directory_loses_nothing(tmp_path, monkeypatch, budget:
         made.append(_FillingFile(str(tmp_path / f"spill{len(made)}"), budget))
         return made[-1]
 
-    monkeypatch.setattr(mcap_output.tempfile, "TemporaryFile", temporary_file)
+    monkeypatch.setattr(spilled_bytes.tempfile, "TemporaryFile", temporary_file)
     spill = SpilledBytes()
     records = _records(60)
     for r in records:
@@ -65,7 +65,7 @@ def test_no_temporary_directory_at_all(monkeypatch) -> None:
     def refuse(**_kw):
         raise OSError(errno.EROFS, "Read-only file system")
 
-    monkeypatch.setattr(mcap_output.tempfile, "TemporaryFile", refuse)
+    monkeypatch.setattr(spilled_bytes.tempfile, "TemporaryFile", refuse)
     spill = SpilledBytes()
     for r in _records(20):
         spill.append(r)
