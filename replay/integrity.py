@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import struct
 import threading
-import zlib
 from pathlib import Path
 from typing import IO, Any
 
@@ -21,7 +20,7 @@ from mcap.opcode import Opcode
 
 from replay.chunks import READ_ERRORS
 from replay.errors import LogError
-from replay.mcap_records import MAGIC, BadChunk, chunk_payload, read_at, records
+from replay.mcap_records import MAGIC, BadChunk, chunk_payload, crc32, read_at, records
 
 
 def check_summary_crc(fh: IO[bytes]) -> int:
@@ -36,7 +35,7 @@ def check_summary_crc(fh: IO[bytes]) -> int:
     if not 0 < start <= size - len(MAGIC) - 29:
         raise McapError(f"footer points the summary at byte {start}, outside the file")
     summary = read_at(fh, start, size - len(MAGIC) - 29 - start)
-    if zlib.crc32(footer[:25], zlib.crc32(summary)) != crc:
+    if crc32(footer[:25], crc32(summary)) != crc:
         raise McapError("summary CRC mismatch")
     return int(start)
 
@@ -77,7 +76,7 @@ def check_data_crc(
             n = fh.readinto(buffer[: min(remaining, len(buffer))])
             if not n:
                 break
-            crc = zlib.crc32(buffer[:n], crc)
+            crc = crc32(buffer[:n], crc)
             remaining -= n
         if crc == data_crc:
             return True

@@ -17,7 +17,6 @@ from __future__ import annotations
 import io
 import os
 import struct
-import zlib
 from collections.abc import Callable
 from itertools import chain
 from typing import IO, Any
@@ -41,7 +40,7 @@ from mcap.records import (
     SummaryOffset,
 )
 
-from replay.mcap_records import MAGIC
+from replay.mcap_records import MAGIC, crc32
 from replay.spilled_bytes import SpilledBytes
 
 COMPRESSIONS = ("zstd", "lz4", "")
@@ -130,7 +129,7 @@ class McapOutput:
             n = len(view) if n is None else n
             self.pos += n
             if self.data_crc is not None:
-                self.data_crc = zlib.crc32(view[:n], self.data_crc)
+                self.data_crc = crc32(view[:n], self.data_crc)
             view = view[n:]
 
     def write_parts(self, parts: list[bytes]) -> None:
@@ -146,12 +145,12 @@ class McapOutput:
         for i, part in enumerate(parts):
             if n >= len(part):
                 if self.data_crc is not None:
-                    self.data_crc = zlib.crc32(part, self.data_crc)
+                    self.data_crc = crc32(part, self.data_crc)
                 n -= len(part)
                 continue
             view = memoryview(part)  # a short write (a disk filling up): the rest as write's
             if self.data_crc is not None:
-                self.data_crc = zlib.crc32(view[:n], self.data_crc)
+                self.data_crc = crc32(view[:n], self.data_crc)
             self.write(view[n:])
             for rest in parts[i + 1 :]:
                 self.write(rest)
@@ -207,7 +206,7 @@ class McapOutput:
         self.end_time = max(self.end_time, end)
         self.message_count += sum(len(v) for v in index.values()) // 2
 
-        crc = zlib.crc32(payload)
+        crc = crc32(payload)
         data = self._compressed(payload)
         name = self.compression.encode()
         length = 8 + 8 + 8 + 4 + 4 + len(name) + 8 + len(data)
@@ -317,7 +316,7 @@ class McapOutput:
         summary = builder.end()
         footer_start = summary_start if summary else 0
         footer_head = struct.pack("<BQQQ", Opcode.FOOTER, 20, footer_start, offset_start)
-        crc = zlib.crc32(footer_head, zlib.crc32(summary))
+        crc = crc32(footer_head, crc32(summary))
         self.write(summary)
         self._record(Footer(footer_start, offset_start, crc))
         self.write(MAGIC)
