@@ -6,7 +6,7 @@ crank-offset columns, d residual / d measurement, the row covariance, its Choles
 and inverse, the whitened rows), and :class:`estimator.pending_rows.RowAssembler`'s
 whitened sensitivities ``dr`` beside them. Layouts with estimated mount stiffness scales
 stay on the numpy path. :func:`jit` compiles this module's kernels and those of
-:mod:`estimator.compiled_rows` and :mod:`estimator.hypotheses` (``cache=True``,
+:mod:`estimator.compiled_rows` and :mod:`estimator.compiled_sums` (``cache=True``,
 ``nogil=True``: they release the GIL), importing numba on the first call: the default
 path (``PTINERTIA_NUMBA`` unset) never imports it. Why, what it gains and how close it
 stays to the numpy reference: :mod:`estimator.compiled_rows`.
