@@ -192,7 +192,11 @@ def estimator_alone(log: Path, repeat: int = 3) -> None:
     and 83-93 before the rows' rework), 117-120 compiled (39-40); one frame at a time
     376-387 numpy (88-89; 371-406 and 89-103 before), 315-328 compiled (42-43).
     2026-11-26 (load 0.7), with the fitted runs, gates and channel noise compiled too: in
-    blocks 116 us numpy (71), 62 compiled (31); one frame at a time 282 numpy, 145 compiled."""
+    blocks 116 us numpy (71), 62 compiled (31); one frame at a time 282 numpy, 145 compiled.
+    With the tail's sums scaled from theta's (estimator/compiled_sums.py) and the row
+    covariance from 2/3 of its products (same bits), side by side with 0142dad, best of 5,
+    load 6-7: in blocks compiled 66 -> 60-62 us (32-33 -> 28-29), numpy 120-121 / 121-123
+    (unchanged code); one frame at a time (load 14-15) 155 / 155 compiled."""
     from acquisition.stream import SourceEvent
     from estimator import row_kernels
     from ptinertia.pipeline import as_recorded

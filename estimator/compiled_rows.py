@@ -5,7 +5,7 @@ model inputs, by the loops here): what :class:`estimator.pending_rows.RowAssembl
 calls with ``PTINERTIA_NUMBA=1`` in place of the numpy functions
 (:func:`estimator.equations.frame_rows`, :func:`estimator.systematic.motion_sensitivity`,
 :func:`estimator.model_inputs.model_input_rows`), which stay the default and the
-reference; the RLS sums beside them are :func:`estimator.hypotheses.frame_sums`.
+reference; the RLS sums beside them are :func:`estimator.compiled_sums.tail_sums`.
 
 Why: a flush assembles a dozen frames (some 35 (frame, order) pairs) with a few hundred
 numpy calls on (pairs, 3..12, 3..12) arrays, and the calls, not the arithmetic, are its

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from acquisition.stream import SourceEvent
+from estimator.compiled_sums import kernel_tail_sums
 from estimator.hypotheses import Accumulator, add_frames, add_frames_redundant
 
 ELASTIC_F_REF_HZ = 100.0
@@ -45,12 +46,16 @@ def add_with_tail(
     """Consecutive frames' rows (:func:`estimator.hypotheses.add_frames`' arguments, H
     without the tail) added, with their tail columns (:func:`with_tail`, ``f_hz`` per
     pair), to a state over theta and the tail; with their ``redundancy`` rows when
-    self-calibrating. (Forming the tail inside the compiled sums instead of in a copy
-    of H was measured slower: the kernel's loops then read a row buffer.)"""
+    self-calibrating. ``compiled`` (and no redundancy rows): the sums by
+    :func:`estimator.compiled_sums.kernel_tail_sums`, the tail's scaled from theta's
+    (no widened copy of H; why: :mod:`estimator.compiled_sums`)."""
+    if compiled and redundancy is None:
+        phi = (f_hz / ELASTIC_F_REF_HZ) ** 2
+        return kernel_tail_sums(acc, H, y, dr, bounds, forgetting, phi, ELASTIC_TERMS)
     Ha = with_tail(H, f_hz)
     if redundancy is not None:
         return add_frames_redundant(acc, Ha, y, dr, bounds, forgetting, redundancy)
-    return add_frames(acc, Ha, y, dr, bounds, forgetting, compiled)
+    return add_frames(acc, Ha, y, dr, bounds, forgetting)
 
 
 def effective_state(acc: Accumulator, n: int, scale: np.ndarray, elastic: bool) -> Accumulator:

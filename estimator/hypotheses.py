@@ -23,7 +23,6 @@ from typing import Any
 import numpy as np
 
 from estimator.rls import RlsState, rank_decision, rls_init, rls_update
-from estimator.row_kernels import jit
 
 # The half-order sign is decided when, after this many ambiguous frames, the wrong
 # hypothesis leaves this many times the weighted residual of the right one.
@@ -141,7 +140,6 @@ def add_frames(
     dr: np.ndarray,
     bounds: np.ndarray,
     forgetting: float = 1.0,
-    compiled: bool = False,
 ) -> Accumulator:
     """:func:`add_frame` for consecutive frames (no redundancy rows): frame f's rows
     are ``H[bounds[f]:bounds[f + 1]]`` (pairs, 12, n), ``y`` and ``dr`` alike.
@@ -149,21 +147,12 @@ def add_frames(
     Each frame's products are formed as :func:`add_frame` forms them (the same
     bits), those of all frames with as many orders in one call, and added to the
     state in stream order: the per-call overhead of numpy, not the arithmetic,
-    is what a frame costs at these sizes. ``compiled``: the sums by
-    :func:`frame_sums` (numba; the same frame by frame
-    structure, its sums in row order where BLAS groups them its own way: within
-    rounding of these, tests/estimator/test_row_kernels.py).
+    is what a frame costs at these sizes. (With ``PTINERTIA_NUMBA=1`` the streaming
+    estimator's sums are :func:`estimator.compiled_sums.tail_sums`'.)
     """
     n = H.shape[-1]
     starts = np.asarray(bounds[:-1])
     sizes = np.diff(bounds)
-    if compiled:
-        st = acc.state
-        info_total, vec_total, yty_total, sens_total = kernel_frame_sums(
-            st.info, st.vec, st.yty, acc.sens, H, y, dr, bounds, forgetting
-        )
-        rows = _rows_after(st.rows, sizes, forgetting)
-        return Accumulator(RlsState(info_total, vec_total, yty_total, rows), sens_total)
     n_f = len(sizes)
     info, vec = np.empty((n_f, n, n)), np.empty((n_f, n))
     yty, sens = np.empty(n_f), np.empty((n_f, n, dr.shape[-1]))
@@ -210,89 +199,6 @@ def _rows_after(rows: float, sizes: np.ndarray, lam: float) -> float:
     for k in sizes.tolist():
         rows = lam * rows + 12 * k
     return rows
-
-
-def kernel_frame_sums(
-    info: np.ndarray,
-    vec: np.ndarray,
-    yty: float,
-    sens: np.ndarray,
-    H: np.ndarray,
-    y: np.ndarray,
-    dr: np.ndarray,
-    bounds: np.ndarray,
-    forgetting: float,
-    compiled: bool = True,
-) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
-    """:func:`estimator.hypotheses.add_frames`' sums by the compiled :func:`frame_sums`:
-    the state ``info`` (n, n), ``vec`` (n,), ``yty``, ``sens`` (n, n_sys) after the
-    frames' rows (frame f: ``H[bounds[f]:bounds[f + 1]]``), new arrays."""
-    info, vec, sens = info.copy(), vec.copy(), sens.copy()
-    yty_io = np.array([yty])
-    (jit(frame_sums) if compiled else frame_sums)(
-        np.ascontiguousarray(H),
-        np.ascontiguousarray(y),
-        np.ascontiguousarray(dr),
-        np.asarray(bounds, np.int64),
-        float(forgetting),
-        info,
-        vec,
-        yty_io,
-        sens,
-    )
-    return info, vec, float(yty_io[0]), sens
-
-
-def frame_sums(
-    H: np.ndarray,
-    y: np.ndarray,
-    dr: np.ndarray,
-    bounds: np.ndarray,
-    lam: float,
-    info: np.ndarray,
-    vec: np.ndarray,
-    yty: np.ndarray,
-    sens: np.ndarray,
-) -> None:
-    """Per frame ``Lambda <- lam Lambda + H^T H``, ``eta <- lam eta + H^T y``, ``yty <- lam
-    yty + y^T y``, ``S <- lam S + H^T dr`` (rows (pairs, 12, .) whitened), in place: each
-    frame's sums formed on their own (in row order) and then added, in stream order, so
-    the state does not depend on how the frames were batched."""
-    n = H.shape[2]
-    n_sys = dr.shape[2]
-    info_f = np.empty((n, n))
-    vec_f = np.empty(n)
-    sens_f = np.empty((n, n_sys))
-    for f in range(bounds.shape[0] - 1):
-        info_f[:, :] = 0.0
-        vec_f[:] = 0.0
-        sens_f[:, :] = 0.0
-        yty_f = 0.0
-        for p in range(bounds[f], bounds[f + 1]):
-            for r in range(12):
-                row = H[p, r]
-                d_row = dr[p, r]
-                yr = y[p, r]
-                yty_f += yr * yr
-                for i in range(n):
-                    hi = row[i]
-                    vec_f[i] += hi * yr
-                    info_i = info_f[i]
-                    for j in range(i, n):  # (the upper triangle; mirrored below)
-                        info_i[j] += hi * row[j]
-                    sens_i = sens_f[i]
-                    for j in range(n_sys):
-                        sens_i[j] += hi * d_row[j]
-        for i in range(n):
-            for j in range(i + 1, n):
-                info_f[j, i] = info_f[i, j]
-        for i in range(n):
-            vec[i] = lam * vec[i] + vec_f[i]
-            for j in range(n):
-                info[i, j] = lam * info[i, j] + info_f[i, j]
-            for j in range(n_sys):
-                sens[i, j] = lam * sens[i, j] + sens_f[i, j]
-        yty[0] = lam * yty[0] + yty_f
 
 
 def better_sign(rss: dict[int, float]) -> tuple[int, float]:

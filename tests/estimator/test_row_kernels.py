@@ -21,6 +21,8 @@ import pytest
 from support.estimator_harness import Body, frames, make_setup
 
 from estimator import compiled_rows, row_kernels
+from estimator.compiled_sums import kernel_tail_sums
+from estimator.elastic_tail import ELASTIC_F_REF_HZ, ELASTIC_TERMS, with_tail
 from estimator.equations import Linearisation, ParameterLayout, frame_rows
 from estimator.hypotheses import Accumulator, add_frames
 from estimator.model_inputs import model_input_rows
@@ -208,27 +210,41 @@ def test_model_input_kernel_gives_the_numpy_rows(compiled: bool, mass_known: boo
 @pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=NUMBA)])
 @pytest.mark.parametrize("forgetting", [1.0, 0.98])
 def test_compiled_sums_give_the_numpy_state(compiled: bool, forgetting: float) -> None:
+    # the tail's columns scaled from theta's (compiled_sums) against the sums of the
+    # widened rows (with_tail, add_frames); a pair at 0 Hz (phi 0) and one at 350 Hz;
+    # in blocks of frames and frame by frame
     rng = np.random.default_rng(4)
     sizes = [3, 1, 2, 3, 3, 2]
     bounds = np.cumsum([0, *sizes])
-    n_p, n, n_sys = int(bounds[-1]), 21, 30
+    n_p, n, n_sys = int(bounds[-1]), 12, 30
+    m = n + ELASTIC_TERMS
     H, y = rng.normal(size=(n_p, 12, n)), rng.normal(size=(n_p, 12))
     dr = rng.normal(size=(n_p, 12, n_sys))
+    f_hz = rng.uniform(10.0, 250.0, n_p)
+    f_hz[[2, 7]] = 0.0, 350.0
     start = Accumulator(
-        RlsState(np.eye(n), rng.normal(size=n), 3.0, 10.0), rng.normal(size=(n, n_sys))
+        RlsState(np.eye(m), rng.normal(size=m), 3.0, 10.0), rng.normal(size=(m, n_sys))
     )
-    want = add_frames(start, H, y, dr, bounds, forgetting)
-    kw: dict[str, Any] = {"forgetting": forgetting, "compiled": compiled}
-    got = add_frames(start, H, y, dr, bounds, **kw)
+    want = add_frames(start, with_tail(H, f_hz), y, dr, bounds, forgetting)
+    phi = (f_hz / ELASTIC_F_REF_HZ) ** 2
+
+    def sums(acc: Accumulator, a: int, b: int) -> Accumulator:
+        return kernel_tail_sums(
+            acc, H[a:b], y[a:b], dr[a:b], bounds[(bounds >= a) & (bounds <= b)] - a,
+            forgetting, phi[a:b], ELASTIC_TERMS, compiled,
+        )  # fmt: skip
+
+    got = sums(start, 0, n_p)
     _close(
         (got.state.info, got.state.vec, np.array(got.state.yty), got.sens),
         (want.state.info, want.state.vec, np.array(want.state.yty), want.sens),
     )
     assert got.state.rows == want.state.rows
+    assert np.array_equal(got.state.info, got.state.info.T)
     # frame by frame: the same bits
     acc = start
     for a, b in itertools.pairwise(bounds):
-        acc = add_frames(acc, H[a:b], y[a:b], dr[a:b], np.array([0, b - a]), **kw)
+        acc = sums(acc, a, b)
     assert np.array_equal(acc.state.info, got.state.info)
     assert np.array_equal(acc.sens, got.sens)
     assert acc.state.yty == got.state.yty
