@@ -55,6 +55,11 @@ class FrameQueue:
         self.frames: list[PendingFrame] = []
         self.noise_var: dict[float, float] = {}  # smoothed channel noise variance per order
         self.cal_hat: np.ndarray | None = None  # the calibration at the last relinearisation
+        # Once a frame with an unseen motion is queued, when the queue is flushed changes
+        # the estimate: estimator.partial_pairs linearises each batch it takes at the state
+        # of that flush. Until then flushes may come whenever (the sums are the same bits),
+        # so a caller may skip running estimates nobody reads (ptinertia.pipeline).
+        self.flush_timing_matters = False
 
     def take(self) -> list[PendingFrame]:
         """The queued frames, in stream order; the queue is left empty."""
@@ -84,6 +89,8 @@ class FrameQueue:
         ``dsp_var`` (k,) a floor for the channel noise variance (what the dsp errs by
         near modes), ``gas`` the measured gas moment in ``moment``.
         """
+        if fit.null is not None:
+            self.flush_timing_matters = True
         floor = max(1e-16 * (power_sum / len(orders)), 1e-30)  # of the mean square
         if self.cal:
             redundancy = self._redundancy_raw(fit, motion, readings, ks)

@@ -109,11 +109,16 @@ def pressure_torque_map(
     above = spectra[:, (index[:, None] + k[None, :]) % n]
     from_cos = 0.5 * np.sum(turn * below + np.conj(turn) * above, axis=0)
     from_sin = 0.5j * np.sum(turn * below - np.conj(turn) * above, axis=0)
+    constant = np.sum(spectra[:, index], axis=0)
+    # the mean torque (order 0) is real: exactly, as the real FFT of the grid gives it
+    mean = index == 0
+    for part in (from_cos, from_sin, constant):
+        part[mean] = part[mean].real
     # half_order_spectrum's scaling: 2 / n, the mean 1 / n
-    scale = np.where(index == 0, 1.0 / n, 2.0 / n)
+    scale = np.where(mean, 1.0 / n, 2.0 / n)
     return PressureTorqueMap(
         orders=h,
-        constant=-engine.crankcase_pressure * np.sum(spectra[:, index], axis=0) * scale,
+        constant=-engine.crankcase_pressure * constant * scale,
         from_re=from_cos * scale[:, None],
         from_im=from_sin * scale[:, None],
     )

@@ -248,7 +248,8 @@ class Pipeline:
         self._last_backlog_report = 0.0
         # Publishing the full estimate (covariance, type-B part) costs more than a
         # frame update: do it every estimate_period_s of stream time (deterministic,
-        # so a replay publishes the same estimates at the same frames).
+        # so a replay publishes the same estimates at the same frames, to the sinks
+        # that want them: see _frames).
         # A live run publishes after every used frame (a bench engineer watches it);
         # as fast as possible, every 0.5 s of stream time is plenty (a publish
         # forces the queued frames' rows to be assembled: it is not free).
@@ -290,15 +291,20 @@ class Pipeline:
         if last_used is not None and (
             last_used.time_s - self._last_estimate_t >= self.estimate_period_s
         ):
-            readers = [sink for sink in self.sinks if wants_estimates(sink)]
-            if not readers:  # computed for nobody (see Sink.wants_estimates)
-                return
+            # The schedule runs whether or not the estimate is computed: once a frame with
+            # an unseen motion is queued, every run of the stream must flush at the same
+            # frames (estimator.pending_rows.FrameQueue.flush_timing_matters); until then
+            # an estimate no sink wants is skipped (Sink.wants_estimates).
             self._last_estimate_t = last_used.time_s
+            if not any(wants_estimates(sink) for sink in self.sinks) and (
+                not self.estimator.queue.flush_timing_matters
+            ):
+                return
             self._published = True
             update = EstimateUpdate(
                 last_used.time_s, last_used.rpm, self.estimator.estimate(final=False)
             )
-            for sink in readers:
+            for sink in self.sinks:  # (computed: every sink gets it)
                 sink.on_estimate(update)
 
     def _backlog(self, enqueued: float) -> None:

@@ -41,6 +41,7 @@ class ProgressLine(Sink):
         self.estimate: Estimate | None = None
         self._dirty = False
         self._fresh = False  # an estimate came since the last rewrite
+        self._missed = False  # the last rewrite had no fresh estimate to show
 
     def start(self, context: RunContext) -> None:
         self._t0 = self.clock()
@@ -61,9 +62,12 @@ class ProgressLine(Sink):
     def wants_estimates(self) -> bool:
         # only what the line will show: none when quiet; else one estimate per rewrite,
         # taken in the last second before it is due (on a terminal's 0.2 s: right after
-        # the previous rewrite), so the line is never more than a second behind
+        # the previous rewrite), so the line is never more than a second behind; and the
+        # next one whenever the line has none, or a rewrite went out without a fresh one
         if self.quiet or self._fresh:
             return False
+        if self.estimate is None or self._missed:
+            return True
         return self.clock() - self._last >= self.period - min(1.0, self.period)
 
     def on_event(self, event: SourceEvent) -> None:
@@ -103,6 +107,7 @@ class ProgressLine(Sink):
             self.stream.write(self.line() + "\n")
         self.stream.flush()
         self._dirty = False
+        self._missed = not self._fresh
         self._fresh = False
 
     def _clear(self) -> None:

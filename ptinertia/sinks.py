@@ -102,9 +102,12 @@ def wants_estimates(sink: Any) -> bool:
 
     When no sink of a run wants it (a quiet replay, a campaign's runs), the pipeline does
     not compute the estimate: a published estimate costs a flush and a solve (about 0.04 s
-    a minute of log at 79 estimates). The final estimate has the same bits either way,
-    since the estimator's sums do not depend on when its queued frames are flushed
-    (``tests/ptinertia/test_published_estimates.py`` pins it).
+    a minute of log at 79 estimates). The final estimate has the same bits either way: the
+    sums of fully measured frames do not depend on when the queue is flushed, and once a
+    frame with an unseen motion is queued (whose rows do depend on it) the estimate is
+    computed on schedule whether wanted or not (``ptinertia.pipeline``;
+    ``tests/ptinertia/test_published_estimates.py`` pins both). A computed estimate goes
+    to every sink.
     """
     return not hasattr(sink, "wants_estimates") or bool(sink.wants_estimates())
 

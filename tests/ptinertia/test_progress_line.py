@@ -57,3 +57,16 @@ def test_the_last_line_shows_the_final_estimate() -> None:
     line.close(_estimate(2.5))
     last = out.getvalue().splitlines()[-1]
     assert "t     2.0 s" in last and "Ixx 2.5000" in last
+
+
+def test_a_log_line_without_a_fresh_estimate_takes_the_next_one() -> None:
+    clock, out = Clock(), io.StringIO()
+    line = ProgressLine(out, clock=clock)
+    line.on_estimate(EstimateUpdate(0.5, 3000.0, _estimate(1.0)))
+    _frame(line, 1.0)  # written with it
+    clock.now = 110.5
+    _frame(line, 2.0)  # the next rewrite, no estimate came in its window: a stale line
+    clock.now = 111.0  # far from the next rewrite, yet it wants the next estimate
+    assert line.wants_estimates()
+    line.on_estimate(EstimateUpdate(2.5, 3000.0, _estimate(2.0)))
+    assert not line.wants_estimates()
