@@ -322,5 +322,22 @@ def test_a_failed_start_leaves_no_thread(tmp_path: Path) -> None:
         rec.on_item(SampleBlock("acc", 0, np.zeros((4, 1))))
 
 
+# Writer threads alive when a test starts are not its own: under pytest-xdist a worker's
+# earlier test (another module's recorder, closed and joined) can still be seen exiting on a
+# loaded machine, which failed the full-disk tests now and then. Each test checks the
+# threads it started itself.
+_BEFORE: set[threading.Thread] = set()
+
+
+@pytest.fixture(autouse=True)
+def _threads_before_the_test() -> None:
+    _BEFORE.clear()
+    _BEFORE.update(t for t in threading.enumerate() if t.name == "mcap-writer")
+
+
 def _writer_threads() -> list[threading.Thread]:
-    return [t for t in threading.enumerate() if t.name == "mcap-writer" and t.is_alive()]
+    return [
+        t
+        for t in threading.enumerate()
+        if t.name == "mcap-writer" and t.is_alive() and t not in _BEFORE
+    ]
