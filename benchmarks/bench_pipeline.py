@@ -40,8 +40,10 @@ Prints:
    channel noise); and the replay of the log again, best of three (>= 300x);
 9. the whole chain with every compiled kernel (``PTINERTIA_NUMBA=1``: simulator, dsp,
    estimator), warmed up: live with recording and the replay of its log, best of three,
-   each with the dsp on the processing thread and on its own (issue 24, 2026-11-26, load
-   0.7: live 94x, 88x with the dsp thread, replay 164x, 158x; numpy 48x and 98x).
+   each with the dsp on the processing thread and on its own (issue 24, 2026-11-26 afternoon,
+   load 1.0-1.2: live 123-126x, 117-118x with the dsp thread, replay 243-246x, 235-242x;
+   numpy live 56-73x, replay 113-122x; the morning's build, interleaved: live 106-111x,
+   replay 179-182x).
 
 Usage: python benchmarks/bench_pipeline.py [--hours 1.0] [--skip-long]
 """

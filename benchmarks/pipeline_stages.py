@@ -196,7 +196,10 @@ def estimator_alone(log: Path, repeat: int = 3) -> None:
     With the tail's sums scaled from theta's (estimator/compiled_sums.py) and the row
     covariance from 2/3 of its products (same bits), side by side with 0142dad, best of 5,
     load 6-7: in blocks compiled 66 -> 60-62 us (32-33 -> 28-29), numpy 120-121 / 121-123
-    (unchanged code); one frame at a time (load 14-15) 155 / 155 compiled."""
+    (unchanged code); one frame at a time (load 14-15) 155 / 155 compiled. The afternoon's
+    build on a quiet machine (load 0.9-1.1, two rounds interleaved with 0142dad's): in blocks
+    compiled 62-65 -> 59-60 us, numpy 120-128 -> 119-121; one frame at a time 141 -> 140
+    compiled, 290 -> 289 numpy."""
     from acquisition.stream import SourceEvent
     from estimator import row_kernels
     from ptinertia.pipeline import as_recorded
