@@ -83,9 +83,13 @@ class FrameTracker(Protocol):
 
 
 def as_recorded(item: StreamItem) -> StreamItem:
-    """The item as the recorder stores it (samples rounded to float32)."""
+    """The item as the recorder stores it (samples rounded to float32), its samples a new
+    read-only array: nothing writes to them again, so the recorder may cast them later, on
+    its writer thread (replay.stream_codec.encode_samples_late)."""
     if isinstance(item, SampleBlock) and item.data.dtype != np.float32:
-        return replace(item, data=item.data.astype(np.float32).astype(np.float64))
+        data = item.data.astype(np.float32).astype(np.float64)
+        data.flags.writeable = False
+        return replace(item, data=data)
     return item
 
 

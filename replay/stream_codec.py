@@ -65,8 +65,10 @@ class LateSamples(LateBytes):
     """``/raw/<group>`` as :func:`encode_samples` gives it, the float32 cast and the copy
     left to the writer thread (:class:`replay.mcap_output.LateBytes`).
 
-    The block's array is kept, not copied, until its chunk is written: the pipeline's
-    arrays are its own and nothing writes to them again (``ptinertia.pipeline``).
+    The block's array is kept, not copied, until its chunk is written: only a read-only
+    array (the pipeline's, ``ptinertia.pipeline.as_recorded``, and a replay's), which
+    nobody can write to in between. A writable one may be a caller's buffer, refilled for
+    the next block: it is encoded at once.
     Measured (rec_whole.py, 60 s of 9 channels at 25.6 kHz, 360 blocks): the cast and the
     two copies cost the processing thread 41 ms a minute; the head is about 4 ms.
     """
@@ -86,10 +88,17 @@ class LateSamples(LateBytes):
 
 
 def encode_samples_late(block: SampleBlock, group: SampleGroup) -> bytes | LateSamples:
-    """:func:`encode_samples` as :class:`LateSamples` (plain bytes for an array that is not
-    a numeric one, whose conversion may fail: that fails here, on the caller's thread)."""
+    """:func:`encode_samples` as :class:`LateSamples` for a read-only numeric array; plain
+    bytes for any other (a writable array may be refilled by its owner before the writer
+    thread reads it; a conversion of a non-numeric one may fail: here, on the caller's
+    thread)."""
     data = block.data
-    if not (isinstance(data, np.ndarray) and data.dtype.kind in "fiu" and data.ndim == 2):
+    if not (
+        isinstance(data, np.ndarray)
+        and data.dtype.kind in "fiu"
+        and data.ndim == 2
+        and not data.flags.writeable
+    ):
         return encode_samples(block, group)
     if data.shape != (len(group.channels), block.n_samples):
         raise ValueError(
@@ -161,6 +170,7 @@ def decode_samples(data: bytes | memoryview, layout: StreamLayout) -> SampleBloc
         raise BadMessage(f"group {name!r}: first sample index {first_index} out of range")
     with np.errstate(invalid="ignore"):  # a signalling NaN stays a NaN: a sample known bad
         values = np.frombuffer(samples, dtype="<f4").reshape(n_ch, n).astype(np.float64)
+    values.flags.writeable = False  # (a re-recording may cast them late: encode_samples_late)
     return SampleBlock(group.name, int(first_index), values)
 
 

@@ -133,6 +133,7 @@ def test_sample_block_is_the_protobuf_libraries_bytes(
     data = np.random.default_rng(n).standard_normal((n_ch, n))
     if data.size:
         data.flat[0] = np.nan
+    data.flags.writeable = False  # (the pipeline's arrays are read-only: cast late)
     block = SampleBlock("acc", first_index, data)
     fast = stream_codec.encode_samples(block, group)
     assert fast == stream_codec.encode_samples_reference(block, group)

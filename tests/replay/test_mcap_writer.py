@@ -22,7 +22,7 @@ from mcap.writer import CompressionType, Writer
 from support.mcap_logs import BENCH_TEXT, assert_same_items, synthetic_items, synthetic_layout
 from support.mcap_writer_calls import drive
 
-from acquisition.stream import ChannelSpec, SampleBlock, SampleGroup
+from acquisition.stream import ChannelSpec, SampleBlock, SampleGroup, StreamLayout
 from replay import mcap_output, stream_codec
 from replay.errors import LogError
 from replay.mcap_output import LateBytes
@@ -65,6 +65,7 @@ def test_late_sample_data_is_written_as_the_bytes_it_stands_for() -> None:
     group = SampleGroup("acc", 100.0, tuple(ChannelSpec(f"c{i}", "V") for i in range(3)))
     rng = np.random.default_rng(5)
     wide = rng.standard_normal((3, 4000))
+    wide.flags.writeable = False  # (as the pipeline's: only read-only arrays are cast late)
     blocks = [SampleBlock("acc", 50 * k, wide[:, k : k + 50 * (k % 4)]) for k in range(200)]
     files = []
     for encode in (stream_codec.encode_samples, stream_codec.encode_samples_late):
@@ -87,6 +88,24 @@ def test_late_sample_data_is_written_as_the_bytes_it_stands_for() -> None:
     assert summary is not None and summary.statistics is not None
     assert summary.statistics.message_count == 200
     assert len(summary.chunk_indexes) > 10  # size-bound and flushed chunks both happened
+
+
+def test_a_buffer_refilled_by_its_owner_is_recorded_as_it_was_handed_over(
+    tmp_path: Path,
+) -> None:
+    """A caller may refill one writable array block after block: the recorder encodes such
+    an array at once (only read-only arrays are cast late, on the writer thread)."""
+    layout = StreamLayout((SampleGroup("acc", 100.0, (ChannelSpec("a", "m/s^2"),)),))
+    path = tmp_path / "refilled.mcap"
+    rec = McapRecorder(path, chunk_s=10.0)  # every block waits in one chunk
+    rec.start(RecordingInfo(layout=layout, bench_text=BENCH_TEXT))
+    buffer = np.zeros((1, 10), np.float32)
+    for k in range(40):
+        buffer[:] = k
+        rec.on_item(SampleBlock("acc", 10 * k, buffer))
+    rec.close(None)
+    got = [item.data[0, 0] for item in open_log(path).items() if isinstance(item, SampleBlock)]
+    assert got == [float(k) for k in range(40)]
 
 
 def test_a_chunk_handed_over_whole_is_what_its_messages_one_by_one_give() -> None:
@@ -233,6 +252,22 @@ def test_a_chunk_written_in_pieces_is_the_joined_chunk(
         stream.close()
     assert len(calls) > 4  # chunks went out through writev, whole and short
     assert files[1] == files[0]
+
+
+def test_a_chunk_of_more_parts_than_writev_takes_is_joined(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # os.writev refuses more than IOV_MAX buffers (EINVAL, which would read as a disk
+    # failure): such a chunk is joined and written whole, the same file
+    monkeypatch.setattr(mcap_output, "_IOV_MAX", 2)
+    counted = []
+    monkeypatch.setattr(mcap_output.os, "writev", lambda fd, parts: counted.append(parts) or 0)
+    path = tmp_path / "joined.mcap"
+    with open(path, "wb", buffering=0) as stream:
+        drive(ThreadedWriter(stream, chunk_size=50_000), 1)
+    reference = io.BytesIO()
+    drive(ThreadedWriter(reference, chunk_size=50_000), 1)
+    assert counted == [] and path.read_bytes() == reference.getvalue()
 
 
 class FullDiskFile(io.FileIO):
