@@ -44,6 +44,9 @@ from replay.mcap_records import MAGIC, crc32
 from replay.spilled_bytes import SpilledBytes
 
 COMPRESSIONS = ("zstd", "lz4", "")
+# os.writev takes at most this many buffers (EINVAL beyond): a chunk is 4 parts and one per
+# channel in it, so only a chunk of over a thousand topics is joined instead
+_IOV_MAX = os.sysconf("SC_IOV_MAX") if "SC_IOV_MAX" in os.sysconf_names else 1024
 # zstandard.compress's (and so mcap's) default level; the recorder chooses its own
 # (replay.recorder.ZSTD_LEVEL, docs/recording-format.md)
 ZSTD_LEVEL = 3
@@ -137,7 +140,7 @@ class McapOutput:
         ``write`` nothing overrides) with ``os.writev``, one system call without the copy:
         joining a chunk's ~0.5 MB into fresh memory held the GIL, page faults included
         (writer thread 0.077-0.082 -> 0.072-0.077 s of CPU a minute, ab_rec.py)."""
-        if type(self.stream) is not io.FileIO:
+        if type(self.stream) is not io.FileIO or len(parts) > _IOV_MAX:
             self.write(b"".join(parts))
             return
         n = os.writev(self.stream.fileno(), parts)

@@ -92,6 +92,8 @@ def replay_one(log_path: Path, args: argparse.Namespace, json_path: Path | None)
     source: Any = McapSource(log, speed=parse_speed(args.speed))
     if args.dbc:
         source = redecoded_can(log, bench, args.dbc, log_path)
+    # a damaged log stops here, before a sink creates its output (--record, --rerun save)
+    log.verify()
     sinks = recorder_sinks(args.record) + viewer_sinks(args.rerun, args.record)
     options = RunOptions(
         orders=parse_orders(args.orders),

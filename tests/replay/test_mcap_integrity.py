@@ -146,6 +146,11 @@ def test_damaged_run_metadata_is_refused_in_one_line(
     code, doc, err = replay(log, tmp_path / "r.json", capsys)
     assert (code, doc) == (2, None)
     assert len(err) == 1 and "data section's CRC does not match" in err[0]
+    # re-recorded: refused before the recording is created (no empty log left behind)
+    again = tmp_path / "again.mcap"
+    code, doc, err = replay(log, tmp_path / "r.json", capsys, "--record", str(again))
+    assert (code, doc) == (2, None) and not again.exists()
+    assert len(err) == 1 and "data section's CRC does not match" in err[0]
 
 
 def test_a_crc_checked_beside_the_set_up_stops_the_replay_before_its_first_item(
