@@ -202,8 +202,8 @@ def estimator_alone(log: Path, repeat: int = 3) -> None:
     compiled, 290 -> 289 numpy."""
     from acquisition.stream import SourceEvent
     from estimator import row_kernels
-    from ptinertia.pipeline import as_recorded
     from ptinertia.runner import processing_chain
+    from ptinertia.stage_threads import as_recorded
     from replay.source import McapSource
 
     bench, source, _ = _bench(25600.0, 60.0)

@@ -57,7 +57,7 @@ class McapSource(Source):
     """
 
     # The sample blocks hold the recorded float32 values (in float64): the pipeline need not
-    # round them to float32 again (ptinertia.pipeline.as_recorded would give them back unchanged).
+    # round them to float32 again (ptinertia.stage_threads.as_recorded would give them back unchanged).
     samples_as_recorded = True
 
     def __init__(

@@ -4,7 +4,7 @@ Symmetric pairs: every ``encode_*`` returns the serialised protobuf bytes of a
 :mod:`replay.schemas` message (``/raw/<group>``, ``/raw/edges/<channel>``,
 ``/events``, ``/raw/can``), the matching ``decode_*`` gives back the item the
 source handed to the pipeline. Raw samples travel as float32 (the pipeline has
-already rounded them, see ``ptinertia.pipeline.as_recorded``) and edge times as
+already rounded them, see ``ptinertia.stage_threads.as_recorded``) and edge times as
 float64, so a decoded item equals the original bit for bit. A message that does
 not fit the recorded layout raises :class:`replay.errors.BadMessage`; the reader
 skips it and reports it. What the live run computed (order frames, gating,
@@ -66,7 +66,7 @@ class LateSamples(LateBytes):
     left to the writer thread (:class:`replay.mcap_output.LateBytes`).
 
     The block's array is kept, not copied, until its chunk is written: only a read-only
-    array (the pipeline's, ``ptinertia.pipeline.as_recorded``, and a replay's), which
+    array (the pipeline's, ``ptinertia.stage_threads.as_recorded``, and a replay's), which
     nobody can write to in between. A writable one may be a caller's buffer, refilled for
     the next block: it is encoded at once.
     Measured (rec_whole.py, 60 s of 9 channels at 25.6 kHz, 360 blocks): the cast and the

@@ -18,8 +18,8 @@ from support.mcap_logs import (
 
 from acquisition.stream import SampleBlock, StreamItem
 from estimator.result import EstimateUpdate
-from ptinertia.pipeline import as_recorded
 from ptinertia.sinks import Sink
+from ptinertia.stage_threads import as_recorded
 from replay.errors import LogError
 from replay.recorder import McapRecorder
 from replay.source import McapSource, item_end_time
