@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimator.hypotheses import Accumulator, _rows_after
+from estimator.hypotheses import Accumulator, rows_after
 from estimator.rls import RlsState
 from estimator.row_kernels import jit
 
@@ -73,7 +73,7 @@ def kernel_tail_sums(
         yty,
         sens,
     )
-    rows = _rows_after(st.rows, np.diff(bounds), forgetting)
+    rows = rows_after(st.rows, np.diff(bounds), forgetting)
     return Accumulator(RlsState(info, vec, float(yty[0]), rows), sens)
 
 

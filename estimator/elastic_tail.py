@@ -28,8 +28,14 @@ ELASTIC_TERMS = 9  # the six inertia terms and G, the first nine entries of thet
 def with_tail(H: np.ndarray, f_hz: np.ndarray) -> np.ndarray:
     """Rows (P, 12, n) with the tail columns appended: (P, 12, n + ELASTIC_TERMS), the
     inertia and cog columns times ``(f / ELASTIC_F_REF_HZ)^2`` (``f_hz`` (P,) per pair)."""
-    phi = ((f_hz / ELASTIC_F_REF_HZ) ** 2)[:, None, None]
+    phi = tail_factors(f_hz)[:, None, None]
     return np.concatenate([H, H[:, :, :ELASTIC_TERMS] * phi], axis=2)
+
+
+def tail_factors(f_hz: np.ndarray) -> np.ndarray:
+    """Each pair's factor ``(f / ELASTIC_F_REF_HZ)^2`` on the tail's columns (``f_hz`` (P,)):
+    one formula for the widened rows and the compiled sums, which must agree bit for bit."""
+    return (f_hz / ELASTIC_F_REF_HZ) ** 2
 
 
 def add_with_tail(
@@ -50,8 +56,9 @@ def add_with_tail(
     :func:`estimator.compiled_sums.kernel_tail_sums`, the tail's scaled from theta's
     (no widened copy of H; why: :mod:`estimator.compiled_sums`)."""
     if compiled and redundancy is None:
-        phi = (f_hz / ELASTIC_F_REF_HZ) ** 2
-        return kernel_tail_sums(acc, H, y, dr, bounds, forgetting, phi, ELASTIC_TERMS)
+        return kernel_tail_sums(
+            acc, H, y, dr, bounds, forgetting, tail_factors(f_hz), ELASTIC_TERMS
+        )
     Ha = with_tail(H, f_hz)
     if redundancy is not None:
         return add_frames_redundant(acc, Ha, y, dr, bounds, forgetting, redundancy)

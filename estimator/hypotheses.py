@@ -177,7 +177,7 @@ def add_frames(
                 info=np.add.reduce(np.concatenate([state.info[None], info]), axis=0),
                 vec=np.add.reduce(np.concatenate([state.vec[None], vec]), axis=0),
                 yty=float(np.add.accumulate(np.concatenate([[state.yty], yty]))[-1]),
-                rows=_rows_after(state.rows, sizes, lam),
+                rows=rows_after(state.rows, sizes, lam),
             ),
             np.add.reduce(np.concatenate([total[None], sens]), axis=0),
         )
@@ -188,10 +188,10 @@ def add_frames(
         vec_t = lam * vec_t + vec[f]
         yty_t = lam * yty_t + float(yty[f])
         total = forgetting * total + sens[f]
-    return Accumulator(RlsState(info_t, vec_t, yty_t, _rows_after(state.rows, sizes, lam)), total)
+    return Accumulator(RlsState(info_t, vec_t, yty_t, rows_after(state.rows, sizes, lam)), total)
 
 
-def _rows_after(rows: float, sizes: np.ndarray, lam: float) -> float:
+def rows_after(rows: float, sizes: np.ndarray, lam: float) -> float:
     """The state's row count after frames of ``sizes`` pairs (12 rows each), discounted
     by ``lam`` once per frame, as :func:`add_frame` counts them one frame at a time."""
     if lam == 1.0:
