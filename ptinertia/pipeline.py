@@ -8,9 +8,9 @@ order one thread would. A live source (CAN bus, paced simulator) gets an
 unbounded first queue, so a slow viewer or disk never makes us drop samples:
 the backlog is measured and reported instead. A file or unpaced simulator gets
 a bounded one (back-pressure keeps memory flat; nothing is lost either way);
-the queue between dsp and estimator is always bounded (:data:`ptinertia.stage_threads.TRACKED_ITEMS`).
-The backlog is the time from an item's arrival to the processing thread taking
-it up, its dsp included.
+the queue between dsp and estimator is always bounded
+(:data:`ptinertia.stage_threads.TRACKED_ITEMS`). The backlog is the time from an item's
+arrival to the processing thread taking it up, its dsp included.
 
 A dsp thread (issue 24) overlaps the dsp's numpy calls on whole blocks, which
 release the GIL, with the estimator's small-matrix numpy, which holds it; measured,
@@ -168,7 +168,7 @@ class Pipeline:
             # The schedule runs whether or not the estimate is computed: once a frame with
             # an unseen motion is queued, every run of the stream must flush at the same
             # frames (estimator.pending_rows.FrameQueue.flush_timing_matters); until then
-            # an estimate no sink wants is skipped (Sink.wants_estimates).
+            # an estimate no sink wants is skipped (ptinertia.sinks.wants_estimates).
             self._last_estimate_t = last_used.time_s
             if not any(wants_estimates(sink) for sink in self.sinks) and (
                 not self.estimator.queue.flush_timing_matters

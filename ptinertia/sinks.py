@@ -79,8 +79,9 @@ class Sink(Protocol):
         return None
 
     def on_estimate(self, update: EstimateUpdate) -> None:
-        """The running estimate after a used frame (to the sinks that want it: a sink may
-        say with an optional ``wants_estimates()``, see :func:`wants_estimates`)."""
+        """The running estimate after a used frame: computed on schedule when a sink wants
+        it (an optional ``wants_estimates()``, see :func:`wants_estimates`), then every sink
+        gets it."""
         return None
 
     def on_event(self, event: SourceEvent) -> None:
