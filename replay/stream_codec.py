@@ -44,12 +44,18 @@ def sample_time(block: SampleBlock, group: SampleGroup) -> float:
 def encode_samples(block: SampleBlock, group: SampleGroup) -> bytes:
     """``/raw/<group>``: the block as float32, channel-major."""
     data = np.ascontiguousarray(block.data, dtype="<f4")
+    return _sample_head(block, group, data) + data.tobytes()
+
+
+def _sample_head(block: SampleBlock, group: SampleGroup, data: np.ndarray) -> bytes:
+    """The ``/raw/<group>`` message before its float32 bytes (``wire.sample_block_head``),
+    ``data`` (the block's samples, any dtype) checked against the group's channels."""
     if data.shape != (len(group.channels), block.n_samples):
         raise ValueError(
             f"sample block of group {group.name!r}: expected {len(group.channels)} channels, "
             f"got data of shape {block.data.shape}"
         )
-    return wire.sample_block(
+    return wire.sample_block_head(
         sample_time(block, group),
         group.name,
         int(block.first_index),
@@ -57,7 +63,7 @@ def encode_samples(block: SampleBlock, group: SampleGroup) -> bytes:
         group.t0_s,
         [c.name for c in group.channels],
         block.n_samples,
-        data.tobytes(),
+        4 * data.size,
     )
 
 
@@ -100,22 +106,7 @@ def encode_samples_late(block: SampleBlock, group: SampleGroup) -> bytes | LateS
         and not data.flags.writeable
     ):
         return encode_samples(block, group)
-    if data.shape != (len(group.channels), block.n_samples):
-        raise ValueError(
-            f"sample block of group {group.name!r}: expected {len(group.channels)} channels, "
-            f"got data of shape {data.shape}"
-        )
-    head = wire.sample_block_head(
-        sample_time(block, group),
-        group.name,
-        int(block.first_index),
-        group.rate_hz,
-        group.t0_s,
-        [c.name for c in group.channels],
-        block.n_samples,
-        4 * data.size,
-    )
-    return LateSamples(head, data)
+    return LateSamples(_sample_head(block, group, data), data)
 
 
 def encode_samples_reference(block: SampleBlock, group: SampleGroup) -> bytes:

@@ -16,7 +16,7 @@ message through the protobuf classes; a test checks that both parse to
 messages that serialise identically.
 
 A ``SampleBlock`` is a handful of small fields and one large packed array:
-:func:`sample_block` writes the small fields and appends the float32 bytes
+:func:`sample_block_head` writes the small fields, the float32 bytes are appended
 once, where the protobuf class copies the array in and out again (three
 copies of 0.5 MB for a 0.5 s block of 10 channels at 25.6 kHz).
 """
@@ -77,24 +77,6 @@ def int_field(number: int, n: int) -> bytes:
     return key(number, _VARINT) + varint(n & 0xFFFF_FFFF_FFFF_FFFF) if n else b""
 
 
-def sample_block(
-    time_s: float,
-    group: str,
-    first_index: int,
-    rate_hz: float,
-    t0_s: float,
-    channels: tuple[str, ...] | list[str],
-    n_samples: int,
-    data: bytes,
-) -> bytes:
-    """A serialised ``SampleBlock`` (``data``: the (n_channels, n_samples) float32 bytes):
-    the protobuf class's bytes, with the array copied once instead of three times."""
-    head = sample_block_head(
-        time_s, group, first_index, rate_hz, t0_s, channels, n_samples, len(data)
-    )
-    return head + data
-
-
 def sample_block_head(
     time_s: float,
     group: str,
@@ -105,8 +87,9 @@ def sample_block_head(
     n_samples: int,
     n_bytes: int,
 ) -> bytes:
-    """:func:`sample_block` without its float32 bytes (``n_bytes`` of them): the message is
-    this head followed by the array's bytes, which can then be joined in later. The
+    """A serialised ``SampleBlock`` without its float32 bytes (``n_bytes`` of them): the
+    message is this head followed by the array's (n_channels, n_samples) float32 bytes,
+    which can be joined in later; the protobuf class's bytes, the array copied once. The
     group's own fields are laid out once (:func:`_group_fields`)."""
     rates = struct.pack("<dd", rate_hz, t0_s)  # (bits, not floats: -0.0 is written, 0.0 not)
     group_field, layout_fields = _group_fields(group, rates, tuple(channels))
