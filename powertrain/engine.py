@@ -51,6 +51,7 @@ from powertrain.half_orders import (
     half_order_spectrum,
     rpm_to_omega,
 )
+from powertrain.inertia_spectra import shared_spectra
 from powertrain.rigidbody import rotation_matrix
 from powertrain.slider_crank import SliderCrank
 
@@ -302,9 +303,9 @@ class Engine:
 
     @cached_property
     def _unit_inertia_spectra(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """FFT at unit speed of force, moment about the reference point, inertia torque."""
-        f, m, torque = self._inertia_parts(self._grid, self.reference_point)
-        return half_order_spectrum(f), half_order_spectrum(m), half_order_spectrum(torque)
+        """FFT at unit speed of force, moment about the reference point, inertia torque
+        (read-only, shared by engines of the same inertia: :mod:`powertrain.inertia_spectra`)."""
+        return shared_spectra(self)
 
     @cached_property
     def _gas_spectrum(self) -> np.ndarray | None:
