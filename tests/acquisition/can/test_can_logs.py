@@ -20,18 +20,13 @@ from acquisition.can.logs import FrameLogWriter, is_can_log, read_frames, write_
 from acquisition.stream import EdgeBlock, SampleBlock, SourceError, SourceEvent
 from ptinertia.config import load_bench
 from ptinertia.sources import open_source
-from ptinertia.to_can import can_plan
 
 FORMATS = ["blf", "asc", "trc", "log", "mf4"]
 
 
 @pytest.fixture(scope="module")
-def plan(i3):
-    return can_plan(i3, DBC)
-
-
-@pytest.fixture(scope="module")
-def reference(i3):
+def reference_2s(i3):
+    """The simulated stream of the frames' 2 s (conftest.py's ``reference`` is longer)."""
     return simulated(i3, duration_s=2.0)
 
 
@@ -41,7 +36,7 @@ def frames(i3, plan):
 
 
 @pytest.mark.parametrize("fmt", FORMATS)
-def test_log_replays_the_simulated_stream(tmp_path, plan, reference, frames, fmt):
+def test_log_replays_the_simulated_stream(tmp_path, plan, reference_2s, frames, fmt):
     path = tmp_path / f"run.{fmt}"
     assert write_can_log(path, frames) == len(frames)
     back = [f for batch in read_frames(path, batch_frames=777) for f in batch]
@@ -52,7 +47,7 @@ def test_log_replays_the_simulated_stream(tmp_path, plan, reference, frames, fmt
     bench = load_bench(can_bench_file(tmp_path))
     with open_source(f"file:{path}", bench) as src:
         items = list(src)
-    check_same_stream(plan, *reference, items)
+    check_same_stream(plan, *reference_2s, items)
     assert items[-1].kind == "can_stats" and "0 lost" in items[-1].message
 
 
@@ -140,7 +135,7 @@ def test_same_frames_same_items_whatever_the_format(tmp_path, plan, frames):
 
 @pytest.mark.parametrize("fmt", ["asc.gz", "log.gz"])
 def test_compressed_logs_written_by_python_can_replay_the_stream(
-    tmp_path, plan, reference, frames, fmt
+    tmp_path, plan, reference_2s, frames, fmt
 ):
     path = tmp_path / f"run.{fmt}"
     with can.Logger(str(path)) as log:  # python-can's own compressed writer
@@ -150,10 +145,10 @@ def test_compressed_logs_written_by_python_can_replay_the_stream(
     bench = load_bench(can_bench_file(tmp_path))
     with open_source(f"file:{path}", bench) as src:
         items = list(src)
-    check_same_stream(plan, *reference, items)
+    check_same_stream(plan, *reference_2s, items)
 
 
-def test_a_gzipped_blf_replays_the_stream(tmp_path, plan, reference, frames):
+def test_a_gzipped_blf_replays_the_stream(tmp_path, plan, reference_2s, frames):
     # python-can writes no .blf.gz (its writer refuses) but reads one: gzip of a BLF it wrote
     import gzip
 
@@ -164,7 +159,7 @@ def test_a_gzipped_blf_replays_the_stream(tmp_path, plan, reference, frames):
     bench = load_bench(can_bench_file(tmp_path))
     with open_source(f"file:{path}", bench) as src:
         items = list(src)
-    check_same_stream(plan, *reference, items)
+    check_same_stream(plan, *reference_2s, items)
 
 
 def test_a_log_of_another_bench_names_the_expected_messages_and_the_ids_it_holds(tmp_path, i3):

@@ -12,21 +12,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from support.can_streams import DBC, RUN, sim_frames
+from support.can_streams import RUN, sim_frames
 
 from acquisition.can.faults import FaultInjector, FaultRates
 from acquisition.can.source import CanFrameSource
 from ptinertia.runner import RunOptions, run_source
 from ptinertia.sources import open_source
-from ptinertia.to_can import can_plan
 
 TERMS = ("Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 SIM = {**RUN}  # 8 s, 1500 -> 4500 rpm, realistic sensor errors, seed 3
-
-
-@pytest.fixture(scope="module")
-def plan(i3):
-    return can_plan(i3, DBC)
 
 
 @pytest.fixture(scope="module")

@@ -25,8 +25,6 @@ from ptinertia.viewer.scene import (
 
 ROOT = Path(__file__).resolve().parents[3]
 I3 = ROOT / "examples" / "i3-bench.toml"
-NO_DISPLAY: dict[str, str] = {}
-X11 = {"DISPLAY": ":0"}
 
 
 # -- geometry ---------------------------------------------------------------------------------

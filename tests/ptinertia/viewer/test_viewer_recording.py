@@ -28,9 +28,6 @@ from ptinertia.viewer.options import open_recording, parse_rerun_option
 from ptinertia.viewer.rerun_sink import RerunSink, ViewerMode, estimate_rows
 
 ROOT = Path(__file__).resolve().parents[3]
-I3 = ROOT / "examples" / "i3-bench.toml"
-NO_DISPLAY: dict[str, str] = {}
-X11 = {"DISPLAY": ":0"}
 
 
 # -- the saved recording ----------------------------------------------------------------------
