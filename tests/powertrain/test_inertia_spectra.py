@@ -16,10 +16,10 @@ from powertrain.half_orders import half_order_spectrum
 from powertrain.inertia_spectra import NOT_INERTIA, inertia_key
 
 
-def _loaded(**kw) -> Engine:
+def _loaded(base=inline4, **kw) -> Engine:
     """An engine with every kind of inertia load: rods with their own inertia, a crank
     unbalance and a balance shaft, on a tilted cylinder axis."""
-    return inline4(
+    return base(
         gas=GAS,
         tilt=0.2,
         conrod_inertia=1.5e-3,
@@ -55,9 +55,71 @@ def test_the_fields_the_key_leaves_out_move_no_inertia_load(field, value):
         assert not np.array_equal(engine.gas_torque_orders([2.0]), other.gas_torque_orders([2.0]))
 
 
+# Every field the key keeps, changed validly. Two are kept though no inertia load reads
+# them (a cache miss at worst): the bore, and the firing order (the throw angles must
+# agree with it, so they change together here).
+KEPT_UNREAD = {"bore", "firing_order"}
+CHANGES = {
+    "cylinders": lambda e: inline3(samples_per_cycle=512),
+    "stroke": lambda e: dataclasses.replace(e, stroke=e.stroke * 1.01),
+    "conrod_length": lambda e: dataclasses.replace(e, conrod_length=e.conrod_length * 1.01),
+    "conrod_mass": lambda e: dataclasses.replace(e, conrod_mass=e.conrod_mass * 1.01),
+    "conrod_cog_from_big_end": lambda e: dataclasses.replace(
+        e, conrod_cog_from_big_end=e.conrod_cog_from_big_end * 1.1
+    ),
+    "piston_mass": lambda e: dataclasses.replace(e, piston_mass=e.piston_mass * 1.01),
+    "reference_point": lambda e: dataclasses.replace(e, reference_point=[0.0, 0.0, 0.01]),
+    "cylinder_positions": lambda e: dataclasses.replace(
+        e, cylinder_positions=e.cylinder_positions + 0.01
+    ),
+    # (an inline 4's throws are the same for every firing order: the test takes an inline 3)
+    "throw_angles": lambda e: dataclasses.replace(
+        e, throw_angles=np.deg2rad([0.0, 120.0, 240.0]), firing_order=(1, 3, 2)
+    ),
+    "conrod_inertia": lambda e: dataclasses.replace(e, conrod_inertia=2e-3),
+    "crank_axis": lambda e: dataclasses.replace(e, crank_axis=[1.0, 0.0, 0.0]),
+    "cylinder_axis": lambda e: dataclasses.replace(e, cylinder_axis=[1.0, 0.0, 0.0]),
+    "tilt": lambda e: dataclasses.replace(e, tilt=0.3),
+    "unbalances": lambda e: dataclasses.replace(e, unbalances=(Unbalance(mr=3e-4, angle=0.3),)),
+    "balance_shafts": lambda e: dataclasses.replace(
+        e, balance_shafts=(BalanceShaft(order=2, mr=2e-3, angle=0.1),)
+    ),
+    "samples_per_cycle": lambda e: dataclasses.replace(e, samples_per_cycle=256),
+}
+
+
 def test_the_key_keeps_every_other_field():
-    names = {name for name, *_ in inertia_key(_loaded())}
+    names = {name for name, _ in inertia_key(_loaded())[1:]}
     assert names == {f.name for f in dataclasses.fields(Engine)} - NOT_INERTIA
+    # every field the key keeps is read by the inertia loads (changed below), or said not to be
+    assert names == CHANGES.keys() | KEPT_UNREAD
+
+
+@pytest.mark.parametrize("field", sorted(CHANGES), ids=sorted(CHANGES))
+def test_every_field_the_key_keeps_moves_the_inertia_loads(field):
+    engine = _loaded(inline3) if field == "throw_angles" else _loaded()
+    other = CHANGES[field](engine)
+    assert getattr(other, field) is not getattr(engine, field)
+    assert inertia_key(other) != inertia_key(engine)
+    own, changed = _computed(engine), _computed(other)
+    assert any(
+        a.shape != b.shape or not np.allclose(a, b) for a, b in zip(own, changed, strict=True)
+    )
+    for got, want in zip(other._unit_inertia_spectra, changed, strict=True):
+        assert got.tobytes() == want.tobytes()
+
+
+def test_a_list_of_unbalances_and_an_array_position_are_keys_too():
+    """Engines built by hand with lists or arrays where the bench builds tuples."""
+    shaft = BalanceShaft(order=1, mr=1e-3, position=np.array([0.0, 0.05, -0.1]))  # type: ignore[arg-type]
+    listed = _loaded().__class__(**{
+        **{f.name: getattr(_loaded(), f.name) for f in dataclasses.fields(Engine)},
+        "unbalances": [Unbalance(mr=2e-4)],
+        "balance_shafts": [shaft],
+    })  # fmt: skip
+    hash(inertia_key(listed))
+    for got, want in zip(listed._unit_inertia_spectra, _computed(listed), strict=True):
+        assert got.tobytes() == want.tobytes()
 
 
 def test_engines_of_the_same_inertia_share_the_arrays_and_others_get_their_own():
