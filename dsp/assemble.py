@@ -18,11 +18,13 @@ frames): at 4500 rpm a one-second block completes 75 of them.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from dsp import angle as ang
 from dsp import cycle, kernels
+from dsp.config import Plan
 from dsp.frames import OrderFrame
 from dsp.gap_fit import forget_holes
 from dsp.immutable import evolve
@@ -132,11 +134,10 @@ def _batch(
     referenced = cfg.tacho.phase_reference != "none"
     wait = cfg.cycle_wait_revs * TWO_PI if referenced else 0.0
     end_phi = (js + n) * spacing + 0.5 * tw
+    # the chains' decided offsets, looked up once per frame (a batch holds one or two chains)
+    known = [st.parity.get(c) for c in chains.tolist()]
     decided = np.array(
-        [
-            c in st.parity and st.parity[c][1] <= e + wait
-            for c, e in zip(chains.tolist(), end_phi.tolist(), strict=True)
-        ],
+        [k is not None and k[1] <= e + wait for k, e in zip(known, end_phi.tolist(), strict=True)],
         dtype=bool,
     )
     done = True
@@ -145,13 +146,11 @@ def _batch(
         stop = int(np.argmin(ready)) if not ready.all() else js.size
         if stop < js.size:
             js, chains, decided, done = js[:stop], chains[:stop], decided[:stop], False
+            known = known[:stop]
         if js.size == 0:
             return st, [], False
     parity = np.array(
-        [
-            st.parity[c][0] if d else 0
-            for c, d in zip(chains.tolist(), decided.tolist(), strict=True)
-        ],
+        [k[0] if k is not None and d else 0 for k, d in zip(known, decided.tolist(), strict=True)],
         dtype=np.int64,
     )
     raw = window_amplitudes(st, js)
@@ -246,17 +245,18 @@ def _finish(
     # from the wheel angle to the crank angle: half orders flip with the cycle; with N pulses
     # per revolution every order turns by the offset the cam found (cycle.offset_rotation)
     steps = cycle.offset_steps(tc.kind, tc.teeth)
-    out = out * cycle.offset_rotation(parity, cfg.k2, steps)[:, :, None]
+    const = _constants(plan)
+    out = out * _rotation(parity, const.k2, steps, const.signs)[:, :, None]
     if spectrum is None:
         spectra: list[np.ndarray | None] = [None] * js.size
     else:
-        k = np.arange(cfg.spectrum_size)
-        spec = spectrum[:, : k.size, 0] * cycle.offset_rotation(parity, k, steps)
+        k = const.spectrum_k
+        spec = spectrum[:, : k.size, 0] * _rotation(parity, k, steps, const.spectrum_signs)
         spec[:, 0] = spec[:, 0].real  # the mean: real, its correction is real to rounding
         spectra = list(spec)
     # N pulses without a decided reference: phi is only known modulo 360/N deg
     pulses_unknown = steps > 1
-    orders = tuple(float(h) for h in cfg.orders)
+    orders = const.orders
     in_range = (rpm >= cfg.rpm_min) & (rpm <= cfg.rpm_max)
     uncorrected = (
         (raw["ok"] & ~corrected).any(axis=1) if cfg.leakage_correction else in_range & False
@@ -269,16 +269,20 @@ def _finish(
         strict=True,
     )  # fmt: skip
     # a variance factor only where a window lost samples (most frames have none)
-    holed = (raw["variance"] != 1.0).any(axis=1)
     variances: list[np.ndarray | None] = [None] * js.size
-    for i in np.flatnonzero(holed).tolist():
-        variances[i] = raw["variance"][i]
+    holed = raw["variance"] != 1.0
+    if holed.any():
+        for i in np.flatnonzero(holed.any(axis=1)).tolist():
+            variances[i] = raw["variance"][i]
+    # j * spacing + 2 pi p / steps as Python computes it for ints j, p: the same bits
+    angles = js * spacing + TWO_PI * parity / steps
     columns = zip(
-        js.tolist(), parity.tolist(), times[:, 1].tolist(), rpm.tolist(), rpm_change.tolist(),
+        angles.tolist(), times[:, 1].tolist(), rpm.tolist(), rpm_change.tolist(),
         list(out), list(raw["ok"]), list(leak), raw["flags"].tolist(), keys, spectra, variances,
         strict=True,
     )  # fmt: skip
-    for j, p, t, r, dr, amp, ok, lk, raw_flags, key, sp, var in columns:
+    channels, spectrum_channel = plan.channels, cfg.spectrum_channel
+    for angle, t, r, dr, amp, ok, lk, raw_flags, key, sp, var in columns:
         # most frames share one set of flags: build each distinct set once
         flags = None if raw_flags else cache.get(key)
         if flags is None:
@@ -305,20 +309,59 @@ def _finish(
         frame.__dict__.update(
             time_s=t,
             rpm=r,
-            crank_angle_rad=j * spacing + TWO_PI * p / steps,
+            crank_angle_rad=angle,
             orders=orders,
-            channels=plan.channels,
+            channels=channels,
             amplitudes=amp,
             channel_ok=ok,
             rpm_change=dr,
             leakage=lk,
             flags=flags,
             spectrum=sp,
-            spectrum_channel=cfg.spectrum_channel,
+            spectrum_channel=spectrum_channel,
             variance_factor=var,
         )
         frames.append(frame)
     return frames
+
+
+class _Constants(NamedTuple):
+    """What :func:`_finish` derives from the plan alone, made once per plan."""
+
+    orders: tuple[float, ...]  # the output orders as Python floats
+    k2: np.ndarray  # twice the output orders (config.k2)
+    spectrum_k: np.ndarray  # the spectrum's half orders 0, 1, .. (times two)
+    signs: np.ndarray  # (2, n_orders) offset_rotation of parity 0 and 1 with a wheel
+    spectrum_signs: np.ndarray  # the same for the spectrum's orders
+
+
+_CONSTANTS: dict[int, tuple[Plan, _Constants]] = {}
+
+
+def _constants(plan: Plan) -> _Constants:
+    hit = _CONSTANTS.get(id(plan))
+    if hit is not None and hit[0] is plan:
+        return hit[1]
+    cfg = plan.config
+    k2 = cfg.k2
+    k = np.arange(cfg.spectrum_size)
+    both = np.arange(2)
+    const = _Constants(
+        tuple(float(h) for h in cfg.orders), k2, k,
+        cycle.offset_rotation(both, k2, 1), cycle.offset_rotation(both, k, 1),
+    )  # fmt: skip
+    if len(_CONSTANTS) > 16:
+        _CONSTANTS.clear()  # plans come and go in studies: keep a few
+    _CONSTANTS[id(plan)] = (plan, const)
+    return const
+
+
+def _rotation(parity: np.ndarray, k2: np.ndarray, steps: int, signs: np.ndarray) -> np.ndarray:
+    """:func:`dsp.cycle.offset_rotation`; with a wheel its exact signs ``(-1) ** (k2 s)``
+    depend on ``s mod 2`` alone: rows of the table ``signs`` made for ``s = 0, 1``."""
+    if steps == 1:
+        return signs[parity % 2]
+    return cycle.offset_rotation(parity, k2, steps)
 
 
 def frame_figures(
@@ -354,16 +397,18 @@ def _forget(st: TrackerState, j_next: int) -> TrackerState:
     spacing = TWO_PI / n
     tw = math.radians(st.plan.config.taper_deg)
     lo_phi = (j_next - n) * spacing - 0.5 * tw
-    groups = tuple(
-        evolve(
-            gs,
-            acc=drop_before(gs.acc, j_next - n),
-            spec=drop_before(gs.spec, j_next - n),
-            holes=forget_holes(gs.holes, lo_phi),
-        )
-        for gs in st.groups
-    )
-    invalid = tuple(inv for inv in st.invalid if inv.phi_b >= lo_phi)
+    groups = []
+    for gs in st.groups:
+        acc = drop_before(gs.acc, j_next - n)
+        spec = drop_before(gs.spec, j_next - n)
+        holes = forget_holes(gs.holes, lo_phi)
+        if acc is not gs.acc or spec is not gs.spec or holes is not gs.holes:
+            # a group with nothing to drop (the spectrum's own, a quiet one) stays as it is
+            gs = evolve(gs, acc=acc, spec=spec, holes=holes)
+        groups.append(gs)
+    invalid = st.invalid
+    if invalid and any(inv.phi_b < lo_phi for inv in invalid):
+        invalid = tuple(inv for inv in invalid if inv.phi_b >= lo_phi)
     t_keep = ang.time_at_one(st.table, lo_phi - spacing)
     table = ang.trim(st.table, t_keep) if math.isfinite(t_keep) else st.table
-    return evolve(st, groups=groups, invalid=invalid, table=table, next_frame=j_next)
+    return evolve(st, groups=tuple(groups), invalid=invalid, table=table, next_frame=j_next)
