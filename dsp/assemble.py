@@ -36,6 +36,7 @@ from dsp.sum_rows import drop_before, window_sums
 from dsp.window_amplitudes import window_amplitudes
 
 CHUNK = 512  # frames computed together at most (bounds memory after a long dropout)
+_SPECTRUM_COLUMN = np.zeros(1, np.int64)  # the spectrum channel's column in its x (never modified)
 _new_frame = object.__new__
 
 
@@ -204,7 +205,7 @@ def _spectrum(
         x = np.empty((js.size, sk2.size, 1), complex)  # as the tracked channels' (f, n_int, n_ch)
         scratch = np.empty((js.size, 1)), np.empty((js.size, 1), bool)
         nan_rows, _ = kernels.group_amplitudes(
-            gs.spec, js, n, sk2.size, usable, np.zeros(1, np.int64), x, *scratch
+            gs.spec, js, n, sk2.size, usable, _SPECTRUM_COLUMN, x, *scratch
         )
         x[:, 0, 0] *= 0.5
         usable &= ~nan_rows  # the halved mean keeps finite what was
