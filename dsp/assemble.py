@@ -107,12 +107,16 @@ def _ranges(st: TrackerState, j0: int, j1: int, spacing: float) -> list[tuple[in
 
 
 def _chains(st: TrackerState, phis: np.ndarray) -> np.ndarray:
-    """Parity chain of the run holding each angle (-1 outside every run)."""
+    """Parity chain of the run holding each angle (-1 outside every run); ``phis``
+    increasing (rad)."""
     table = st.table
     if table.run.size and table.run[0] == table.run[-1]:
         # one run in the table (no re-sync within reach): one chain, inside its angle span
-        inside = (phis >= table.phi_lo[0]) & (phis <= table.phi_hi[-1])
-        return np.where(inside, st.chain_of_run.get(int(table.run[0]), -1), -1)
+        only = st.chain_of_run.get(int(table.run[0]), -1)
+        lo, hi = table.phi_lo[0], table.phi_hi[-1]
+        if phis.size and phis[0] >= lo and phis[-1] <= hi:
+            return np.full(phis.size, only, dtype=np.int64)  # increasing angles, all inside
+        return np.where((phis >= lo) & (phis <= hi), only, -1)
     t, _ = ang.time_at(table, phis)
     out = np.full(phis.size, -1, dtype=np.int64)
     good = np.isfinite(t)
