@@ -18,13 +18,12 @@ frames): at 4500 rpm a one-second block completes 75 of them.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 
 from dsp import angle as ang
 from dsp import cycle, kernels
-from dsp.config import Plan
+from dsp.frame_constants import frame_constants, rotation
 from dsp.frames import OrderFrame
 from dsp.gap_fit import forget_holes
 from dsp.immutable import evolve
@@ -250,13 +249,13 @@ def _finish(
     # from the wheel angle to the crank angle: half orders flip with the cycle; with N pulses
     # per revolution every order turns by the offset the cam found (cycle.offset_rotation)
     steps = cycle.offset_steps(tc.kind, tc.teeth)
-    const = _constants(plan)
-    out = out * _rotation(parity, const.k2, steps, const.signs)[:, :, None]
+    const = frame_constants(plan)
+    out = out * rotation(parity, const.k2, steps, const.signs)[:, :, None]
     if spectrum is None:
         spectra: list[np.ndarray | None] = [None] * js.size
     else:
         k = const.spectrum_k
-        spec = spectrum[:, : k.size, 0] * _rotation(parity, k, steps, const.spectrum_signs)
+        spec = spectrum[:, : k.size, 0] * rotation(parity, k, steps, const.spectrum_signs)
         spec[:, 0] = spec[:, 0].real  # the mean: real, its correction is real to rounding
         spectra = list(spec)
     # N pulses without a decided reference: phi is only known modulo 360/N deg
@@ -328,45 +327,6 @@ def _finish(
         )
         frames.append(frame)
     return frames
-
-
-class _Constants(NamedTuple):
-    """What :func:`_finish` derives from the plan alone, made once per plan."""
-
-    orders: tuple[float, ...]  # the output orders as Python floats
-    k2: np.ndarray  # twice the output orders (config.k2)
-    spectrum_k: np.ndarray  # the spectrum's half orders 0, 1, .. (times two)
-    signs: np.ndarray  # (2, n_orders) offset_rotation of parity 0 and 1 with a wheel
-    spectrum_signs: np.ndarray  # the same for the spectrum's orders
-
-
-_CONSTANTS: dict[int, tuple[Plan, _Constants]] = {}
-
-
-def _constants(plan: Plan) -> _Constants:
-    hit = _CONSTANTS.get(id(plan))
-    if hit is not None and hit[0] is plan:
-        return hit[1]
-    cfg = plan.config
-    k2 = cfg.k2
-    k = np.arange(cfg.spectrum_size)
-    both = np.arange(2)
-    const = _Constants(
-        tuple(float(h) for h in cfg.orders), k2, k,
-        cycle.offset_rotation(both, k2, 1), cycle.offset_rotation(both, k, 1),
-    )  # fmt: skip
-    if len(_CONSTANTS) > 16:
-        _CONSTANTS.clear()  # plans come and go in studies: keep a few
-    _CONSTANTS[id(plan)] = (plan, const)
-    return const
-
-
-def _rotation(parity: np.ndarray, k2: np.ndarray, steps: int, signs: np.ndarray) -> np.ndarray:
-    """:func:`dsp.cycle.offset_rotation`; with a wheel its exact signs ``(-1) ** (k2 s)``
-    depend on ``s mod 2`` alone: rows of the table ``signs`` made for ``s = 0, 1``."""
-    if steps == 1:
-        return signs[parity % 2]
-    return cycle.offset_rotation(parity, k2, steps)
 
 
 def frame_figures(
