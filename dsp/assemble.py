@@ -23,6 +23,7 @@ import numpy as np
 
 from dsp import angle as ang
 from dsp import cycle, kernels
+from dsp.frame_constants import frame_constants, rotation
 from dsp.frames import OrderFrame
 from dsp.gap_fit import forget_holes
 from dsp.immutable import evolve
@@ -34,6 +35,7 @@ from dsp.sum_rows import drop_before, window_sums
 from dsp.window_amplitudes import window_amplitudes
 
 CHUNK = 512  # frames computed together at most (bounds memory after a long dropout)
+_SPECTRUM_COLUMN = np.zeros(1, np.int64)  # the spectrum channel's column in its x (never modified)
 _new_frame = object.__new__
 
 
@@ -104,12 +106,16 @@ def _ranges(st: TrackerState, j0: int, j1: int, spacing: float) -> list[tuple[in
 
 
 def _chains(st: TrackerState, phis: np.ndarray) -> np.ndarray:
-    """Parity chain of the run holding each angle (-1 outside every run)."""
+    """Parity chain of the run holding each angle (-1 outside every run); ``phis``
+    increasing (rad)."""
     table = st.table
     if table.run.size and table.run[0] == table.run[-1]:
         # one run in the table (no re-sync within reach): one chain, inside its angle span
-        inside = (phis >= table.phi_lo[0]) & (phis <= table.phi_hi[-1])
-        return np.where(inside, st.chain_of_run.get(int(table.run[0]), -1), -1)
+        only = st.chain_of_run.get(int(table.run[0]), -1)
+        lo, hi = table.phi_lo[0], table.phi_hi[-1]
+        if phis.size and phis[0] >= lo and phis[-1] <= hi:
+            return np.full(phis.size, only, dtype=np.int64)  # increasing angles, all inside
+        return np.where((phis >= lo) & (phis <= hi), only, -1)
     t, _ = ang.time_at(table, phis)
     out = np.full(phis.size, -1, dtype=np.int64)
     good = np.isfinite(t)
@@ -132,11 +138,10 @@ def _batch(
     referenced = cfg.tacho.phase_reference != "none"
     wait = cfg.cycle_wait_revs * TWO_PI if referenced else 0.0
     end_phi = (js + n) * spacing + 0.5 * tw
+    # the chains' decided offsets, looked up once per frame (a batch holds one or two chains)
+    known = [st.parity.get(c) for c in chains.tolist()]
     decided = np.array(
-        [
-            c in st.parity and st.parity[c][1] <= e + wait
-            for c, e in zip(chains.tolist(), end_phi.tolist(), strict=True)
-        ],
+        [k is not None and k[1] <= e + wait for k, e in zip(known, end_phi.tolist(), strict=True)],
         dtype=bool,
     )
     done = True
@@ -145,13 +150,11 @@ def _batch(
         stop = int(np.argmin(ready)) if not ready.all() else js.size
         if stop < js.size:
             js, chains, decided, done = js[:stop], chains[:stop], decided[:stop], False
+            known = known[:stop]
         if js.size == 0:
             return st, [], False
     parity = np.array(
-        [
-            st.parity[c][0] if d else 0
-            for c, d in zip(chains.tolist(), decided.tolist(), strict=True)
-        ],
+        [k[0] if k is not None and d else 0 for k, d in zip(known, decided.tolist(), strict=True)],
         dtype=np.int64,
     )
     raw = window_amplitudes(st, js)
@@ -205,7 +208,7 @@ def _spectrum(
         x = np.empty((js.size, sk2.size, 1), complex)  # as the tracked channels' (f, n_int, n_ch)
         scratch = np.empty((js.size, 1)), np.empty((js.size, 1), bool)
         nan_rows, _ = kernels.group_amplitudes(
-            gs.spec, js, n, sk2.size, usable, np.zeros(1, np.int64), x, *scratch
+            gs.spec, js, n, sk2.size, usable, _SPECTRUM_COLUMN, x, *scratch
         )
         x[:, 0, 0] *= 0.5
         usable &= ~nan_rows  # the halved mean keeps finite what was
@@ -246,17 +249,18 @@ def _finish(
     # from the wheel angle to the crank angle: half orders flip with the cycle; with N pulses
     # per revolution every order turns by the offset the cam found (cycle.offset_rotation)
     steps = cycle.offset_steps(tc.kind, tc.teeth)
-    out = out * cycle.offset_rotation(parity, cfg.k2, steps)[:, :, None]
+    const = frame_constants(plan)
+    out = out * rotation(parity, const.k2, steps, const.signs)[:, :, None]
     if spectrum is None:
         spectra: list[np.ndarray | None] = [None] * js.size
     else:
-        k = np.arange(cfg.spectrum_size)
-        spec = spectrum[:, : k.size, 0] * cycle.offset_rotation(parity, k, steps)
+        k = const.spectrum_k
+        spec = spectrum[:, : k.size, 0] * rotation(parity, k, steps, const.spectrum_signs)
         spec[:, 0] = spec[:, 0].real  # the mean: real, its correction is real to rounding
         spectra = list(spec)
     # N pulses without a decided reference: phi is only known modulo 360/N deg
     pulses_unknown = steps > 1
-    orders = tuple(float(h) for h in cfg.orders)
+    orders = const.orders
     in_range = (rpm >= cfg.rpm_min) & (rpm <= cfg.rpm_max)
     uncorrected = (
         (raw["ok"] & ~corrected).any(axis=1) if cfg.leakage_correction else in_range & False
@@ -269,16 +273,20 @@ def _finish(
         strict=True,
     )  # fmt: skip
     # a variance factor only where a window lost samples (most frames have none)
-    holed = (raw["variance"] != 1.0).any(axis=1)
     variances: list[np.ndarray | None] = [None] * js.size
-    for i in np.flatnonzero(holed).tolist():
-        variances[i] = raw["variance"][i]
+    holed = raw["variance"] != 1.0
+    if holed.any():
+        for i in np.flatnonzero(holed.any(axis=1)).tolist():
+            variances[i] = raw["variance"][i]
+    # j * spacing + 2 pi p / steps as Python computes it for ints j, p: the same bits
+    angles = js * spacing + TWO_PI * parity / steps
     columns = zip(
-        js.tolist(), parity.tolist(), times[:, 1].tolist(), rpm.tolist(), rpm_change.tolist(),
+        angles.tolist(), times[:, 1].tolist(), rpm.tolist(), rpm_change.tolist(),
         list(out), list(raw["ok"]), list(leak), raw["flags"].tolist(), keys, spectra, variances,
         strict=True,
     )  # fmt: skip
-    for j, p, t, r, dr, amp, ok, lk, raw_flags, key, sp, var in columns:
+    channels, spectrum_channel = plan.channels, cfg.spectrum_channel
+    for angle, t, r, dr, amp, ok, lk, raw_flags, key, sp, var in columns:
         # most frames share one set of flags: build each distinct set once
         flags = None if raw_flags else cache.get(key)
         if flags is None:
@@ -305,16 +313,16 @@ def _finish(
         frame.__dict__.update(
             time_s=t,
             rpm=r,
-            crank_angle_rad=j * spacing + TWO_PI * p / steps,
+            crank_angle_rad=angle,
             orders=orders,
-            channels=plan.channels,
+            channels=channels,
             amplitudes=amp,
             channel_ok=ok,
             rpm_change=dr,
             leakage=lk,
             flags=flags,
             spectrum=sp,
-            spectrum_channel=cfg.spectrum_channel,
+            spectrum_channel=spectrum_channel,
             variance_factor=var,
         )
         frames.append(frame)
@@ -354,16 +362,18 @@ def _forget(st: TrackerState, j_next: int) -> TrackerState:
     spacing = TWO_PI / n
     tw = math.radians(st.plan.config.taper_deg)
     lo_phi = (j_next - n) * spacing - 0.5 * tw
-    groups = tuple(
-        evolve(
-            gs,
-            acc=drop_before(gs.acc, j_next - n),
-            spec=drop_before(gs.spec, j_next - n),
-            holes=forget_holes(gs.holes, lo_phi),
-        )
-        for gs in st.groups
-    )
-    invalid = tuple(inv for inv in st.invalid if inv.phi_b >= lo_phi)
+    groups = []
+    for gs in st.groups:
+        acc = drop_before(gs.acc, j_next - n)
+        spec = drop_before(gs.spec, j_next - n)
+        holes = forget_holes(gs.holes, lo_phi)
+        if acc is not gs.acc or spec is not gs.spec or holes is not gs.holes:
+            # a group with nothing to drop (the spectrum's own, a quiet one) stays as it is
+            gs = evolve(gs, acc=acc, spec=spec, holes=holes)
+        groups.append(gs)
+    invalid = st.invalid
+    if invalid and any(inv.phi_b < lo_phi for inv in invalid):
+        invalid = tuple(inv for inv in invalid if inv.phi_b >= lo_phi)
     t_keep = ang.time_at_one(st.table, lo_phi - spacing)
     table = ang.trim(st.table, t_keep) if math.isfinite(t_keep) else st.table
-    return evolve(st, groups=groups, invalid=invalid, table=table, next_frame=j_next)
+    return evolve(st, groups=tuple(groups), invalid=invalid, table=table, next_frame=j_next)

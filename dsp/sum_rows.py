@@ -202,5 +202,8 @@ def amplitudes_of_windows(
 
 
 def drop_before(rows: dict[int, Row], m: int) -> dict[int, Row]:
-    """The rows from segment ``m`` on."""
+    """The rows from segment ``m`` on (``rows`` itself when it holds none before: the
+    maps are never modified, only replaced)."""
+    if not rows or min(rows) >= m:
+        return rows
     return {k: v for k, v in rows.items() if k >= m}

@@ -10,6 +10,7 @@ On the compiled path a group without holes goes through :func:`dsp.kernels.group
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -29,7 +30,8 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
     spacing = TWO_PI / n
     tw = math.radians(cfg.taper_deg)
     f, n_ch, n_int = js.size, len(plan.channels), plan.k2.size
-    flags: list[set[str]] = [set() for _ in range(f)]
+    # a frame's flags: the shared empty set until it gets one (most frames never do)
+    flags: list[set[str] | frozenset[str]] = [_NONE] * f
     tacho_bad = np.zeros(f, bool)
     bad_group = np.zeros((f, len(plan.groups)), bool)
     if st.invalid:
@@ -38,8 +40,7 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
         hit = np.flatnonzero((inv.phi_a < hi_phi) & (inv.phi_b > lo_phi))
         # a gap in a group that holds nothing but the spectrum channel only NaNs the spectrum
         if inv.group is None or not plan.groups[inv.group].spectrum_only:
-            for i in hit:
-                flags[i].add(inv.reason)
+            _flag(flags, hit, inv.reason)
         if inv.group is None:
             tacho_bad[hit] = True
         else:
@@ -55,7 +56,6 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
     ms = np.full((f, n_ch), np.nan)
     ok = np.zeros((f, n_ch), bool)
     variance = np.ones((f, n_ch))
-    lo_w, hi_w = (js - n) * spacing - 0.5 * tw, (js + n) * spacing + 0.5 * tw
     for gi, g in enumerate(plan.groups):
         if not g.track_rows:
             continue
@@ -64,12 +64,12 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
             # sums, amplitudes and flags in two compiled calls: the same bits as below
             usable = ~(tacho_bad | bad_group[:, gi])
             nan_rows, clip_rows = kernels.group_amplitudes(
-                st.groups[gi].acc, js, n, n_int, usable, np.array(g.track_cols), x, ms, ok
+                st.groups[gi].acc, js, n, n_int, usable, _cols_array(g.track_cols), x, ms, ok
             )
-            for i in np.flatnonzero(nan_rows):
-                flags[i].add("nan")
-            for i in np.flatnonzero(clip_rows):
-                flags[i].add("clipped")
+            if nan_rows.any():
+                _flag(flags, np.flatnonzero(nan_rows), "nan")
+            if clip_rows.any():
+                _flag(flags, np.flatnonzero(clip_rows), "clipped")
             continue
         cols = _columns(g.track_cols)
         sums = kernels.window_sums if kernels.USE else window_sums  # the same bits
@@ -81,6 +81,7 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
         if holes[0].size:
             # windows with missing samples: filled from the cycle before or fitted over the
             # samples present (dsp.gap_fit)
+            lo_w, hi_w = (js - n) * spacing - 0.5 * tw, (js + n) * spacing + 0.5 * tw
             xg, factor = refit(xg, w, holes, lo_w, hi_w, plan.k2, plan.out, tw)
             variance[:, cols] = factor
         usable = ~(tacho_bad | bad_group[:, gi])
@@ -93,11 +94,9 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
         clip = clipped & usable[:, None]
         ok[:, cols] = usable[:, None] & ~nan & ~clip
         if nan.any():
-            for i in np.flatnonzero(nan.any(axis=1)):
-                flags[i].add("nan")
+            _flag(flags, np.flatnonzero(nan.any(axis=1)), "nan")
         if clip.any():
-            for i in np.flatnonzero(clip.any(axis=1)):
-                flags[i].add("clipped")
+            _flag(flags, np.flatnonzero(clip.any(axis=1)), "clipped")
     return {
         "x": x,
         "ms": ms,
@@ -109,6 +108,27 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
         "tacho_bad": tacho_bad,
         "bad_group": bad_group,
     }
+
+
+_NONE: frozenset[str] = frozenset()
+
+
+def _flag(flags: list[set[str] | frozenset[str]], frames: np.ndarray, reason: str) -> None:
+    """Add ``reason`` to the flags of ``frames`` (indices into ``flags``)."""
+    for i in frames.tolist():
+        have = flags[i]
+        if have is _NONE:
+            flags[i] = {reason}
+        else:
+            assert isinstance(have, set)
+            have.add(reason)
+
+
+@functools.cache
+def _cols_array(cols: tuple[int, ...]) -> np.ndarray:
+    """A group's channel columns as the compiled call takes them, made once (never
+    modified; left writeable: numba compiles a read-only array as another type)."""
+    return np.array(cols, dtype=np.int64)
 
 
 def _columns(cols: tuple[int, ...]) -> slice | list[int]:
