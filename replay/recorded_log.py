@@ -261,13 +261,15 @@ class RecordedLog:
 
     def items(self) -> Iterator[StreamItem]:
         """The raw stream (sample blocks, edge blocks, source events) in its original order."""
-        kinds = self.raw_topics
+        kinds, layout = self.raw_topics, self.layout
+        samples = stream_codec.SampleDecoder(layout).decode
+        sample_block, edge_block = full_name("SampleBlock"), full_name("EdgeBlock")
         for topic, name, _, data in self.messages(kinds, views=True):
             try:
-                if name == full_name("SampleBlock"):
-                    yield stream_codec.decode_samples(data, self.layout)
-                elif name == full_name("EdgeBlock"):
-                    yield stream_codec.decode_edges(data, self.layout)
+                if name == sample_block:
+                    yield samples(data)
+                elif name == edge_block:
+                    yield stream_codec.decode_edges(data, layout)
                 else:
                     origin, event = stream_codec.decode_event(data)
                     if origin != "dsp":

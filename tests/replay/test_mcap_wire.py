@@ -205,6 +205,75 @@ def test_sample_blocks_read_as_the_protobuf_library_reads_them() -> None:
             stream_codec.decode_samples(refused[name], group_layout(group))
 
 
+def test_a_layouts_sample_decoder_reads_what_decode_samples_reads(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """``stream_codec.SampleDecoder`` (the replay's head matched against the layout's bytes)
+    gives decode_samples' block or error on every message: our writer's (read without
+    decode_samples), messages laid out otherwise, of other layouts, damaged or cut."""
+    channels = (ChannelSpec("x", "V"), ChannelSpec("y", "V"))
+    groups = (
+        SampleGroup("acc", 100.0, channels, 0.5),
+        SampleGroup("p", 25600.0, channels[:1], 0.0),  # t0 = 0.0: left out of the head
+        SampleGroup("z" * 130, 10.0, channels, -0.0),  # a name past one varint byte
+    )
+    layout = StreamLayout(groups, ())
+    rng = np.random.default_rng(5)
+    ours = []
+    for group in groups:
+        for first, n in ((0, 3), (7, 1), (2**40, 200), (5, 0)):
+            data = rng.standard_normal((len(group.channels), n)).astype("<f4")
+            if data.size:
+                data.flat[0] = np.float32(np.nan)
+            block = SampleBlock(group.name, first, data)
+            ours.append(stream_codec.encode_samples(block, group))
+            ours.append(stream_codec.encode_samples_reference(block, group))
+    base = ours[0]
+    other = SampleGroup("acc", 100.0, channels[:1], 0.5)  # not this layout's channels
+    odd = [
+        base + wire.int_field(3, 9),  # index twice
+        base + wire.int_field(3, -5),  # negative index
+        base + wire.int_field(7, 2**32 + 3),  # n_samples wraps
+        base + wire.int_field(9, 1),  # unknown field
+        stream_codec.encode_samples(SampleBlock("acc", 1, np.ones((1, 2))), other),
+        stream_codec.encode_samples(  # a group not in the layout
+            SampleBlock("q", 1, np.ones((2, 2))), dataclasses.replace(groups[0], name="q")
+        ),
+        b"",
+    ]
+    damaged = [base[:cut] for cut in range(len(base))]
+    for pos in range(len(base) - 24):  # the head and the first samples
+        for bit in (1, 0x80):
+            flipped = bytearray(base)
+            flipped[pos] ^= bit
+            damaged.append(bytes(flipped))
+
+    def outcome(decode: Any, message: bytes) -> tuple[Any, ...]:
+        try:
+            block = decode(memoryview(message))
+        except (BadMessage, DecodeError, ValueError) as err:
+            return (type(err), str(err))
+        data = block.data
+        return (
+            block.group,
+            block.first_index,
+            data.dtype,
+            data.shape,
+            data.tobytes(),
+            data.flags.writeable,
+        )
+
+    decoder = stream_codec.SampleDecoder(layout)
+    for message in ours + odd + damaged:
+        expected = outcome(lambda m: stream_codec.decode_samples(m, layout), message)
+        assert outcome(decoder.decode, message) == expected, message[:40]
+    calls = []
+    monkeypatch.setattr(stream_codec, "decode_samples", lambda *a: calls.append(a))
+    for message in ours[::2]:  # our writer's: the head matched, no field-by-field read
+        decoder.decode(message)
+    assert calls == [] and len(ours) == 24
+
+
 def group_layout(group: SampleGroup) -> StreamLayout:
     return StreamLayout((group,), ())
 
