@@ -137,6 +137,9 @@ class MessageWalk:
         for cid, (topic, name) in (channels or {}).items():  # negative ids: not the file's
             self.schemas[-cid - 1] = name
             self.channels[cid] = (topic, -cid - 1)
+        # channel id -> (topic, schema name), None if not wanted: _wanted's answers until the
+        # next definition (asked per chunk, 800 calls a minute of log)
+        self._known: dict[int, tuple[str, str] | None] = {}
         self._last_ns: int | None = None  # log time of the last message read
         self._open: list[Skipped] = []  # skipped, waiting for the next message's time
 
@@ -198,6 +201,7 @@ class MessageWalk:
         self._last_ns = log_time
 
     def _define(self, record: Schema | Channel) -> None:
+        self._known.clear()
         if isinstance(record, Schema):
             self.schemas[record.id] = record.name
         else:
@@ -220,7 +224,7 @@ class MessageWalk:
         record head and the head of its content are one ``struct`` call on the bytes (a
         memoryview's buffer is looked up on every call): 6000 skipped a minute."""
         unpack_head = _HEAD.unpack_from
-        wanted: dict[int, tuple[str, str] | None] = {}  # per channel, for this chunk
+        wanted = self._known
         pos, end, last_ns = 0, len(payload), self._last_ns
         view = memoryview(payload) if self.views else None
         try:
@@ -255,7 +259,6 @@ class MessageWalk:
                         )
                 elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
                     self._define(parse_definition(opcode, memoryview(payload)[start:pos]))
-                    wanted.clear()
                 else:
                     raise BadChunk(f"record with opcode {opcode:#04x} inside a chunk")
         except READ_ERRORS as err:  # a CRC-clean chunk that is not ours: crafted
