@@ -177,8 +177,10 @@ class SampleDecoder:
     left out differently, a damaged head, a block that fails a check) goes to
     :func:`decode_samples`, which reads it field by field and says what is wrong. A block it
     accepts is the one :func:`decode_samples` gives (tested on both kinds of message).
-    Measured (a 60 s log, 360 blocks): 4 us a block of GIL-held Python less than the
-    field-by-field read.
+    Measured on the 60 s log's 360 blocks, their samples cut to two per channel so that
+    the head is what counts: 7.3 us a block through decode_samples, 3.9 us here (GIL-held
+    Python; the float32 -> float64 widening of the samples, which releases the GIL, is the
+    same in both).
     """
 
     def __init__(self, layout: StreamLayout) -> None:
