@@ -29,6 +29,7 @@ from replay import results_codec, stream_codec
 from replay.chunks import READ_ERRORS, Skipped, walk_messages
 from replay.errors import BadMessage, LogError, describe
 from replay.integrity import DataCheck
+from replay.raw_decoder import RawDecoder
 from replay.schemas import (
     TOPIC_CAN,
     TOPIC_ESTIMATE,
@@ -261,15 +262,14 @@ class RecordedLog:
 
     def items(self) -> Iterator[StreamItem]:
         """The raw stream (sample blocks, edge blocks, source events) in its original order."""
-        kinds, layout = self.raw_topics, self.layout
-        samples = stream_codec.SampleDecoder(layout).decode
+        decoder = RawDecoder(self.layout)
         sample_block, edge_block = full_name("SampleBlock"), full_name("EdgeBlock")
-        for topic, name, _, data in self.messages(kinds, views=True):
+        for topic, name, _, data in self.messages(self.raw_topics, views=True):
             try:
                 if name == sample_block:
-                    yield samples(data)
+                    yield decoder.samples(data)
                 elif name == edge_block:
-                    yield stream_codec.decode_edges(data, layout)
+                    yield decoder.edges(data)
                 else:
                     origin, event = stream_codec.decode_event(data)
                     if origin != "dsp":

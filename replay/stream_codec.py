@@ -14,7 +14,6 @@ estimates) is :mod:`replay.results_codec`.
 from __future__ import annotations
 
 import json
-import struct
 from collections.abc import Sequence
 
 import numpy as np
@@ -166,82 +165,6 @@ def decode_samples(data: bytes | memoryview, layout: StreamLayout) -> SampleBloc
     return SampleBlock(group.name, int(first_index), values)
 
 
-class SampleDecoder:
-    """:func:`decode_samples` for one layout, fast for the messages :func:`encode_samples` writes.
-
-    Such a message is a group's fixed fields (``wire.sample_block_head``: the group's name,
-    rate, t0 and channel names, the same bytes in every block) around three numbers, then
-    the float32 bytes. :meth:`decode` matches a message's head against the fixed bytes of
-    the layout's groups and reads only ``first_index``, ``n_samples`` and the data's length;
-    whatever does not match byte for byte (another writer's field order, proto3 defaults
-    left out differently, a damaged head, a block that fails a check) goes to
-    :func:`decode_samples`, which reads it field by field and says what is wrong. A block it
-    accepts is the one :func:`decode_samples` gives (tested on both kinds of message).
-    Measured on the 60 s log's 360 blocks, their samples cut to two per channel so that
-    the head is what counts: 7.3 us a block through decode_samples, 3.9 us here (GIL-held
-    Python; the float32 -> float64 widening of the samples, which releases the GIL, is the
-    same in both).
-    """
-
-    def __init__(self, layout: StreamLayout) -> None:
-        self.layout = layout
-        # group field bytes (``group``, field 2) -> (group, bytes of fields 4-6, channels)
-        self._groups: dict[bytes, tuple[SampleGroup, bytes, int]] = {}
-        longest = 0
-        for group in layout.groups:
-            rates = struct.pack("<dd", group.rate_hz, group.t0_s)
-            names = tuple(c.name for c in group.channels)
-            name_field, fixed = wire.group_fields(group.name, rates, names)
-            self._groups[name_field] = (group, fixed, len(names))
-            longest = max(longest, len(name_field) + len(fixed))
-        # time_s (9 bytes), three varints (10 bytes each) with their keys
-        self._head_bytes = 9 + longest + 3 * 11
-
-    def decode(self, data: bytes | memoryview) -> SampleBlock:
-        """The :class:`SampleBlock` of a ``/raw/<group>`` message (:func:`decode_samples`)."""
-        head = bytes(data[: self._head_bytes])
-        try:
-            pos = 9 if head[0] == 0x09 else 0  # time_s (not needed)
-            end = pos
-            if head[pos] == 0x12:  # the group's name
-                size, end = wire.read_varint(head, pos + 1)
-                end += size
-            entry = self._groups.get(head[pos:end])
-            if entry is None:
-                return decode_samples(data, self.layout)
-            group, fixed, n_ch = entry
-            first_index = n = 0
-            if end < len(data) and head[end] == 0x18:
-                first_index, end = wire.read_varint(head, end + 1)
-            if not head.startswith(fixed, end):
-                return decode_samples(data, self.layout)
-            end += len(fixed)
-            if end < len(data) and head[end] == 0x38:
-                n, end = wire.read_varint(head, end + 1)
-            n_bytes = 0  # no data field: an empty block
-            if end < len(data):
-                if head[end] != 0x42:
-                    return decode_samples(data, self.layout)
-                n_bytes, end = wire.read_varint(head, end + 1)
-        except (IndexError, wire.Unparsed):
-            return decode_samples(data, self.layout)
-        if not (
-            end + n_bytes == len(data)
-            and n_bytes == 4 * n_ch * n
-            and n < 2**32
-            and 0 <= first_index < MAX_INDEX
-        ):
-            return decode_samples(data, self.layout)  # (it says what is wrong)
-        with np.errstate(invalid="ignore"):  # a signalling NaN stays a NaN: a sample known bad
-            values = (
-                np.frombuffer(data, dtype="<f4", count=n_ch * n, offset=end)
-                .reshape(n_ch, n)
-                .astype(np.float64)
-            )
-        values.flags.writeable = False  # (as decode_samples)
-        return SampleBlock(group.name, first_index, values)
-
-
 def encode_edges(block: EdgeBlock, time_s: float) -> bytes:
     """``/raw/edges/<channel>``: edge times as float64."""
     times = np.ascontiguousarray(block.times_s, dtype="<f8")
@@ -249,7 +172,7 @@ def encode_edges(block: EdgeBlock, time_s: float) -> bytes:
     return bytes(msg.SerializeToString())
 
 
-def decode_edges(data: bytes, layout: StreamLayout) -> EdgeBlock:
+def decode_edges(data: bytes | memoryview, layout: StreamLayout) -> EdgeBlock:
     msg = wire_class("EdgeBlock").FromString(data)
     if msg.channel not in layout.edge_channels:
         raise BadMessage(f"edge channel {msg.channel!r} is not in the recorded layout")
