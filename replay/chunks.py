@@ -223,40 +223,44 @@ class MessageWalk:
         generator cost about 3 us (items() of a 60 s log: 26 -> 19 ms of CPU). A message's
         record head and the head of its content are one ``struct`` call on the bytes (a
         memoryview's buffer is looked up on every call): 6000 skipped a minute."""
-        unpack_head = _HEAD.unpack_from
-        wanted = self._known
+        # the names the loop reads, local (6000 turns a minute of log)
+        unpack_head, head_size = _HEAD.unpack_from, _HEAD.size
+        record_head, message_head, message = RECORD_HEAD.size, MESSAGE_HEAD.size, _MESSAGE
+        wanted, unknown = self._known, _UNKNOWN
+        pending = bool(self._open)  # skipped records waiting for the next message's time
         pos, end, last_ns = 0, len(payload), self._last_ns
         view = memoryview(payload) if self.views else None
         try:
             while pos < end:
-                if pos + _HEAD.size <= end:  # a message's record always is that long
+                if pos + head_size <= end:  # a message's record always is that long
                     opcode, length, channel_id, _, log_ns = unpack_head(payload, pos)
                 else:  # then no message fits: its checks below fail
                     channel_id = log_ns = 0
-                    if pos + RECORD_HEAD.size > end:
+                    if pos + record_head > end:
                         raise BadChunk("chunk ends inside a record header")
                     opcode, length = RECORD_HEAD.unpack_from(payload, pos)
-                start = pos + RECORD_HEAD.size
+                start = pos + record_head
                 pos = start + length
                 if pos > end:
                     raise BadChunk(f"chunk record of {length} bytes runs past the chunk's end")
-                if opcode == _MESSAGE:
-                    if length < MESSAGE_HEAD.size:
-                        raise BadChunk(f"message record of {length} bytes inside a chunk")
+                if opcode == message and length >= message_head:
                     last_ns = log_ns
-                    if self._open:
-                        self._seen(last_ns)
-                    out = wanted.get(channel_id, _UNKNOWN)
-                    if out is _UNKNOWN:
+                    if pending:
+                        self._seen(log_ns)
+                        pending = False
+                    out = wanted.get(channel_id, unknown)
+                    if out is unknown:
                         out = wanted[channel_id] = self._wanted(channel_id)
                     if out is not None:
-                        data = start + MESSAGE_HEAD.size
+                        data = start + message_head
                         yield (
                             out[0],
                             out[1],
                             last_ns,
                             view[data:pos] if view is not None else payload[data:pos],
                         )
+                elif opcode == message:
+                    raise BadChunk(f"message record of {length} bytes inside a chunk")
                 elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
                     self._define(parse_definition(opcode, memoryview(payload)[start:pos]))
                 else:
