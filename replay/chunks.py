@@ -9,7 +9,10 @@ front-to-back read) cost as much again. Here records are framed with
 end of the file is recognised without reading it (:class:`Truncated`);
 indexes are skipped after a six-byte look that they are indexes, and a
 chunk's records are parsed with ``struct.unpack_from`` over the decompressed
-buffer, copying only the messages of the wanted topics.
+buffer, copying only the messages of the wanted topics (a message's record
+head and content head in one call on the bytes: the 60 s log's chunk loop,
+6500 records, 1.8 -> 1.2 ms of GIL-held Python, its definitions still
+parsed by the mcap library's record classes, a handful per file).
 ``RecordedLog.messages(reference=True)`` reads through the mcap readers
 instead; a test checks both agree on whole and cut files.
 
@@ -55,7 +58,7 @@ _MESSAGE = int(Opcode.MESSAGE)
 # A record head and a message's content up to its log time, in one struct call: opcode,
 # length, channel id, sequence, log time
 _HEAD = struct.Struct("<BQHIQ")
-_UNKNOWN = ("", "")  # a channel not looked up yet in this chunk
+_UNKNOWN = ("", "")  # a channel not looked up yet in this walk
 
 # (topic, schema name, log time ns, data: bytes, or a memoryview with ``views=True``)
 MessageTuple = tuple[str, str, int, Any]
@@ -151,9 +154,9 @@ class MessageWalk:
                     return  # the summary section repeats what we have seen
                 if opcode == Opcode.CHUNK:
                     try:
-                        content = read_at(fh, offset, length)  # (zstd: one, reused)
+                        content = read_at(fh, offset, length)
                         payload = chunk_payload(content, self.check_crcs, zstd)
-                        del content
+                        del content  # (not held while the chunk's messages are read)
                     except BadChunk as err:
                         self._skip(offset - RECORD_HEAD.size, str(err))
                         continue
