@@ -57,7 +57,8 @@ class RawDecoder:
             rates = struct.pack("<dd", group.rate_hz, group.t0_s)
             names = tuple(c.name for c in group.channels)
             name_field, fixed = wire.group_fields(group.name, rates, names)
-            self._groups[name_field] = (group, fixed, len(names))
+            # the first group of a name, as StreamLayout.group finds it
+            self._groups.setdefault(name_field, (group, fixed, len(names)))
             longest = max(longest, len(name_field) + len(fixed))
         # time_s (9 bytes), three varints (10 bytes each) with their keys
         self._sample_head = 9 + longest + 3 * 11

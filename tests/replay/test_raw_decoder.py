@@ -21,7 +21,9 @@ GROUPS = (
     SampleGroup("z" * 130, 10.0, CHANNELS, -0.0),  # a name past one varint byte
 )
 EDGES = ("tacho", "cam", "")  # "": the name left out of the message
-LAYOUT = StreamLayout(GROUPS, EDGES)
+# a second group named "acc" (a crafted layout): decode_samples checks against the first
+SHADOWED = SampleGroup("acc", 50.0, CHANNELS[:1])
+LAYOUT = StreamLayout((*GROUPS, SHADOWED), EDGES)
 
 
 def damaged(message: bytes, head: int) -> list[bytes]:
@@ -65,6 +67,7 @@ def test_sample_blocks_read_as_decode_samples_reads_them(monkeypatch: pytest.Mon
         base + wire.int_field(7, 2**32 + 3),  # n_samples wraps
         base + wire.int_field(9, 1),  # unknown field
         stream_codec.encode_samples(SampleBlock("acc", 1, np.ones((1, 2))), other),
+        stream_codec.encode_samples(SampleBlock("acc", 1, np.ones((1, 2))), SHADOWED),
         stream_codec.encode_samples(  # a group not in the layout
             SampleBlock("q", 1, np.ones((2, 2))), dataclasses.replace(GROUPS[0], name="q")
         ),
