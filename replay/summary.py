@@ -105,14 +105,19 @@ def read_summary(summary: bytes) -> SummaryRecords:
 
 
 def read_metadata(fh: IO[bytes], index: MetadataIndex) -> Metadata:
-    """The metadata record a metadata index points at."""
+    """The metadata record a metadata index points at; raises McapError when the record's
+    header disagrees with the index (a damaged length is not read: it may say 2**35 bytes)."""
+    size = fh.seek(0, 2)
     head = read_at(fh, index.offset, RECORD_HEAD.size)
     if len(head) < RECORD_HEAD.size:
         raise McapError(f"metadata index points past the end of the file ({index.offset})")
     opcode, length = RECORD_HEAD.unpack(head)
     if opcode != Opcode.METADATA:
         raise McapError(f"expected a metadata record at byte {index.offset}, got {opcode:#04x}")
+    if length != index.length - RECORD_HEAD.size or index.offset + index.length > size:
+        raise McapError(
+            f"metadata record at byte {index.offset}: {length} bytes, its index says "
+            f"{index.length - RECORD_HEAD.size} ({size} bytes in the file)"
+        )
     content = read_at(fh, index.offset + RECORD_HEAD.size, length)
-    if len(content) < length:
-        raise McapError(f"metadata record at byte {index.offset} runs past the end of the file")
     return Metadata.read(ReadDataStream(BytesIO(content)))

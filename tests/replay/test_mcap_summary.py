@@ -63,3 +63,8 @@ def test_a_summary_record_cut_by_the_footer_or_a_wrong_metadata_index_is_refused
     wrong = type(index)(offset=index.offset + 1, length=index.length, name=index.name)
     with pytest.raises(McapError, match="expected a metadata record"):
         read_metadata(fh, wrong)
+    # a damaged length in the record's header (outside the summary's CRC) is not read
+    data = bytearray(clean_run.data)
+    data[index.offset + 5] ^= 0x08  # its length + 2**35 bytes
+    with pytest.raises(McapError, match="its index says"):
+        read_metadata(io.BytesIO(bytes(data)), index)
