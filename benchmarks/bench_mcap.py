@@ -30,6 +30,13 @@ run, calling thread 0.108-0.118 s on main (0142dad) -> 0.070-0.077 s (both threa
 -> 0.127-0.147 s): sample blocks cast and records packed on the writer thread, the gating from
 a layout (and CRCs through ISA-L, since taken out again); read raw items 0.040 -> 0.027-0.031 s, McapSource 0.039-0.041 ->
 0.028-0.032 s: sample blocks read without the protobuf class, the data CRC beside the set-up.
+Then (issue 24, the replay's source thread; best of 5, side by side with d450fdd, load 2.2):
+read raw items 0.029 -> 0.022 s, McapSource 0.031 -> 0.022 s; by thread, open 1.4 -> 0.7 ms
+(the summary read from its checked bytes, replay/summary.py), reading thread 23.5 -> 16.8 ms
+(a chunk's message heads in one struct call, one zstd decompressor per walk, a sample
+block's head matched against its group's bytes); what is left is file reads, zstd and the
+float32 -> float64 widening, which release the GIL. ``as_recorded`` (6 ms) is printed
+apart: the pipeline's reader skips it for a recording (``McapSource.samples_as_recorded``).
 """
 
 from __future__ import annotations
@@ -201,6 +208,34 @@ def best_write(repeat: int, fn: Any) -> tuple[tuple[float, float, float], Any]:
 LEVELS = (-5, -1, 1, 3, 6)  # zstd levels compared (issue 24 item 4)
 
 
+def source_split(path: Path, repeat: int) -> tuple[float, float, float, float]:
+    """A replay's source, split by thread (CPU s, each best of ``repeat``): McapSource's
+    open on the opening thread, the data CRC's thread (process minus opening thread until
+    the check is done), the reading thread's iteration, and ``as_recorded`` over the items
+    (which the pipeline's reader skips for a recording: /tmp/prof/stage_prof.py's ``src``
+    counts it)."""
+    from ptinertia.stage_threads import as_recorded
+
+    runs = []
+    for _ in range(repeat):
+        p0, t0 = time.process_time(), time.thread_time()
+        source = McapSource(path)
+        t1 = time.thread_time()
+        source.log.verify()
+        p1, t2 = time.process_time(), time.thread_time()
+        for _item in source:  # items dropped as a replay's consumer drops them
+            pass
+        t3 = time.thread_time()
+        rounding = 0.0
+        for item in McapSource(path):
+            t4 = time.thread_time()
+            as_recorded(item)
+            rounding += time.thread_time() - t4
+        runs.append((t1 - t0, (p1 - p0) - (t2 - t0), t3 - t2, rounding))
+    opened, crc, reading, rounding = (min(r[k] for r in runs) for k in range(4))
+    return opened, crc, reading, rounding
+
+
 def chunk_payloads(path: Path) -> list[bytes]:
     """The uncompressed records of every chunk of a recording."""
     with open(path, "rb") as fh:
@@ -278,6 +313,7 @@ def main() -> None:
         t_all, _ = best_of(args.repeat, read_all)
         t_cut, n_cut = best_of(args.repeat, read_unfinished)
         t_ref, _ = best_of(args.repeat, read_reference)
+        split = source_split(full, args.repeat)
         size, size_raw = full.stat().st_size, raw.stat().st_size
         if args.levels:
             level_table(full, seconds, args.repeat)
@@ -299,6 +335,12 @@ def main() -> None:
         f"read raw items    {t_items:7.3f} s  -> {seconds / t_items:6.0f}x real time (open_log + items)"
     )
     print(f"McapSource        {t_source:7.3f} s  -> {seconds / t_source:6.0f}x real time")
+    print(
+        "  by thread (CPU s per minute): open {:.4f}, data CRC thread {:.4f}, reading thread "
+        "{:.4f}; as_recorded {:.4f} (skipped for a recording)".format(
+            *(60.0 / seconds * t for t in split)
+        )
+    )
     print(
         f"read unfinished   {t_cut:7.3f} s  -> {seconds / t_cut:6.0f}x real time (no footer; {n_cut} items)"
     )

@@ -23,21 +23,22 @@ from replay.errors import LogError
 from replay.mcap_records import MAGIC, BadChunk, chunk_payload, crc32, read_at, records
 
 
-def check_summary_crc(fh: IO[bytes]) -> int:
-    """The summary's start offset; raises McapError when the footer's CRC does not match."""
+def check_summary_crc(fh: IO[bytes]) -> tuple[int, bytes]:
+    """The summary's start offset (0: none) and its bytes (up to the footer); raises
+    McapError when the footer's CRC does not match."""
     size = fh.seek(0, 2)
     footer = read_at(fh, size - len(MAGIC) - 29, 29)
     opcode, length, start, _, crc = struct.unpack("<BQQQI", footer)
     if opcode != Opcode.FOOTER or length != 20:
         raise McapError("no footer record before the closing magic")
-    if crc == 0:
-        return int(start)
+    if start == 0 and crc == 0:  # no summary (a footer with a CRC must point at one)
+        return 0, b""
     if not 0 < start <= size - len(MAGIC) - 29:
         raise McapError(f"footer points the summary at byte {start}, outside the file")
     summary = read_at(fh, start, size - len(MAGIC) - 29 - start)
-    if crc32(footer[:25], crc32(summary)) != crc:
+    if crc and crc32(footer[:25], crc32(summary)) != crc:
         raise McapError("summary CRC mismatch")
-    return int(start)
+    return int(start), summary
 
 
 def check_data_crc(

@@ -104,13 +104,19 @@ def chunk_times(fh: IO[bytes], offset: int) -> tuple[int, int]:
     return start, end
 
 
-def chunk_payload(content: bytes, check_crc: bool = True) -> bytes:
+def chunk_payload(
+    content: bytes | memoryview,
+    check_crc: bool = True,
+    zstd: zstandard.ZstdDecompressor | None = None,
+) -> bytes:
     """The uncompressed records of a chunk record's content, checked; raises :class:`BadChunk`.
 
     The declared uncompressed size bounds the decompression (and may not
     exceed :data:`MAX_CHUNK_BYTES`), the result must have that size, and its
     CRC (when the writer wrote one, non-zero) must match, unless ``check_crc``
-    is False (a data section CRC vouched for the bytes already).
+    is False (a data section CRC vouched for the bytes already). ``zstd``: a
+    decompressor to reuse (a walk over many chunks: a new one per chunk cost
+    about 10 us, 1.2 ms a minute of log); each call starts it afresh.
     """
     view = memoryview(content)
     try:
@@ -136,7 +142,9 @@ def chunk_payload(content: bytes, check_crc: bool = True) -> bytes:
             declared = zstandard.frame_content_size(data)
             if declared not in (-1, size):
                 raise BadChunk(f"zstd frame holds {declared} bytes, the chunk declares {size}")
-            payload = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+            if zstd is None:
+                zstd = zstandard.ZstdDecompressor()
+            payload = zstd.decompress(data, max_output_size=size)
         elif compression == "lz4":
             payload = lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=size + 1)
         elif compression == "":

@@ -1,10 +1,10 @@
 """Open a recording, finished or not: scan it once, check it is replayable, build its log.
 
-A finished log (footer and summary present) is read with the mcap seeking
-reader; a log whose writer died (SIGKILL, power cut, full disk) has no footer,
-which the seeking reader refuses, so it is read front to back with the
-non-seeking reader in file order (``log_time_order=False``) until the
-truncation point: every closed chunk is recovered, the unfinished one is not.
+A finished log (footer and summary present) is read through its summary
+(:mod:`replay.summary`); a log whose writer died (SIGKILL, power cut, full
+disk) has no footer, which the mcap seeking reader refuses, so it is read
+front to back in file order until the truncation point: every closed chunk
+is recovered, the unfinished one is not.
 Either way messages come back in the order they were written, which for the
 raw topics is the order the live dsp stage saw them.
 
@@ -28,7 +28,6 @@ from pathlib import Path
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
-from mcap.reader import SeekingReader
 from mcap.records import Channel, Metadata, Schema
 
 from acquisition.stream import StreamLayout
@@ -59,6 +58,7 @@ from replay.schemas import (
     full_name,
     stream_topics,
 )
+from replay.summary import read_metadata, read_summary
 
 # A sample rate no acquisition reaches (Hz): a larger one in a recording is damage.
 MAX_RATE_HZ = 1e9
@@ -189,14 +189,10 @@ def _scan_finished(path: Path) -> _Scan:
     """Read the summary section, its CRC checked; the attachments, theirs checked."""
     scan = _Scan()
     with open(path, "rb") as fh:
-        summary_start = check_summary_crc(fh)
-        fh.seek(0)
-        reader = SeekingReader(fh)
-        summary = reader.get_summary()
-        if summary is None and summary_start == 0:
+        summary_start, section = check_summary_crc(fh)
+        if summary_start == 0:
             raise NoSummary("no summary section")
-        if summary is None:
-            raise McapError("no summary section")
+        summary = read_summary(section)
         scan.schemas = dict(summary.schemas)
         scan.channels = dict(summary.channels)
         scan.chunks = len(summary.chunk_indexes)
@@ -206,7 +202,8 @@ def _scan_finished(path: Path) -> _Scan:
         if summary.statistics is not None:
             counts = summary.statistics.channel_message_counts
             scan.counts = {ch.topic: int(counts.get(cid, 0)) for cid, ch in scan.channels.items()}
-        for meta in reader.iter_metadata():
+        for meta_index in summary.metadata_indexes:
+            meta = read_metadata(fh, meta_index)
             scan.metadata[meta.name] = dict(meta.metadata)
         for index in summary.attachment_indexes:
             _attach(scan, read_at(fh, index.offset + 9, index.length - 9), index.offset)

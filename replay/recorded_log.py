@@ -29,6 +29,7 @@ from replay import results_codec, stream_codec
 from replay.chunks import READ_ERRORS, Skipped, walk_messages
 from replay.errors import BadMessage, LogError, describe
 from replay.integrity import DataCheck
+from replay.raw_decoder import RawDecoder
 from replay.schemas import (
     TOPIC_CAN,
     TOPIC_ESTIMATE,
@@ -261,13 +262,14 @@ class RecordedLog:
 
     def items(self) -> Iterator[StreamItem]:
         """The raw stream (sample blocks, edge blocks, source events) in its original order."""
-        kinds = self.raw_topics
-        for topic, name, _, data in self.messages(kinds, views=True):
+        decoder = RawDecoder(self.layout)
+        sample_block, edge_block = full_name("SampleBlock"), full_name("EdgeBlock")
+        for topic, name, _, data in self.messages(self.raw_topics, views=True):
             try:
-                if name == full_name("SampleBlock"):
-                    yield stream_codec.decode_samples(data, self.layout)
-                elif name == full_name("EdgeBlock"):
-                    yield stream_codec.decode_edges(data, self.layout)
+                if name == sample_block:
+                    yield decoder.samples(data)
+                elif name == edge_block:
+                    yield decoder.edges(data)
                 else:
                     origin, event = stream_codec.decode_event(data)
                     if origin != "dsp":

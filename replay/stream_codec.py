@@ -172,14 +172,14 @@ def encode_edges(block: EdgeBlock, time_s: float) -> bytes:
     return bytes(msg.SerializeToString())
 
 
-def decode_edges(data: bytes, layout: StreamLayout) -> EdgeBlock:
+def decode_edges(data: bytes | memoryview, layout: StreamLayout) -> EdgeBlock:
     msg = wire_class("EdgeBlock").FromString(data)
     if msg.channel not in layout.edge_channels:
         raise BadMessage(f"edge channel {msg.channel!r} is not in the recorded layout")
     if len(msg.times_s) % 8:
         raise BadMessage(f"edge channel {msg.channel!r}: {len(msg.times_s)} bytes is not n x 8")
     times = np.frombuffer(msg.times_s, dtype="<f8").copy()
-    if not np.all(np.isfinite(times)):
+    if not np.isfinite(times).all():
         raise BadMessage(f"edge channel {msg.channel!r}: edge times not finite")
     return EdgeBlock(msg.channel, times)
 

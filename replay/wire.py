@@ -90,9 +90,9 @@ def sample_block_head(
     """A serialised ``SampleBlock`` without its float32 bytes (``n_bytes`` of them): the
     message is this head followed by the array's (n_channels, n_samples) float32 bytes,
     which can be joined in later; the protobuf class's bytes, the array copied once. The
-    group's own fields are laid out once (:func:`_group_fields`)."""
+    group's own fields are laid out once (:func:`group_fields`)."""
     rates = struct.pack("<dd", rate_hz, t0_s)  # (bits, not floats: -0.0 is written, 0.0 not)
-    group_field, layout_fields = _group_fields(group, rates, tuple(channels))
+    group_field, layout_fields = group_fields(group, rates, tuple(channels))
     return b"".join(
         (
             double_field(1, time_s),
@@ -106,7 +106,7 @@ def sample_block_head(
 
 
 @lru_cache(maxsize=64)
-def _group_fields(group: str, rates: bytes, channels: tuple[str, ...]) -> tuple[bytes, bytes]:
+def group_fields(group: str, rates: bytes, channels: tuple[str, ...]) -> tuple[bytes, bytes]:
     """A group's fields of ``SampleBlock``: ``group`` (2), then ``rate_hz``, ``t0_s`` (their
     float64 bytes) and ``channels`` (4-6), the same in every block (3.6 ms a minute built)."""
     rate_hz, t0_s = struct.unpack("<dd", rates)
@@ -124,7 +124,7 @@ _DOUBLE = struct.Struct("<d").unpack_from
 _DOUBLES, _VARINTS, _LENGTHS = (1, 4, 5), (3, 7), (2, 6, 8)
 
 
-def _read_varint(buf: memoryview, pos: int) -> tuple[int, int]:
+def read_varint(buf: bytes | memoryview, pos: int) -> tuple[int, int]:
     """``(value, next position)`` of the varint at ``pos`` (IndexError past the end)."""
     result = shift = 0
     while True:
@@ -155,7 +155,7 @@ def read_sample_block(
     pos = 0
     try:
         while pos < end:
-            tag, pos = _read_varint(view, pos)
+            tag, pos = read_varint(view, pos)
             number, wire_type = tag >> 3, tag & 7
             if wire_type == _I64 and number in _DOUBLES:
                 if pos + 8 > end:
@@ -163,9 +163,9 @@ def read_sample_block(
                 fields[number - 1] = _DOUBLE(view, pos)[0]
                 pos += 8
             elif wire_type == _VARINT and number in _VARINTS:
-                fields[number - 1], pos = _read_varint(view, pos)
+                fields[number - 1], pos = read_varint(view, pos)
             elif wire_type == _LEN and number in _LENGTHS:
-                n, pos = _read_varint(view, pos)
+                n, pos = read_varint(view, pos)
                 if pos + n > end:
                     raise Unparsed("truncated field")
                 part = view[pos : pos + n]
