@@ -22,13 +22,8 @@ from typing import Any
 import numpy as np
 
 from estimator import row_kernels
-from estimator.compiled_rows import (
-    kernel_model_input_rows,
-    kernel_motion_sensitivity,
-    kernel_rows,
-    model_constants,
-    row_constants,
-)
+from estimator.compiled_model_rows import kernel_model_input_rows, model_constants
+from estimator.compiled_rows import kernel_motion_sensitivity, kernel_rows, row_constants
 from estimator.elastic_tail import ELASTIC_TERMS
 from estimator.equations import Linearisation, ParameterLayout, frame_rows
 from estimator.frame_stack import FrameStack, PendingFrame, stacked
@@ -208,7 +203,7 @@ class RowAssembler:
 
     def _constants_at(self, lin: Linearisation, measured: bool) -> tuple[Any, Any]:
         """:func:`estimator.compiled_rows.row_constants` and
-        :func:`~estimator.compiled_rows.model_constants`, kept while ``lin`` stays."""
+        :func:`estimator.compiled_model_rows.model_constants`, kept while ``lin`` stays."""
         kept = self._constants
         if kept is None or kept[0] is not lin or kept[1] != measured:
             made = (

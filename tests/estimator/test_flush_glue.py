@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from support.estimator_harness import Body, frames, make_setup
 
-from estimator import compiled_rows, row_kernels
+from estimator import compiled_model_rows, compiled_rows, row_kernels
 from estimator.equations import Linearisation
 from estimator.frame_stack import FrameStack, PendingFrame
 from estimator.misfit import MisfitSample
@@ -164,7 +164,7 @@ def test_kept_row_constants_are_the_ones_made_per_call(compiled: bool) -> None:
     def made(x: Linearisation) -> tuple:
         return (
             compiled_rows.row_constants(setup, layout, x, False),
-            compiled_rows.model_constants(setup, x, not layout.mass),
+            compiled_model_rows.model_constants(setup, x, not layout.mass),
         )
 
     batch = est.queue.frames
