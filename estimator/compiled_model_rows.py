@@ -41,10 +41,16 @@ def model_constants(
             kinds[j] = 2
             mount = setup.mounts[inp.mount]
             mount_pos[j], mount_stiff[j] = mount.position, mount.stiffness
-    consts = np.concatenate(
-        [lin.cog, setup.reference_point, setup.crank_axis, [1.0 if mass_known else 1.0 / lin.mass]]
-    ).astype(float)
-    return kinds, mount_pos, mount_stiff, consts
+    return kinds, mount_pos, mount_stiff, model_linearisation(setup, lin, mass_known)
+
+
+def model_linearisation(setup: EstimatorSetup, lin: Linearisation, mass_known: bool) -> np.ndarray:
+    """The last of :func:`model_constants`, the one ``lin`` moves: cog (3), reference
+    point (3), crank axis (3), translation rows per newton."""
+    per_force = 1.0 if mass_known else 1.0 / lin.mass
+    return np.concatenate([lin.cog, setup.reference_point, setup.crank_axis, [per_force]]).astype(
+        float
+    )
 
 
 def kernel_model_input_rows(
@@ -58,10 +64,12 @@ def kernel_model_input_rows(
     rpm: np.ndarray,
     compiled: bool = True,
     constants: tuple[np.ndarray, ...] | None = None,
+    tables: dict[tuple[float, ...], np.ndarray] | None = None,
 ) -> np.ndarray:
     """:func:`estimator.model_inputs.model_input_rows` by the compiled :func:`model_rows`
     (the excitation inputs' derivatives gathered in its loop, :func:`_excitation_tables`);
-    ``constants``: :func:`model_constants` (None: made here)."""
+    ``constants``: :func:`model_constants` (None: made here); ``tables``: the caller's
+    store of the excitation tables per set of orders, for these inputs (None: made here)."""
     inputs = setup.model_inputs
     n_p, n_m = len(orders), len(inputs)
     h, rpm = np.asarray(orders, float), np.asarray(rpm, float)
@@ -69,7 +77,7 @@ def kernel_model_input_rows(
         constants = model_constants(setup, lin, mass_known)
     kinds, mount_pos, mount_stiff, consts = constants
     w = rpm * 2 * np.pi / 60.0
-    exc, at, w2 = _excitation_tables(inputs, h, rpm)
+    exc, at, w2 = _excitation_tables(inputs, h, rpm, tables)
     out = np.empty((n_p, 12, n_m))
     (jit(model_rows) if compiled else model_rows)(
         h,
@@ -90,25 +98,33 @@ def kernel_model_input_rows(
 
 
 def _excitation_tables(
-    inputs: tuple[ModelInput, ...], h: np.ndarray, rpm: np.ndarray
+    inputs: tuple[ModelInput, ...],
+    h: np.ndarray,
+    rpm: np.ndarray,
+    kept: dict[tuple[float, ...], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The excitation inputs' derivatives as :func:`model_rows` gathers them: tables
     (n_model, 2, K, 6) complex (the gas and the unit-speed parts of K orders, [force,
     moment]), each pair's order ``at`` (P,) among them and its speed squared ``w2`` (P,)
     (rad/s)^2, the pair's derivative ``gas[at] + w2 unit[at]``. From the inputs' ``split``
     (:data:`estimator.setup.PairExcitationSplitFn`: no per-pair arrays made here) when
-    every one offers it; else their per-pair values as the gas part (K = P, unit 0)."""
+    every one offers it (the tables taken from ``kept``, or stored there); else their
+    per-pair values as the gas part (K = P, unit 0)."""
     n_p, n_m = len(h), len(inputs)
     splits = [
         getattr(inp.d_excitation, "split", None) for inp in inputs if inp.kind == "excitation"
     ]
     if all(s is not None for s in splits):
         key = tuple(sorted(set(h.tolist())))
-        exc = np.zeros((n_m, 2, len(key), 6), complex)
-        for j, inp in enumerate(inputs):
-            if inp.kind == "excitation":
-                gas, unit = inp.d_excitation.split(key)  # type: ignore[union-attr]
-                exc[j, 0], exc[j, 1] = gas.reshape(len(key), 6), unit.reshape(len(key), 6)
+        exc = None if kept is None else kept.get(key)
+        if exc is None:
+            exc = np.zeros((n_m, 2, len(key), 6), complex)
+            for j, inp in enumerate(inputs):
+                if inp.kind == "excitation":
+                    gas, unit = inp.d_excitation.split(key)  # type: ignore[union-attr]
+                    exc[j, 0], exc[j, 1] = gas.reshape(len(key), 6), unit.reshape(len(key), 6)
+            if kept is not None:
+                kept[key] = exc
         at = np.searchsorted(np.array(key), h)
         return exc, at, rpm_to_omega(rpm) ** 2
     exc = np.zeros((n_m, 2, n_p, 6), complex)

@@ -86,13 +86,21 @@ def row_constants(
         ]
     ).astype(float)
     return (
-        np.array([*lin.cog, lin.mass, 1.0 if layout.mass else 0.0], float),
-        np.ascontiguousarray(lin.inertia, float),
+        *row_linearisation(layout, lin),
         bt.mount_positions if mounts else np.zeros((0, 3)),
         bt.mount_stiffness.astype(complex) if mounts else np.zeros((0, 3, 3), complex),
         consts,
         np.asarray(bt.c_it, complex),
         cols,
+    )
+
+
+def row_linearisation(layout: ParameterLayout, lin: Linearisation) -> tuple[np.ndarray, ...]:
+    """The first two of :func:`row_constants`, the ones ``lin`` moves: ``lin`` (cog, mass,
+    mass unknown) and the inertia (the rest stay from one linearisation to the next)."""
+    return (
+        np.array([*lin.cog, lin.mass, 1.0 if layout.mass else 0.0], float),
+        np.ascontiguousarray(lin.inertia, float),
     )
 
 

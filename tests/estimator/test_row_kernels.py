@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from support.estimator_harness import Body, frames, make_setup
+from support.estimator_harness import Body, SplitExcitation, frames, make_setup
 
 from estimator import compiled_model_rows, compiled_rows, row_kernels
 from estimator.compiled_sums import kernel_tail_sums
@@ -185,27 +185,9 @@ def _d_excitation(rpm: np.ndarray, orders: np.ndarray) -> tuple[np.ndarray, np.n
     return (orders * w2)[:, None] * [0.1, 0.2j, 0.3], (orders * w2)[:, None] * [0.02j, 0.01, 0.03]
 
 
-class _SplitExcitation:
-    """A derivative offering its speed-split parts (estimator.setup.PairExcitationSplitFn):
-    per order h, gas ``h c_gas`` and unit-speed ``h^2 c_unit``; a pair's value (its call,
-    what the numpy rows take) ``gas + omega^2 unit``."""
-
-    def split(self, key: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
-        h = np.array(key)[:, None, None]
-        gas = h * np.array([[0.1, 0.2j, 0.3], [0.02j, 0.01, 0.03]])
-        return gas, h**2 * np.array([[0.3j, 0.1, 0.2], [0.01, 0.05j, 0.02]])
-
-    def __call__(self, rpm: np.ndarray, orders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        key = tuple(sorted(set(orders.tolist())))
-        gas, unit = self.split(key)
-        at = [key.index(h) for h in orders.tolist()]
-        both = gas[at] + ((rpm * np.pi / 30) ** 2)[:, None, None] * unit[at]
-        return both[:, 0], both[:, 1]
-
-
 def _model_inputs(split: bool) -> tuple[ModelInput, ...]:
     # (split: every excitation input offers its parts, gathered in the kernel's loop)
-    d = _SplitExcitation() if split else _d_excitation
+    d = SplitExcitation() if split else _d_excitation
     return (
         ModelInput("exc", "excitation", 0.05, d_excitation=d),
         ModelInput("spin_inertia", "spin_inertia", 0.01),
