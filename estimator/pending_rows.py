@@ -8,7 +8,8 @@ sensitivity to the declared systematic sensor errors and, with
 self-calibration, the rigid fits' redundancy rows. The store of frames with an
 unseen motion (:mod:`estimator.partial_pairs`) builds its rows with the same
 assembler. With ``PTINERTIA_NUMBA=1`` the assembler builds the rows and both
-sensitivities with compiled loops (:mod:`estimator.compiled_rows`), within rounding of
+sensitivities with compiled loops (:mod:`estimator.compiled_rows`,
+:mod:`estimator.compiled_model_rows`), within rounding of
 the numpy functions, which stay the default and the reference.
 
 A flush hands the assembler its frames stacked (:mod:`estimator.frame_stack`).
