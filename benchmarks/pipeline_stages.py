@@ -204,7 +204,8 @@ def estimator_alone(log: Path, repeat: int = 3) -> None:
     relinearisations, per-frame records made faster), three rounds interleaved with d450fdd,
     best of 5, load 2.3-2.5: in blocks compiled 63.5-67.2 -> 57.8-59.6 us; as a quiet
     replay runs it (no running estimates, /tmp/prof/stage_prof.py est) 0.080-0.083 ->
-    0.073-0.078 s of CPU a minute (load 2.5-2.6)."""
+    0.073-0.078 s of CPU a minute (load 2.5-2.6); callgrind, the same feed on pickled
+    blocks (two runs' difference, halved): 1171.9 -> 1113.1 M instructions a minute."""
     from acquisition.stream import SourceEvent
     from estimator import row_kernels
     from ptinertia.runner import processing_chain
