@@ -199,7 +199,13 @@ def estimator_alone(log: Path, repeat: int = 3) -> None:
     (unchanged code); one frame at a time (load 14-15) 155 / 155 compiled. The afternoon's
     build on a quiet machine (load 0.9-1.1, two rounds interleaved with 0142dad's): in blocks
     compiled 62-65 -> 59-60 us, numpy 120-128 -> 119-121; one frame at a time 141 -> 140
-    compiled, 290 -> 289 numpy."""
+    compiled, 290 -> 289 numpy. Issue 24's eighth round (est8: the model inputs' excitation
+    derivatives gathered in the compiled loop, the compiled rows' constants kept across
+    relinearisations, per-frame records made faster), three rounds interleaved with d450fdd,
+    best of 5, load 2.3-2.5: in blocks compiled 63.5-67.2 -> 57.8-59.6 us; as a quiet
+    replay runs it (no running estimates, /tmp/prof/stage_prof.py est) 0.080-0.083 ->
+    0.073-0.078 s of CPU a minute (load 2.5-2.6); callgrind, the same feed on pickled
+    blocks (two runs' difference, halved): 1171.9 -> 1113.1 M instructions a minute."""
     from acquisition.stream import SourceEvent
     from estimator import row_kernels
     from ptinertia.runner import processing_chain

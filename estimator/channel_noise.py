@@ -168,8 +168,11 @@ class ChannelNoise:
         for i, (x, _, _) in enumerate(triples):
             by_k.setdefault(len(x), []).append(i)
         for k, at in by_k.items():
-            # (one stack of the triples: copies, the same values as three)
-            stack = np.array(triples if len(at) == len(triples) else [triples[i] for i in at])
+            # (one stack of the triples: copies, the same values as three; from a flat
+            # list of their arrays, which numpy reads in half the time of the tuples)
+            picked = triples if len(at) == len(triples) else [triples[i] for i in at]
+            flat = np.array([a for t in picked for a in t])
+            stack = flat.reshape(len(picked), 3, *flat.shape[1:])
             if row_kernels.USE:  # PTINERTIA_NUMBA=1: in one loop, the same bits
                 m = noise_medians(stack)
             else:

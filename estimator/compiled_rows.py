@@ -1,7 +1,7 @@
 """The compiled row assembly's entry points: :func:`kernel_rows` (the rows, by
 :func:`estimator.row_kernels.pair_rows`), :func:`kernel_motion_sensitivity` and
-:func:`kernel_model_input_rows` (the sensitivities to the systematic errors and to the
-model inputs, by the loops here): what :class:`estimator.pending_rows.RowAssembler`
+:func:`estimator.compiled_model_rows.kernel_model_input_rows` (the sensitivities to
+the systematic errors, by the loops here, and to the model inputs): what :class:`estimator.pending_rows.RowAssembler`
 calls with ``PTINERTIA_NUMBA=1`` in place of the numpy functions
 (:func:`estimator.equations.frame_rows`, :func:`estimator.systematic.motion_sensitivity`,
 :func:`estimator.model_inputs.model_input_rows`), which stay the default and the
@@ -86,13 +86,21 @@ def row_constants(
         ]
     ).astype(float)
     return (
-        np.array([*lin.cog, lin.mass, 1.0 if layout.mass else 0.0], float),
-        np.ascontiguousarray(lin.inertia, float),
+        *row_linearisation(layout, lin),
         bt.mount_positions if mounts else np.zeros((0, 3)),
         bt.mount_stiffness.astype(complex) if mounts else np.zeros((0, 3, 3), complex),
         consts,
         np.asarray(bt.c_it, complex),
         cols,
+    )
+
+
+def row_linearisation(layout: ParameterLayout, lin: Linearisation) -> tuple[np.ndarray, ...]:
+    """The first two of :func:`row_constants`, the ones ``lin`` moves: ``lin`` (cog, mass,
+    mass unknown) and the inertia (the rest stay from one linearisation to the next)."""
+    return (
+        np.array([*lin.cog, lin.mass, 1.0 if layout.mass else 0.0], float),
+        np.ascontiguousarray(lin.inertia, float),
     )
 
 
@@ -241,140 +249,3 @@ def motion_sens(
                     row[used[j]] = gain[i, j] * a
                     for c in range(6):
                         row[bases[j] + c] += gain[i, j] * pose[c]
-
-
-def model_constants(
-    setup: EstimatorSetup, lin: Linearisation, mass_known: bool
-) -> tuple[np.ndarray, ...]:
-    """:func:`model_rows`' arguments that hold for every pair under one linearisation
-    ``lin``: each model input's kind (0 excitation, 1 spin inertia, 2 mount stiffness),
-    its mount's position and stiffness, the constants (kept like :func:`row_constants`)."""
-    inputs = setup.model_inputs
-    n_m = len(inputs)
-    kinds = np.zeros(n_m, np.int64)
-    mount_pos = np.zeros((n_m, 3))
-    mount_stiff = np.zeros((n_m, 3, 3), complex)
-    for j, inp in enumerate(inputs):
-        if inp.kind == "spin_inertia":
-            kinds[j] = 1
-        elif inp.kind != "excitation":
-            kinds[j] = 2
-            mount = setup.mounts[inp.mount]
-            mount_pos[j], mount_stiff[j] = mount.position, mount.stiffness
-    consts = np.concatenate(
-        [lin.cog, setup.reference_point, setup.crank_axis, [1.0 if mass_known else 1.0 / lin.mass]]
-    ).astype(float)
-    return kinds, mount_pos, mount_stiff, consts
-
-
-def kernel_model_input_rows(
-    setup: EstimatorSetup,
-    lin: Linearisation,
-    mass_known: bool,
-    gamma_o: np.ndarray,
-    omega_dot: np.ndarray,
-    origin: np.ndarray,
-    orders: np.ndarray,
-    rpm: np.ndarray,
-    compiled: bool = True,
-    constants: tuple[np.ndarray, ...] | None = None,
-) -> np.ndarray:
-    """:func:`estimator.model_inputs.model_input_rows` by the compiled :func:`model_rows`
-    (the excitation inputs' derivatives still come from their numpy functions);
-    ``constants``: :func:`model_constants` (None: made here)."""
-    inputs = setup.model_inputs
-    n_p, n_m = len(orders), len(inputs)
-    h, rpm = np.asarray(orders, float), np.asarray(rpm, float)
-    if constants is None:
-        constants = model_constants(setup, lin, mass_known)
-    kinds, mount_pos, mount_stiff, consts = constants
-    d_exc = np.zeros((n_m, n_p, 6), complex)
-    for j, inp in enumerate(inputs):
-        if inp.kind == "excitation":
-            assert inp.d_excitation is not None
-            df, dm = inp.d_excitation(rpm, h)
-            d_exc[j, :, :3], d_exc[j, :, 3:] = df, dm
-    out = np.empty((n_p, 12, n_m))
-    (jit(model_rows) if compiled else model_rows)(
-        h,
-        rpm * 2 * np.pi / 60.0,
-        np.ascontiguousarray(origin, float),
-        np.ascontiguousarray(gamma_o, complex),
-        np.ascontiguousarray(omega_dot, complex),
-        kinds,
-        d_exc,
-        mount_pos,
-        mount_stiff,
-        consts,
-        out,
-    )
-    return out
-
-
-def model_rows(
-    h: np.ndarray,
-    w: np.ndarray,
-    origin: np.ndarray,
-    gamma_o: np.ndarray,
-    omega_dot: np.ndarray,
-    kinds: np.ndarray,
-    d_exc: np.ndarray,
-    mount_pos: np.ndarray,
-    mount_stiff: np.ndarray,
-    consts: np.ndarray,
-    out: np.ndarray,
-) -> None:
-    """d raw residual / d model inputs of P pairs into ``out`` (P, 12, n_model): per input
-    its ``kinds`` (0 excitation with d(force, moment) ``d_exc`` (n_model, P, 6), 1 spin
-    inertia, 2 the stiffness of the mount at ``mount_pos`` with ``mount_stiff``);
-    ``consts``: cog (3), reference point (3), crank axis (3), translation rows per
-    newton. :func:`estimator.model_inputs.model_input_rows`' formulas, pair by pair."""
-    n_p = h.shape[0]
-    n_m = kinds.shape[0]
-    g = consts[0:3]
-    per_force = consts[9]
-    t = np.empty(3, np.complex128)  # translation rows
-    r = np.empty(3, np.complex128)  # rotation rows
-    v = np.empty(3, np.complex128)
-    arm = np.empty(3)
-    for p in range(n_p):
-        om = omega_dot[p]
-        big_w2 = (h[p] * w[p]) ** 2
-        for j in range(n_m):
-            if kinds[j] == 0:
-                d = d_exc[j, p]
-                for a in range(3):
-                    arm[a] = g[a] - consts[3 + a]
-                    t[a] = -per_force * d[a]
-                for a in range(3):
-                    b, c = (a + 1) % 3, (a + 2) % 3
-                    r[a] = (arm[b] * d[c] - arm[c] * d[b]) - d[3 + a]
-            elif kinds[j] == 1:
-                s = consts[6:9]
-                for a in range(3):
-                    b, c = (a + 1) % 3, (a + 2) % 3
-                    t[a] = 0.0
-                    r[a] = (om[b] * s[c] - om[c] * s[b]) / (1j * h[p])
-            else:
-                pos = mount_pos[j]
-                k = mount_stiff[j]
-                for a in range(3):
-                    b, c = (a + 1) % 3, (a + 2) % 3
-                    v[a] = gamma_o[p, a] + (
-                        om[b] * (pos[c] - origin[p, c]) - om[c] * (pos[b] - origin[p, b])
-                    )
-                for a in range(3):
-                    f_a = (k[a, 0] * v[0] + k[a, 1] * v[1] + k[a, 2] * v[2]) / big_w2
-                    t[a] = -per_force * f_a
-                    r[a] = f_a  # (f, then the moment below)
-                for a in range(3):
-                    arm[a] = g[a] - pos[a]
-                for a in range(3):
-                    b, c = (a + 1) % 3, (a + 2) % 3
-                    v[a] = arm[b] * r[c] - arm[c] * r[b]
-                r[:] = v
-            for a in range(3):
-                out[p, a, j] = t[a].real
-                out[p, 3 + a, j] = r[a].real
-                out[p, 6 + a, j] = t[a].imag
-                out[p, 9 + a, j] = r[a].imag

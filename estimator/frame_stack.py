@@ -12,6 +12,7 @@ linearisation, CPU best of 3, load 4-5).
 
 from __future__ import annotations
 
+import itertools
 from typing import NamedTuple
 
 import numpy as np
@@ -66,8 +67,16 @@ class FrameStack:
         key = "per_pair:" + name
         out = self._arrays.get(key)
         if out is None:
-            each = np.array(self._fields[name])
-            out = self._arrays[key] = np.repeat(each, self.counts, axis=0)
+            values = self._fields[name]
+            first = values[0]
+            if isinstance(first, np.ndarray) and all(v is first for v in values):
+                # (the frames of one fit share its origin and cov_unit: one broadcast
+                # copy, the same array as repeated, in a third of the time)
+                out = np.empty((sum(self.counts), *first.shape), first.dtype)
+                out[...] = first
+            else:
+                out = np.repeat(np.array(values), self.counts, axis=0)
+            self._arrays[key] = out
         return out
 
     @property
@@ -75,7 +84,8 @@ class FrameStack:
         """Frame f's pairs are ``bounds[f]:bounds[f + 1]``."""
         out = self._arrays.get("bounds")
         if out is None:
-            out = self._arrays["bounds"] = np.cumsum([0, *self.counts])
+            # (accumulated in Python: np.cumsum of a list goes through np.asarray's wrapper)
+            out = self._arrays["bounds"] = np.array([0, *itertools.accumulate(self.counts)])
         return out
 
     @property

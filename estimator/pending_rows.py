@@ -8,7 +8,8 @@ sensitivity to the declared systematic sensor errors and, with
 self-calibration, the rigid fits' redundancy rows. The store of frames with an
 unseen motion (:mod:`estimator.partial_pairs`) builds its rows with the same
 assembler. With ``PTINERTIA_NUMBA=1`` the assembler builds the rows and both
-sensitivities with compiled loops (:mod:`estimator.compiled_rows`), within rounding of
+sensitivities with compiled loops (:mod:`estimator.compiled_rows`,
+:mod:`estimator.compiled_model_rows`), within rounding of
 the numpy functions, which stay the default and the reference.
 
 A flush hands the assembler its frames stacked (:mod:`estimator.frame_stack`).
@@ -22,12 +23,16 @@ from typing import Any
 import numpy as np
 
 from estimator import row_kernels
-from estimator.compiled_rows import (
+from estimator.compiled_model_rows import (
     kernel_model_input_rows,
+    model_constants,
+    model_linearisation,
+)
+from estimator.compiled_rows import (
     kernel_motion_sensitivity,
     kernel_rows,
-    model_constants,
     row_constants,
+    row_linearisation,
 )
 from estimator.elastic_tail import ELASTIC_TERMS
 from estimator.equations import Linearisation, ParameterLayout, frame_rows
@@ -205,12 +210,22 @@ class RowAssembler:
         self.compiled = row_kernels.USE
         # the compiled rows' constants under the last linearisation (one per relinearisation)
         self._constants: tuple[Linearisation, bool, tuple[Any, Any]] | None = None
+        # the compiled model-input rows' excitation tables per set of orders (fixed)
+        self._tables: dict[tuple[float, ...], np.ndarray] = {}
 
     def _constants_at(self, lin: Linearisation, measured: bool) -> tuple[Any, Any]:
         """:func:`estimator.compiled_rows.row_constants` and
-        :func:`~estimator.compiled_rows.model_constants`, kept while ``lin`` stays."""
+        :func:`estimator.compiled_model_rows.model_constants`, kept while ``lin`` stays."""
         kept = self._constants
-        if kept is None or kept[0] is not lin or kept[1] != measured:
+        if kept is not None and kept[0] is not lin and kept[1] == measured:
+            # (a relinearisation, before nearly every flush: only what lin moves anew)
+            rows, model = kept[2]
+            made = (
+                (*row_linearisation(self.layout, lin), *rows[2:]),
+                (*model[:3], model_linearisation(self.setup, lin, not self.layout.mass)),
+            )
+            kept = self._constants = (lin, measured, made)
+        elif kept is None or kept[0] is not lin or kept[1] != measured:
             made = (
                 row_constants(self.setup, self.layout, lin, measured),
                 model_constants(self.setup, lin, not self.layout.mass),
@@ -326,7 +341,7 @@ class RowAssembler:
             model_args = (self.setup, lin, not self.layout.mass, *signed, origin, orders, rpm)
             if self.compiled:
                 fixed = self._constants_at(lin, measured is not None)[1]
-                model = kernel_model_input_rows(*model_args, constants=fixed)
+                model = kernel_model_input_rows(*model_args, constants=fixed, tables=self._tables)
             else:
                 model = model_input_rows(*model_args)
         if self.compiled and not self.layout.mount_scales:

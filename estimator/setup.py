@@ -33,6 +33,12 @@ GasMomentFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 #: the callable itself, so replacing the callable in a setup replaces both.
 ExcitationManyFn = Callable[[list[float], np.ndarray], tuple[np.ndarray, np.ndarray]]
 GasMomentManyFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
+#: What a ``d_excitation`` (:data:`PairExcitationFn`) may also offer, as its attribute
+#: ``split``: ``split(key)`` of the sorted distinct orders ``key`` (K,) -> the gas and
+#: the unit-speed parts (K, 2, 3) complex ([force, moment]), the pairs' derivative being
+#: ``gas[i] + omega^2 unit[i]`` (omega rad/s, i the pair's order in ``key``): the
+#: compiled model-input rows (estimator.compiled_rows) gather them in their loop.
+PairExcitationSplitFn = Callable[[tuple[float, ...]], tuple[np.ndarray, np.ndarray]]
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ import numpy as np
 
 from acquisition.stream import SourceEvent
 from estimator.channel_fits import ChannelFits
-from estimator.elastic_tail import ELASTIC_TERMS, add_with_tail, elastic_mode_event
+from estimator.elastic_tail import ELASTIC_TERMS, elastic_mode_event
 from estimator.equations import (
     Linearisation,
     ParameterLayout,
@@ -34,7 +34,7 @@ from estimator.equations import (
     parameter_scale,
 )
 from estimator.fitted_runs import FittedRun, Screened, fit_run, run_end
-from estimator.frame_stack import FrameStack, PendingFrame
+from estimator.flush import flush
 from estimator.gating import FrameLike, Judged, OrderGates, frame_gate, overlaps_previous
 from estimator.hypotheses import (
     DECIDE_AFTER_FRAMES,
@@ -118,6 +118,14 @@ class InertiaEstimator:
     def elastic(self) -> dict[str, float] | None:
         """The elastic mode the residual gate confirmed (order, frequency_hz), or None."""
         return self.gates.elastic
+
+    @property
+    def flush_timing_matters(self) -> bool:
+        """An estimate now changes nothing later unless True: once a frame with an unseen
+        motion is queued, each flush's batch is linearised at the state of that flush
+        (:mod:`estimator.partial_pairs`), so a stream must flush at the same frames on
+        every run; until then a caller may skip estimates nobody reads."""
+        return self.queue.flush_timing_matters
 
     # -- update -------------------------------------------------------------------------
     def update(self, frame: FrameLike) -> FrameOutcome:
@@ -239,56 +247,8 @@ class InertiaEstimator:
         return FrameOutcome(frame.time_s, frame.rpm, (), {}, reason, {})
 
     def _flush(self) -> None:
-        """Assemble the queued frames' rows and add them, frame by frame, to both hypotheses.
-
-        The two sign hypotheses differ only in the half orders of frames whose 720 deg
-        cycle is unknown (there the motion, and every measurement-derived term, flips
-        sign): only those rows are computed twice, and only until the residuals have
-        decided between the hypotheses.
-        """
-        batch = self.queue.take()
-        unseen = [p for p in batch if p.fit.null is not None]
-        batch = [p for p in batch if p.fit.null is None]
-        if batch:
-            self._flush_measured(batch)
-        if unseen:
-            self.partial.take(unseen)
-
-    def _flush_measured(self, batch: list[PendingFrame]) -> None:
-        """:meth:`_flush` for the frames whose motion is fully measured."""
-        stack = FrameStack(batch)  # (the frames' arrays concatenated once for every call)
-        half = stack.cat("half")
-        dm = self.rows.sensitivity(stack)
-        # (sign None: the motions as measured; sel None: every pair)
-        if self.decided_sign is not None:
-            sign = np.where(half, -1.0, 1.0) if self.decided_sign < 0 else None
-            hyp = {self.decided_sign: self.rows.rows(stack, sign, None, dm, self.lin)}
-        elif self.stats.ambiguous_frames == 0:
-            # No frame without a 720 deg reference yet: both hypotheses are the same
-            # sums; keep one, and copy it when the first ambiguous frame arrives.
-            hyp = {1: self.rows.rows(stack, None, None, dm, self.lin)}
-            self._hypotheses_equal = True
-        else:
-            if self._hypotheses_equal:
-                self.acc[-1] = Accumulator(state=self.acc[1].state, sens=self.acc[1].sens)
-                self.misfit.copy_sign(1, -1)
-                self._hypotheses_equal = False
-            H, y, dr = self.rows.rows(stack, None, None, dm, self.lin)
-            hyp = {1: (H, y, dr), -1: (H, y, dr)}
-            if np.any(half):
-                flip = np.where(half, -1.0, 1.0)
-                Hf, yf, drf = H.copy(), y.copy(), dr.copy()
-                Hf[half], yf[half], drf[half] = self.rows.rows(stack, flip, half, dm, self.lin)
-                hyp[-1] = (Hf, yf, drf)
-        bounds, orders = stack.bounds, stack.cat("orders")
-        kin = self.rows.redundancy(batch) if self._cal else None
-        for sign_, (Hs, ys, drs) in hyp.items():
-            # one update per frame, in stream order: the same sums whatever the batch
-            self.misfit.add_frames(sign_, orders, Hs, ys, bounds)
-            self.acc[sign_] = add_with_tail(
-                self.acc[sign_], Hs, ys, drs, bounds, self.forgetting, stack.f_hz,
-                self.rows.compiled, kin,
-            )  # fmt: skip
+        """Add the queued frames' rows to the sign hypotheses (:func:`estimator.flush.flush`)."""
+        flush(self)
 
     @within_one_call
     def _relinearise(self) -> None:

@@ -167,11 +167,11 @@ class Pipeline:
         ):
             # The schedule runs whether or not the estimate is computed: once a frame with
             # an unseen motion is queued, every run of the stream must flush at the same
-            # frames (estimator.pending_rows.FrameQueue.flush_timing_matters); until then
+            # frames (InertiaEstimator.flush_timing_matters); until then
             # an estimate no sink wants is skipped (ptinertia.sinks.wants_estimates).
             self._last_estimate_t = last_used.time_s
             if not any(wants_estimates(sink) for sink in self.sinks) and (
-                not self.estimator.queue.flush_timing_matters
+                not self.estimator.flush_timing_matters
             ):
                 return
             self._published = True

@@ -93,23 +93,37 @@ def _gas_part(engine: Engine, about: np.ndarray) -> PairExcitationFn:
 def _per_pair(parts: Callable[[tuple[float, ...]], OrderExcitation]) -> PairExcitationFn:
     """``parts`` (the speed-split excitation of a set of orders, cached) evaluated for
     (frame, order) pairs at once: the gas part plus ``omega^2`` times the inertia part."""
-    # per set of orders (sorted): the gas parts and the inertia parts, (K, 2, 3)
-    # [force, moment] each (one gather per call instead of four)
-    by_orders: dict[tuple[float, ...], tuple[np.ndarray, np.ndarray]] = {}
+    return _PairDerivative(parts)
 
-    def derivative(rpm: np.ndarray, orders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        key, at = _order_index(np.asarray(orders, float).tobytes())
-        if key not in by_orders:
-            ex = parts(key)
-            by_orders[key] = (
+
+class _PairDerivative:
+    """A :data:`estimator.setup.PairExcitationFn` from the speed-split parts of a set of
+    orders, offering the parts themselves as ``split`` (the compiled rows gather them)."""
+
+    def __init__(self, parts: Callable[[tuple[float, ...]], OrderExcitation]) -> None:
+        self.parts = parts
+        # per set of orders (sorted): the gas parts and the inertia parts, (K, 2, 3)
+        # [force, moment] each (one gather per call instead of four)
+        self.by_orders: dict[tuple[float, ...], tuple[np.ndarray, np.ndarray]] = {}
+
+    def split(self, key: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """The gas and the unit-speed inertia parts (K, 2, 3) complex of the sorted
+        distinct orders ``key``: a pair of order ``key[i]`` at crank speed omega rad/s
+        has ``gas[i] + omega^2 unit[i]`` ([force N, moment N m] per unit of the input)."""
+        known = self.by_orders.get(key)
+        if known is None:
+            ex = self.parts(key)
+            known = self.by_orders[key] = (
                 np.stack([ex.gas_force, ex.gas_moment], axis=1),
                 np.stack([ex.unit_inertia_force, ex.unit_inertia_moment], axis=1),
             )
-        gas, unit = by_orders[key]
+        return known
+
+    def __call__(self, rpm: np.ndarray, orders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        key, at = _order_index(np.asarray(orders, float).tobytes())
+        gas, unit = self.split(key)
         both = gas[at] + _speed_squared(np.asarray(rpm, float).tobytes()) * unit[at]
         return both[:, 0], both[:, 1]
-
-    return derivative
 
 
 # Each excitation input's derivative is evaluated for the same (frame, order) pairs in a

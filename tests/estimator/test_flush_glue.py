@@ -12,9 +12,9 @@ from typing import Any
 
 import numpy as np
 import pytest
-from support.estimator_harness import Body, frames, make_setup
+from support.estimator_harness import Body, SplitExcitation, frames, make_setup
 
-from estimator import compiled_rows, row_kernels
+from estimator import compiled_model_rows, compiled_rows, row_kernels
 from estimator.equations import Linearisation
 from estimator.frame_stack import FrameStack, PendingFrame
 from estimator.misfit import MisfitSample
@@ -144,10 +144,12 @@ def test_misfit_sample_of_consecutive_frames_is_the_per_frame_sample() -> None:
             assert np.array_equal(a, b) and a.flags.owndata  # copies, not views of the batch
 
 
-# inputs whose constants are kept: a spin inertia and a mount's stiffness
+# inputs whose constants are kept: a spin inertia and a mount's stiffness; an excitation
+# input whose tables are kept (SplitExcitation offers them)
 MODEL_INPUTS = (
     ModelInput("spin_inertia", "spin_inertia", 0.01),
     ModelInput("mount:m1", "mount", 0.15, mount=1),
+    ModelInput("exc", "excitation", 0.05, d_excitation=SplitExcitation()),
 )
 
 
@@ -164,7 +166,7 @@ def test_kept_row_constants_are_the_ones_made_per_call(compiled: bool) -> None:
     def made(x: Linearisation) -> tuple:
         return (
             compiled_rows.row_constants(setup, layout, x, False),
-            compiled_rows.model_constants(setup, x, not layout.mass),
+            compiled_model_rows.model_constants(setup, x, not layout.mass),
         )
 
     batch = est.queue.frames

@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 import pytest
-from support.estimator_harness import Body, frames, make_setup
+from support.estimator_harness import Body, SplitExcitation, frames, make_setup
 
-from estimator import compiled_rows, row_kernels
+from estimator import compiled_model_rows, compiled_rows, row_kernels
 from estimator.compiled_sums import kernel_tail_sums
 from estimator.elastic_tail import ELASTIC_F_REF_HZ, ELASTIC_TERMS, with_tail
 from estimator.equations import Linearisation, ParameterLayout, frame_rows
@@ -185,25 +185,35 @@ def _d_excitation(rpm: np.ndarray, orders: np.ndarray) -> tuple[np.ndarray, np.n
     return (orders * w2)[:, None] * [0.1, 0.2j, 0.3], (orders * w2)[:, None] * [0.02j, 0.01, 0.03]
 
 
-MODEL_INPUTS = (
-    ModelInput("exc", "excitation", 0.05, d_excitation=_d_excitation),
-    ModelInput("spin_inertia", "spin_inertia", 0.01),
-    ModelInput("mount:m1", "mount", 0.15, mount=1),
-    ModelInput("exc2", "excitation", 0.05, d_excitation=_d_excitation),
-    ModelInput("mount:m0", "mount", 0.15, mount=0),
-)
+def _model_inputs(split: bool) -> tuple[ModelInput, ...]:
+    # (split: every excitation input offers its parts, gathered in the kernel's loop)
+    d = SplitExcitation() if split else _d_excitation
+    return (
+        ModelInput("exc", "excitation", 0.05, d_excitation=d),
+        ModelInput("spin_inertia", "spin_inertia", 0.01),
+        ModelInput("mount:m1", "mount", 0.15, mount=1),
+        ModelInput("exc2", "excitation", 0.05, d_excitation=d),
+        ModelInput("mount:m0", "mount", 0.15, mount=0),
+    )
+
+
+MODEL_INPUTS = _model_inputs(False)
 
 
 @pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=NUMBA)])
 @pytest.mark.parametrize("mass_known", [True, False])
-def test_model_input_kernel_gives_the_numpy_rows(compiled: bool, mass_known: bool) -> None:
+@pytest.mark.parametrize("split", [False, True])
+def test_model_input_kernel_gives_the_numpy_rows(
+    compiled: bool, mass_known: bool, split: bool
+) -> None:
     body = Body()
-    setup = dataclasses.replace(make_setup(body, mass_known=mass_known), model_inputs=MODEL_INPUTS)
+    inputs = _model_inputs(split)
+    setup = dataclasses.replace(make_setup(body, mass_known=mass_known), model_inputs=inputs)
     lin = Linearisation(cog=body.cog + 0.01, inertia=body.inertia, mass=body.mass * 0.97)
     motion = 0.1 * _complex(P, 3), _complex(P, 3)
     origin = RNG.normal(scale=0.02, size=(P, 3))
     args = (setup, lin, mass_known, *motion, origin, ORDERS, RPM)
-    got = compiled_rows.kernel_model_input_rows(*args, compiled=compiled)
+    got = compiled_model_rows.kernel_model_input_rows(*args, compiled=compiled)
     _close((got,), (model_input_rows(*args),))
 
 

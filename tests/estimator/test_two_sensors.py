@@ -82,6 +82,20 @@ def test_a_sensor_lost_midway_keeps_both_kinds_of_frames() -> None:
     np.testing.assert_allclose(e.inertia, body.inertia, rtol=0, atol=1e-9)
 
 
+def test_flush_timing_matters_from_the_first_frame_with_an_unseen_motion() -> None:
+    # (a pipeline skips the estimates nobody reads only while it does not: ptinertia.pipeline)
+    body = Body()
+    est = InertiaEstimator(_far_setup(body))
+    half = len(RPMS) // 2
+    matters = []
+    for i, f in enumerate(frames(body, RPMS[: half + UNSEEN_AFTER_FRAMES + 2])):
+        outcome = est.update(_lose_sensor(2, f) if i >= half else f)
+        matters.append((outcome.reason is None and i >= half, est.flush_timing_matters))
+    first_unseen = half + UNSEEN_AFTER_FRAMES - 1  # (the earlier ones rejected)
+    assert [m for _, m in matters] == [i >= first_unseen for i in range(len(matters))]
+    assert matters[first_unseen][0]
+
+
 def test_half_order_sign_without_a_reference_is_decided_by_the_unseen_motion_fit() -> None:
     body = Body()
 

@@ -176,3 +176,21 @@ def frames(body: Body, rpms: np.ndarray, orders: tuple[float, ...] = (1.0, 1.5, 
             amplitudes=amps,
             channel_ok=np.ones(9, bool),
         )
+
+
+class SplitExcitation:
+    """A derivative offering its speed-split parts (estimator.setup.PairExcitationSplitFn):
+    per order h, gas ``h c_gas`` and unit-speed ``h^2 c_unit``; a pair's value (its call,
+    what the numpy rows take) ``gas + omega^2 unit``."""
+
+    def split(self, key: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+        h = np.array(key)[:, None, None]
+        gas = h * np.array([[0.1, 0.2j, 0.3], [0.02j, 0.01, 0.03]])
+        return gas, h**2 * np.array([[0.3j, 0.1, 0.2], [0.01, 0.05j, 0.02]])
+
+    def __call__(self, rpm: np.ndarray, orders: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        key = tuple(sorted(set(orders.tolist())))
+        gas, unit = self.split(key)
+        at = [key.index(h) for h in orders.tolist()]
+        both = gas[at] + ((rpm * np.pi / 30) ** 2)[:, None, None] * unit[at]
+        return both[:, 0], both[:, 1]
