@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import os
 import struct
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from io import BytesIO
 from typing import IO
 
@@ -19,10 +19,13 @@ from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Schema
 
+crc32_combine: Callable[[int, int, int], int] | None
 try:  # CRC-32 (MCAP's, zlib's): ISA-L's is the same function, 7x faster (asammdf installs it)
-    from isal.isal_zlib import crc32
+    from isal.isal_zlib import crc32, crc32_combine
 except ImportError:  # pragma: no cover - a platform without isal wheels
     from zlib import crc32
+
+    crc32_combine = None  # (Python's zlib does not offer zlib's crc32_combine)
 
 MAGIC = b"\x89MCAP0\r\n"
 MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
