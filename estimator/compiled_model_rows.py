@@ -28,7 +28,7 @@ def model_constants(
 ) -> tuple[np.ndarray, ...]:
     """:func:`model_rows`' arguments that hold for every pair under one linearisation
     ``lin``: each model input's kind (0 excitation, 1 spin inertia, 2 mount stiffness),
-    its mount's position and stiffness, the constants (kept like :func:`row_constants`)."""
+    its mount's position and stiffness, the constants (kept like :func:`estimator.compiled_rows.row_constants`)."""
     inputs = setup.model_inputs
     n_m = len(inputs)
     kinds = np.zeros(n_m, np.int64)

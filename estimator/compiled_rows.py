@@ -1,7 +1,8 @@
 """The compiled row assembly's entry points: :func:`kernel_rows` (the rows, by
 :func:`estimator.row_kernels.pair_rows`), :func:`kernel_motion_sensitivity` and
-:func:`estimator.compiled_model_rows.kernel_model_input_rows` (the sensitivities to
-the systematic errors, by the loops here, and to the model inputs): what :class:`estimator.pending_rows.RowAssembler`
+:func:`estimator.compiled_model_rows.kernel_model_input_rows` (the sensitivities to the
+systematic errors, by the loops here, and to the model inputs, by that module's): what
+:class:`estimator.pending_rows.RowAssembler`
 calls with ``PTINERTIA_NUMBA=1`` in place of the numpy functions
 (:func:`estimator.equations.frame_rows`, :func:`estimator.systematic.motion_sensitivity`,
 :func:`estimator.model_inputs.model_input_rows`), which stay the default and the

@@ -31,7 +31,9 @@ class RigidMotion(NamedTuple):
     """Least-squares rigid-body motion of one frame, per order.
 
     (A named tuple: one is made per fitted frame, in a third of a frozen dataclass's
-    time: 0.45 us a frame, 0.7 ms a minute of the 60 s log.)
+    time: 0.45 us a frame, 0.7 ms a minute of the 60 s log. Unlike a dataclass it is a
+    tuple: it iterates, compares equal to a plain tuple of its values, and takes
+    ``_replace`` rather than ``dataclasses.replace``.)
 
     Attributes
     ----------

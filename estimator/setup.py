@@ -37,7 +37,7 @@ GasMomentManyFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 #: ``split``: ``split(key)`` of the sorted distinct orders ``key`` (K,) -> the gas and
 #: the unit-speed parts (K, 2, 3) complex ([force, moment]), the pairs' derivative being
 #: ``gas[i] + omega^2 unit[i]`` (omega rad/s, i the pair's order in ``key``): the
-#: compiled model-input rows (estimator.compiled_rows) gather them in their loop.
+#: compiled model-input rows (estimator.compiled_model_rows) gather them in their loop.
 PairExcitationSplitFn = Callable[[tuple[float, ...]], tuple[np.ndarray, np.ndarray]]
 
 

@@ -50,6 +50,15 @@ def test_stacked_frames_give_the_rows_of_the_frame_list(compiled: bool) -> None:
     assert np.array_equal(stack.bounds, np.cumsum([0] + [len(p.orders) for p in batch]))
     rpm = np.repeat([p.rpm for p in batch], [len(p.orders) for p in batch])
     assert np.array_equal(stack.f_hz, np.concatenate([p.orders for p in batch]) * rpm / 60.0)
+    # a fit's shared origin and cov_unit (one broadcast copy), and the same batch with
+    # every frame's arrays its own (np.repeat): both np.repeat's array, dtype and shape
+    counts = [len(p.orders) for p in batch]
+    own = FrameStack([p._replace(origin=p.origin.copy()) for p in batch])
+    for name in ("origin", "cov_unit"):
+        want = np.repeat(np.array([getattr(p, name) for p in batch]), counts, axis=0)
+        for s in (stack, own):
+            got = s.per_pair(name)
+            assert got.dtype == want.dtype and np.array_equal(got, want)
     dm = est.rows.sensitivity(batch)
     assert np.array_equal(est.rows.sensitivity(stack), dm)
     n_p = len(dm)
@@ -153,15 +162,17 @@ MODEL_INPUTS = (
 )
 
 
+@pytest.mark.parametrize("mass_known", [True, False])
 @pytest.mark.parametrize("compiled", [False, pytest.param(True, marks=NUMBA)])
-def test_kept_row_constants_are_the_ones_made_per_call(compiled: bool) -> None:
+def test_kept_row_constants_are_the_ones_made_per_call(compiled: bool, mass_known: bool) -> None:
     """The compiled rows' constants kept by the assembler: the same as made per call,
-    made anew when the linearisation changes, and (compiled) the same rows as a fresh
-    assembler's."""
-    est = _queued(compiled, model_inputs=MODEL_INPUTS)
+    made anew when the linearisation (its mass too, when the mass is estimated) changes,
+    and (compiled) the same rows as a fresh assembler's."""
+    est = _queued(compiled, model_inputs=MODEL_INPUTS, mass_known=mass_known)
+    assert bool(est.layout.mass) is not mass_known
     setup, layout = est.setup, est.layout
     lin = est.lin
-    other = Linearisation(cog=lin.cog + 0.002, inertia=lin.inertia * 1.01, mass=lin.mass)
+    other = Linearisation(cog=lin.cog + 0.002, inertia=lin.inertia * 1.01, mass=lin.mass * 1.1)
 
     def made(x: Linearisation) -> tuple:
         return (

@@ -36,3 +36,22 @@ def test_each_pair_gets_its_own_derivative_whatever_came_before() -> None:
     # the inputs differ from one another (each its own cached parts)
     firsts = [inp.d_excitation(rpm, h)[1] for inp in inputs]  # type: ignore[misc]
     assert not np.array_equal(firsts[0], firsts[1])
+
+
+def test_the_split_parts_give_each_pair_its_derivative() -> None:
+    """``split`` (what the compiled model-input rows gather: estimator/compiled_model_rows)
+    against the call: ``gas + omega^2 unit`` of the pair's order is the call's value."""
+    setup = estimator_setup(load_bench(EXAMPLES_DIR / "i3-bench.toml"))
+    inputs = [i.d_excitation for i in setup.model_inputs if i.d_excitation is not None]
+    h = np.array([2.0, 1.0, 1.5, 1.0])
+    rpm = np.array([1500.0, 2250.0, 2250.0, 4100.0])
+    w2 = (rpm * 2 * np.pi / 60.0) ** 2
+    for d in inputs:
+        key = tuple(sorted(set(h.tolist())))
+        gas, unit = d.split(key)  # type: ignore[union-attr]
+        assert gas.shape == unit.shape == (len(key), 2, 3)
+        force, moment = d(rpm, h)
+        at = [key.index(x) for x in h]
+        both = gas[at] + w2[:, None, None] * unit[at]
+        np.testing.assert_allclose(both[:, 0], force, rtol=1e-14, atol=0)
+        np.testing.assert_allclose(both[:, 1], moment, rtol=1e-14, atol=0)
