@@ -37,6 +37,7 @@ from replay.errors import LogError, describe
 from replay.integrity import DataCheck, check_data_crc, check_summary_crc
 from replay.mcap_records import (
     MAGIC,
+    MESSAGE_HEAD,
     BadChunk,
     chunk_payload,
     chunk_records,
@@ -58,7 +59,7 @@ from replay.schemas import (
     full_name,
     stream_topics,
 )
-from replay.summary import read_metadata, read_summary
+from replay.summary import SummaryRecords, read_metadata, read_summary
 
 # A sample rate no acquisition reaches (Hz): a larger one in a recording is damage.
 MAX_RATE_HZ = 1e9
@@ -83,6 +84,7 @@ class _Scan:
     channels: dict[int, Channel] = field(default_factory=dict)
     counts: dict[str, int] | None = None
     chunks: int = 0
+    messages: int = 0  # messages outside chunks (mcap's Writer(use_chunking=False))
     last_log_time: int | None = None
     readable: int = 0
     data_end: bool = False  # the data section was complete
@@ -145,7 +147,7 @@ def open_log(path: str | Path, check_later: bool = False) -> RecordedLog:
         scan = _scan_stream(path)
         report.readable_bytes = scan.readable
         report.data_complete = scan.data_end
-        if scan.chunks == 0:
+        if scan.chunks == 0 and scan.messages == 0:
             raise LogError(
                 f"{path}: truncated before any data ({size} bytes, no complete chunk"
                 + (f"; {scan.error}" if scan.error else "")
@@ -193,6 +195,18 @@ def _scan_finished(path: Path) -> _Scan:
         if summary_start == 0:
             raise NoSummary("no summary section")
         summary = read_summary(section)
+        gap = _unindexed(summary)
+        if gap is not None:  # valid MCAP (mcap's Writer can leave the indexes out): the data has it
+            scan = _scan_stream(path)
+            scan.notes.append(
+                f"the summary does not index the whole file ({gap}): read front to back"
+            )
+            if summary.statistics is not None:
+                counts = summary.statistics.channel_message_counts
+                scan.counts = {
+                    ch.topic: int(counts.get(cid, 0)) for cid, ch in scan.channels.items()
+                }
+            return scan
         scan.schemas = dict(summary.schemas)
         scan.channels = dict(summary.channels)
         scan.chunks = len(summary.chunk_indexes)
@@ -213,6 +227,31 @@ def _scan_finished(path: Path) -> _Scan:
             if opcode == Opcode.DATA_END and length == 4:
                 scan.data_end_offset, scan.data_crc = summary_start - 13, crc
     return scan
+
+
+def _unindexed(summary: SummaryRecords) -> str | None:
+    """What the summary's indexes leave out (None: it indexes every chunk, metadata record
+    and attachment), judged by its statistics when it has them.
+
+    mcap's ``Writer`` writes a valid file without chunk indexes (``use_chunking=False``, or
+    ``index_types`` without ``CHUNK``) or without metadata or attachment indexes; a file read
+    by its indexes alone would then lose its messages or its run metadata without a word.
+    """
+    stats = summary.statistics
+    chunks, metas = len(summary.chunk_indexes), len(summary.metadata_indexes)
+    attachments = len(summary.attachment_indexes)
+    if chunks == 0:
+        return "no chunk index"
+    if stats is None:
+        return "no metadata index" if metas == 0 else None
+    for what, indexed, counted in (
+        ("chunk", chunks, stats.chunk_count),
+        ("metadata record", metas, stats.metadata_count),
+        ("attachment", attachments, stats.attachment_count),
+    ):
+        if indexed != counted:
+            return f"{indexed} {what} index(es), its statistics count {counted}"
+    return None
 
 
 def _attach(scan: _Scan, content: bytes, offset: int) -> None:
@@ -253,6 +292,10 @@ def _scan_stream(path: str | Path) -> _Scan:
                     _attach(scan, read_at(fh, offset, length), offset - 9)
                 elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
                     _define(scan, parse_definition(opcode, read_at(fh, offset, length)))
+                elif opcode == Opcode.MESSAGE and length >= MESSAGE_HEAD.size:
+                    (log_time,) = struct.unpack("<Q", read_at(fh, offset + 6, 8))
+                    scan.messages += 1
+                    scan.last_log_time = max(log_time, scan.last_log_time or 0)
                 scan.readable = offset + length
                 if ends_data(opcode, length):
                     if opcode == Opcode.DATA_END:

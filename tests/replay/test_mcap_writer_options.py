@@ -1,0 +1,118 @@
+"""Recordings rewritten by mcap's own ``Writer`` with the options a user's tool may choose.
+
+A file without chunk indexes, metadata indexes or statistics is valid MCAP: the
+replay reads it front to back, says so, and gives the clean result.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+from typing import Any
+
+import pytest
+from mcap.opcode import Opcode
+from mcap.records import Attachment, Channel, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import IndexType, Writer
+from support.clean_run import CleanRun
+
+from ptinertia.cli import main
+
+
+def replay(log: Path, out: Path, capsys: pytest.CaptureFixture[str]) -> Any:
+    """Exit code, result document (or None), stderr lines of ``ptinertia replay log``."""
+    out.unlink(missing_ok=True)
+    code = main(["replay", str(log), "--quiet", "--json", str(out)])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    return code, json.loads(out.read_text()) if out.exists() else None, err
+
+
+def rewritten(source: Path, path: Path, **options: Any) -> Path:
+    """``source``'s records written again, in file order, by ``Writer(**options)``."""
+    with open(source, "rb") as src, open(path, "wb") as out:
+        writer = Writer(out, **options)
+        writer.start(profile="", library="a user's tool")
+        schemas, channels = {0: 0}, {}
+        for rec in StreamReader(src).records:
+            if isinstance(rec, Schema) and rec.id not in schemas:
+                schemas[rec.id] = writer.register_schema(rec.name, rec.encoding, rec.data)
+            elif isinstance(rec, Channel) and rec.id not in channels:
+                channels[rec.id] = writer.register_channel(
+                    rec.topic, rec.message_encoding, schemas[rec.schema_id], rec.metadata
+                )
+            elif isinstance(rec, Message):
+                writer.add_message(
+                    channels[rec.channel_id], rec.log_time, rec.data, rec.publish_time, rec.sequence
+                )
+            elif isinstance(rec, Metadata):
+                writer.add_metadata(rec.name, rec.metadata)
+            elif isinstance(rec, Attachment):
+                writer.add_attachment(
+                    rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data
+                )
+        writer.finish()
+    return path
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"use_chunking": False},
+        {"use_chunking": False, "enable_crcs": False, "use_statistics": False},
+        {"index_types": IndexType.NONE},
+        {"index_types": IndexType.CHUNK},
+        {"index_types": IndexType.METADATA | IndexType.ATTACHMENT},
+    ],
+    ids=[
+        "no-chunks",
+        "no-chunks-crcs-statistics",
+        "no-indexes",
+        "chunk-index-only",
+        "no-chunk-index",
+    ],
+)
+def test_a_summary_without_indexes_is_read_front_to_back_with_the_clean_result(
+    clean_run: CleanRun,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    options: dict[str, Any],
+) -> None:
+    log = rewritten(clean_run.log, tmp_path / "log.mcap", **options)
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert code == 0 and doc == clean_run.result
+    assert any("the summary does not index the whole file" in line for line in err)
+
+
+def test_an_indexed_summary_is_read_by_its_indexes_without_a_note(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    log = rewritten(clean_run.log, tmp_path / "log.mcap")
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert code == 0 and doc == clean_run.result
+    assert not any("index" in line for line in err)
+
+
+def summary_records(data: bytes) -> list[tuple[int, int]]:
+    """(opcode, byte offset) of every record of a finished file's summary section."""
+    footer = len(data) - 8 - 29
+    (start,) = struct.unpack_from("<Q", data, footer + 9)
+    out, pos = [], start
+    while pos < footer:
+        opcode, length = struct.unpack_from("<BQ", data, pos)
+        out.append((opcode, pos))
+        pos += 9 + length
+    return out
+
+
+def test_a_chunk_index_lost_from_a_summary_without_crc_is_caught_by_the_statistics(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    data = rewritten(clean_run.log, tmp_path / "nocrc.mcap", enable_crcs=False).read_bytes()
+    at = [pos for op, pos in summary_records(data) if op == Opcode.CHUNK_INDEX][1]
+    log = tmp_path / "log.mcap"
+    log.write_bytes(data[:at] + b"\x88" + data[at + 1 :])  # an opcode MCAP readers skip
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert code == 0 and doc == clean_run.result
+    assert any("chunk index(es), its statistics count" in line for line in err)
