@@ -38,6 +38,22 @@ from replay.mcap_records import RECORD_HEAD, read_at
 
 # message start time, message end time, chunk start offset, chunk length
 _CHUNK_INDEX = struct.Struct("<QQQQ")
+# Records MCAP puts in the data section only: one in a summary is damage (a chunk index
+# 0x08 flipped to an attachment 0x09, a metadata index 0x0D to metadata 0x0C), not a
+# record to skip, or a summary without CRC loses the index without a word.
+_DATA_ONLY = frozenset(
+    int(op)
+    for op in (
+        Opcode.HEADER,
+        Opcode.FOOTER,
+        Opcode.MESSAGE,
+        Opcode.CHUNK,
+        Opcode.MESSAGE_INDEX,
+        Opcode.ATTACHMENT,
+        Opcode.METADATA,
+        Opcode.DATA_END,
+    )
+)
 
 
 @dataclass(frozen=True)
@@ -83,10 +99,12 @@ def _stream(content: memoryview) -> ReadDataStream:
 
 def read_summary(summary: bytes) -> SummaryRecords:
     """The records of a summary section's bytes (its CRC checked by the caller); raises
-    McapError or ``struct.error`` on a record that does not parse. Unknown records and
-    summary offsets are skipped, as the mcap reader does."""
+    McapError or ``struct.error`` on a record that does not parse or has no place in a
+    summary. Unknown records and summary offsets are skipped, as the mcap reader does."""
     out = SummaryRecords()
     for opcode, content in _records(summary):
+        if opcode in _DATA_ONLY:
+            raise McapError(f"a record with opcode {opcode:#04x} in the summary section")
         if opcode == Opcode.CHUNK_INDEX:
             out.chunk_indexes.append(ChunkSpan(*_CHUNK_INDEX.unpack_from(content, 0)))
         elif opcode == Opcode.SCHEMA:

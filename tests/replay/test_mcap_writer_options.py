@@ -116,3 +116,25 @@ def test_a_chunk_index_lost_from_a_summary_without_crc_is_caught_by_the_statisti
     code, doc, err = replay(log, tmp_path / "r.json", capsys)
     assert code == 0 and doc == clean_run.result
     assert any("chunk index(es), its statistics count" in line for line in err)
+
+
+@pytest.mark.parametrize(
+    ("index", "flipped_to"),
+    [(Opcode.CHUNK_INDEX, Opcode.ATTACHMENT), (Opcode.METADATA_INDEX, Opcode.METADATA)],
+)
+def test_a_data_section_record_in_a_summary_without_crc_is_damage(
+    clean_run: CleanRun,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    index: int,
+    flipped_to: int,
+) -> None:
+    """Without a CRC and statistics, only the opcode tells the index was damaged."""
+    options = {"enable_crcs": False, "use_statistics": False}
+    data = rewritten(clean_run.log, tmp_path / "nocrc.mcap", **options).read_bytes()
+    at = next(pos for op, pos in summary_records(data) if op == index)
+    log = tmp_path / "log.mcap"
+    log.write_bytes(data[:at] + bytes([flipped_to]) + data[at + 1 :])
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert code == 0 and doc == clean_run.result
+    assert any(f"opcode {flipped_to:#04x} in the summary section" in line for line in err)
