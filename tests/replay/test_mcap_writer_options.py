@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import struct
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +20,7 @@ from mcap.writer import IndexType, Writer
 from support.clean_run import CleanRun
 
 from ptinertia.cli import main
+from replay.schemas import META_RUN
 
 
 def replay(log: Path, out: Path, capsys: pytest.CaptureFixture[str]) -> Any:
@@ -29,25 +31,45 @@ def replay(log: Path, out: Path, capsys: pytest.CaptureFixture[str]) -> Any:
     return code, json.loads(out.read_text()) if out.exists() else None, err
 
 
-def rewritten(source: Path, path: Path, **options: Any) -> Path:
-    """``source``'s records written again, in file order, by ``Writer(**options)``."""
+def rewritten(
+    source: Path,
+    path: Path,
+    edit_layout: Callable[[dict[str, Any]], None] | None = None,
+    topics: dict[str, str] | None = None,
+    **options: Any,
+) -> Path:
+    """``source``'s records written again, in file order, by ``Writer(**options)``;
+    ``edit_layout`` changes the run metadata's layout (a channel is registered for each
+    sample group it adds); ``topics`` renames channels."""
     with open(source, "rb") as src, open(path, "wb") as out:
         writer = Writer(out, **options)
         writer.start(profile="", library="a user's tool")
         schemas, channels = {0: 0}, {}
+        added: list[str] = []  # sample groups edit_layout added
         for rec in StreamReader(src).records:
             if isinstance(rec, Schema) and rec.id not in schemas:
                 schemas[rec.id] = writer.register_schema(rec.name, rec.encoding, rec.data)
             elif isinstance(rec, Channel) and rec.id not in channels:
+                topic = (topics or {}).get(rec.topic, rec.topic)
                 channels[rec.id] = writer.register_channel(
-                    rec.topic, rec.message_encoding, schemas[rec.schema_id], rec.metadata
+                    topic, rec.message_encoding, schemas[rec.schema_id], rec.metadata
                 )
+                for group in added if rec.topic == "/raw/accel" else ():
+                    topic = f"/raw/{group}"
+                    writer.register_channel(topic, rec.message_encoding, schemas[rec.schema_id])
             elif isinstance(rec, Message):
                 writer.add_message(
                     channels[rec.channel_id], rec.log_time, rec.data, rec.publish_time, rec.sequence
                 )
             elif isinstance(rec, Metadata):
-                writer.add_metadata(rec.name, rec.metadata)
+                metadata = dict(rec.metadata)
+                if rec.name == META_RUN and edit_layout is not None:
+                    layout = json.loads(metadata["layout"])
+                    before = {g["name"] for g in layout["groups"]}
+                    edit_layout(layout)
+                    added = [g["name"] for g in layout["groups"] if g["name"] not in before]
+                    metadata["layout"] = json.dumps(layout)
+                writer.add_metadata(rec.name, metadata)
             elif isinstance(rec, Attachment):
                 writer.add_attachment(
                     rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data
@@ -130,7 +152,7 @@ def test_a_data_section_record_in_a_summary_without_crc_is_damage(
     flipped_to: int,
 ) -> None:
     """Without a CRC and statistics, only the opcode tells the index was damaged."""
-    options = {"enable_crcs": False, "use_statistics": False}
+    options: dict[str, Any] = {"enable_crcs": False, "use_statistics": False}
     data = rewritten(clean_run.log, tmp_path / "nocrc.mcap", **options).read_bytes()
     at = next(pos for op, pos in summary_records(data) if op == index)
     log = tmp_path / "log.mcap"
@@ -138,3 +160,31 @@ def test_a_data_section_record_in_a_summary_without_crc_is_damage(
     code, doc, err = replay(log, tmp_path / "r.json", capsys)
     assert code == 0 and doc == clean_run.result
     assert any(f"opcode {flipped_to:#04x} in the summary section" in line for line in err)
+
+
+def test_layout_names_utf8_cannot_hold_replay_as_the_clean_run(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A lone surrogate is legal in the layout's JSON, not in UTF-8: the fast decoder
+    leaves that group to the field-by-field one instead of failing to start."""
+
+    def extra_group(layout: dict[str, Any]) -> None:
+        channel = {"name": "\ud800", "unit": "V"}
+        layout["groups"].append({"name": "extra", "rate_hz": 10.0, "channels": [channel]})
+
+    log = rewritten(clean_run.log, tmp_path / "log.mcap", edit_layout=extra_group)
+    code, doc, _ = replay(log, tmp_path / "r.json", capsys)
+    assert code == 0 and doc == clean_run.result
+
+
+def test_an_edge_channel_that_is_not_a_string_is_one_line(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    def number(layout: dict[str, Any]) -> None:
+        layout["edge_channels"] = [5]
+
+    topics = {"/raw/edges/tacho": "/raw/edges/5"}
+    log = rewritten(clean_run.log, tmp_path / "log.mcap", edit_layout=number, topics=topics)
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert code == 2 and doc is None
+    assert len(err) == 1 and "edge channel 'tacho'" in err[0] and "edge channels: 5" in err[0]
