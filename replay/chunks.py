@@ -28,6 +28,7 @@ file; the walk goes on with the next record.
 
 from __future__ import annotations
 
+import os
 import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -182,11 +183,15 @@ class MessageWalk:
         if self.chunks is None:
             yield from records(fh)
             return
+        size = os.fstat(fh.fileno()).st_size
         for offset, length in self.chunks:  # from the summary's chunk indexes
             head = read_at(fh, offset, RECORD_HEAD.size)
             _, declared = RECORD_HEAD.unpack(head) if len(head) == RECORD_HEAD.size else (0, 0)
             if declared != length - RECORD_HEAD.size:
                 self._skip(offset, "damaged chunk record header")
+                continue
+            if offset + length > size:  # index and header agree on a length the file lacks
+                self._skip(offset, f"chunk record of {length} bytes runs past the end of the file")
                 continue
             # a damaged opcode alone is harmless here: the content's CRC decides
             yield Opcode.CHUNK, offset + RECORD_HEAD.size, declared

@@ -82,12 +82,15 @@ def check_data_crc(
             return True
         if explained:  # a damaged attachment
             return False
+        size = fh.seek(0, 2)
         for offset, length in chunks or _chunk_records(fh):
             head = read_at(fh, offset, 9)
-            if len(head) < 9 or struct.unpack("<BQ", head) != (Opcode.CHUNK, length - 9):
-                return (
-                    False  # a damaged chunk header: the walk reads it by the summary, or skips it
-                )
+            if (
+                len(head) < 9
+                or struct.unpack("<BQ", head) != (Opcode.CHUNK, length - 9)
+                or offset + length > size
+            ):  # a damaged chunk header: the walk reads it by the summary, or skips it
+                return False
             try:
                 chunk_payload(read_at(fh, offset + 9, length - 9))
             except BadChunk:

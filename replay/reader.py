@@ -59,7 +59,7 @@ from replay.schemas import (
     full_name,
     stream_topics,
 )
-from replay.summary import SummaryRecords, read_metadata, read_summary
+from replay.summary import SummaryRecords, read_indexed, read_metadata, read_summary
 
 # A sample rate no acquisition reaches (Hz): a larger one in a recording is damage.
 MAX_RATE_HZ = 1e9
@@ -220,7 +220,8 @@ def _scan_finished(path: Path) -> _Scan:
             meta = read_metadata(fh, meta_index)
             scan.metadata[meta.name] = dict(meta.metadata)
         for index in summary.attachment_indexes:
-            _attach(scan, read_at(fh, index.offset + 9, index.length - 9), index.offset)
+            at, length = index.offset, index.length
+            _attach(scan, read_indexed(fh, at, length, Opcode.ATTACHMENT, "attachment"), at)
         if summary_start > 13:  # the data end record sits just before the summary
             head = read_at(fh, summary_start - 13, 13)
             opcode, length, crc = struct.unpack("<BQI", head)

@@ -125,17 +125,24 @@ def read_summary(summary: bytes) -> SummaryRecords:
 def read_metadata(fh: IO[bytes], index: MetadataIndex) -> Metadata:
     """The metadata record a metadata index points at; raises McapError when the record's
     header disagrees with the index (a damaged length is not read: it may say 2**35 bytes)."""
-    size = fh.seek(0, 2)
-    head = read_at(fh, index.offset, RECORD_HEAD.size)
-    if len(head) < RECORD_HEAD.size:
-        raise McapError(f"metadata index points past the end of the file ({index.offset})")
-    opcode, length = RECORD_HEAD.unpack(head)
-    if opcode != Opcode.METADATA:
-        raise McapError(f"expected a metadata record at byte {index.offset}, got {opcode:#04x}")
-    if length != index.length - RECORD_HEAD.size or index.offset + index.length > size:
-        raise McapError(
-            f"metadata record at byte {index.offset}: {length} bytes, its index says "
-            f"{index.length - RECORD_HEAD.size} ({size} bytes in the file)"
-        )
-    content = read_at(fh, index.offset + RECORD_HEAD.size, length)
+    content = read_indexed(fh, index.offset, index.length, Opcode.METADATA, "metadata")
     return Metadata.read(ReadDataStream(BytesIO(content)))
+
+
+def read_indexed(fh: IO[bytes], offset: int, length: int, opcode: int, what: str) -> bytes:
+    """The content of the ``opcode`` record an index puts at ``offset``, ``length`` bytes
+    with its header; raises McapError when the record's header disagrees with the index or
+    the record does not fit in the file (a summary without CRC may say 2**60 bytes)."""
+    size = fh.seek(0, 2)
+    head = read_at(fh, offset, RECORD_HEAD.size)
+    if len(head) < RECORD_HEAD.size:
+        raise McapError(f"{what} index points past the end of the file ({offset})")
+    found, declared = RECORD_HEAD.unpack(head)
+    if found != opcode:
+        raise McapError(f"expected a {what} record at byte {offset}, got {found:#04x}")
+    if declared != length - RECORD_HEAD.size or offset + length > size:
+        raise McapError(
+            f"{what} record at byte {offset}: {declared} bytes, its index says "
+            f"{length - RECORD_HEAD.size} ({size} bytes in the file)"
+        )
+    return read_at(fh, offset + RECORD_HEAD.size, declared)

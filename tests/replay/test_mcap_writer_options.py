@@ -188,3 +188,39 @@ def test_an_edge_channel_that_is_not_a_string_is_one_line(
     code, doc, err = replay(log, tmp_path / "r.json", capsys)
     assert code == 2 and doc is None
     assert len(err) == 1 and "edge channel 'tacho'" in err[0] and "edge channels: 5" in err[0]
+
+
+def test_an_attachment_index_with_a_damaged_length_is_not_trusted(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A summary without CRC whose attachment index says 2**40 bytes more: read front to
+    back, not allocated."""
+    data = bytearray(
+        rewritten(clean_run.log, tmp_path / "nocrc.mcap", enable_crcs=False).read_bytes()
+    )
+    at = next(pos for op, pos in summary_records(bytes(data)) if op == Opcode.ATTACHMENT_INDEX)
+    struct.pack_into("<Q", data, at + 9 + 8, struct.unpack_from("<Q", data, at + 17)[0] + 2**40)
+    log = tmp_path / "log.mcap"
+    log.write_bytes(data)
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert code == 0 and doc == clean_run.result
+    assert any("attachment record at byte" in line and "front to back" in line for line in err)
+
+
+def test_a_chunk_whose_index_and_header_run_past_the_file_is_skipped_without_reading_it(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Index and record header agree on 2**40 more bytes (no CRC on the summary; the data
+    section's CRC then fails and the chunk is looked at): skipped, not allocated."""
+    options: dict[str, Any] = {"enable_crcs": False, "enable_data_crcs": True}
+    data = bytearray(rewritten(clean_run.log, tmp_path / "nocrc.mcap", **options).read_bytes())
+    at = [pos for op, pos in summary_records(bytes(data)) if op == Opcode.CHUNK_INDEX][-1]
+    chunk, length = struct.unpack_from("<QQ", data, at + 9 + 16)
+    struct.pack_into("<Q", data, at + 9 + 24, length + 2**40)
+    struct.pack_into("<Q", data, chunk + 1, length - 9 + 2**40)
+    log = tmp_path / "log.mcap"
+    log.write_bytes(data)
+    code, doc, _ = replay(log, tmp_path / "r.json", capsys)
+    assert code == 0
+    (skipped,) = doc["recording_skipped"]
+    assert skipped["kind"] == "damaged" and "runs past the end of the file" in skipped["reason"]
