@@ -224,3 +224,29 @@ def test_a_chunk_whose_index_and_header_run_past_the_file_is_skipped_without_rea
     assert code == 0
     (skipped,) = doc["recording_skipped"]
     assert skipped["kind"] == "damaged" and "runs past the end of the file" in skipped["reason"]
+
+
+def test_an_empty_summary_with_a_crc_is_valid_and_its_crc_checked(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Nothing in the summary: mcap's Writer points the footer at byte 0 with the CRC of
+    the footer's own fields (valid MCAP), not a footer pointing outside the file."""
+    options: dict[str, Any] = {
+        "index_types": IndexType.NONE,
+        "repeat_channels": False,
+        "repeat_schemas": False,
+        "use_statistics": False,
+        "use_summary_offsets": False,
+    }
+    data = rewritten(clean_run.log, tmp_path / "empty.mcap", **options).read_bytes()
+    footer = len(data) - 8 - 29
+    start, _, crc = struct.unpack_from("<QQI", data, footer + 9)
+    assert start == 0 and crc != 0
+    code, doc, err = replay(tmp_path / "empty.mcap", tmp_path / "r.json", capsys)
+    assert code == 0 and doc == clean_run.result
+    assert not any("damaged" in line for line in err)
+    log = tmp_path / "flipped.mcap"
+    log.write_bytes(data[:-9] + bytes([data[-9] ^ 1]) + data[-8:])  # the CRC's last byte
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert code == 0 and doc == clean_run.result
+    assert any("summary CRC mismatch" in line for line in err)
