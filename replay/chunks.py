@@ -185,13 +185,13 @@ class MessageWalk:
             return
         size = os.fstat(fh.fileno()).st_size
         for offset, length in self.chunks:  # from the summary's chunk indexes
+            if offset + length > size:  # (a summary without CRC may say anything)
+                self._skip(offset, f"chunk record of {length} bytes runs past the end of the file")
+                continue
             head = read_at(fh, offset, RECORD_HEAD.size)
             _, declared = RECORD_HEAD.unpack(head) if len(head) == RECORD_HEAD.size else (0, 0)
             if declared != length - RECORD_HEAD.size:
                 self._skip(offset, "damaged chunk record header")
-                continue
-            if offset + length > size:  # index and header agree on a length the file lacks
-                self._skip(offset, f"chunk record of {length} bytes runs past the end of the file")
                 continue
             # a damaged opcode alone is harmless here: the content's CRC decides
             yield Opcode.CHUNK, offset + RECORD_HEAD.size, declared

@@ -86,13 +86,13 @@ def check_data_crc(
             return False
         size = fh.seek(0, 2)
         for offset, length in chunks or _chunk_records(fh):
-            head = read_at(fh, offset, 9)
-            if (
-                len(head) < 9
-                or struct.unpack("<BQ", head) != (Opcode.CHUNK, length - 9)
-                or offset + length > size
-            ):  # a damaged chunk header: the walk reads it by the summary, or skips it
+            if offset + length > size:  # the walk skips it
                 return False
+            head = read_at(fh, offset, 9)
+            if len(head) < 9 or struct.unpack("<BQ", head) != (Opcode.CHUNK, length - 9):
+                return (
+                    False  # a damaged chunk header: the walk reads it by the summary, or skips it
+                )
             try:
                 chunk_payload(read_at(fh, offset + 9, length - 9))
             except BadChunk:

@@ -231,27 +231,39 @@ def _scan_finished(path: Path) -> _Scan:
 
 
 def _unindexed(summary: SummaryRecords) -> str | None:
-    """What the summary's indexes leave out (None: it indexes every chunk, metadata record
-    and attachment), judged by its statistics when it has them.
+    """What the summary leaves out (None: it indexes every chunk, metadata record and
+    attachment and repeats every schema and channel), judged by its statistics when it
+    has them.
 
     mcap's ``Writer`` writes a valid file without chunk indexes (``use_chunking=False``, or
-    ``index_types`` without ``CHUNK``) or without metadata or attachment indexes; a file read
-    by its indexes alone would then lose its messages or its run metadata without a word.
+    ``index_types`` without ``CHUNK``), without metadata or attachment indexes, or without
+    the schemas and channels (``repeat_channels=False``); a file read by its summary alone
+    would then lose its messages or its run metadata without a word. In a summary without
+    CRC, a count that disagrees is a record lost to damage.
     """
     stats = summary.statistics
     chunks, metas = len(summary.chunk_indexes), len(summary.metadata_indexes)
-    attachments = len(summary.attachment_indexes)
     if chunks == 0:
         return "no chunk index"
+    if not summary.channels:
+        return "no channel"
+    lost = {c.schema_id for c in summary.channels.values()} - {0, *summary.schemas}
+    if lost:
+        return f"a channel refers to schema {min(lost)}, which it does not hold"
     if stats is None:
         return "no metadata index" if metas == 0 else None
-    for what, indexed, counted in (
-        ("chunk", chunks, stats.chunk_count),
-        ("metadata record", metas, stats.metadata_count),
-        ("attachment", attachments, stats.attachment_count),
+    for what, held, counted in (
+        ("chunk index(es)", chunks, stats.chunk_count),
+        ("metadata index(es)", metas, stats.metadata_count),
+        ("attachment index(es)", len(summary.attachment_indexes), stats.attachment_count),
+        ("channel(s)", len(summary.channels), stats.channel_count),
+        ("schema(s)", len(summary.schemas), stats.schema_count),
     ):
-        if indexed != counted:
-            return f"{indexed} {what} index(es), its statistics count {counted}"
+        if held != counted:
+            return f"{held} {what}, its statistics count {counted}"
+    unknown = set(stats.channel_message_counts) - set(summary.channels)
+    if unknown:
+        return f"its statistics count messages on channel {min(unknown)}, which it does not hold"
     return None
 
 

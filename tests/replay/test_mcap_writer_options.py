@@ -86,6 +86,7 @@ def rewritten(
         {"index_types": IndexType.NONE},
         {"index_types": IndexType.CHUNK},
         {"index_types": IndexType.METADATA | IndexType.ATTACHMENT},
+        {"repeat_channels": False, "repeat_schemas": False},
     ],
     ids=[
         "no-chunks",
@@ -93,6 +94,7 @@ def rewritten(
         "no-indexes",
         "chunk-index-only",
         "no-chunk-index",
+        "no-channels",
     ],
 )
 def test_a_summary_without_indexes_is_read_front_to_back_with_the_clean_result(
@@ -128,16 +130,29 @@ def summary_records(data: bytes) -> list[tuple[int, int]]:
     return out
 
 
-def test_a_chunk_index_lost_from_a_summary_without_crc_is_caught_by_the_statistics(
-    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+@pytest.mark.parametrize(
+    ("record", "said"),
+    [
+        (Opcode.CHUNK_INDEX, "1 chunk index(es), its statistics count 2"),
+        (Opcode.CHANNEL, "channel(s), its statistics count"),
+        (Opcode.SCHEMA, "a channel refers to schema"),
+    ],
+)
+def test_a_record_lost_from_a_summary_without_crc_is_caught_by_the_statistics(
+    clean_run: CleanRun,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    record: int,
+    said: str,
 ) -> None:
+    """A record whose opcode turned into one MCAP readers skip: the counts disagree."""
     data = rewritten(clean_run.log, tmp_path / "nocrc.mcap", enable_crcs=False).read_bytes()
-    at = [pos for op, pos in summary_records(data) if op == Opcode.CHUNK_INDEX][1]
+    at = [pos for op, pos in summary_records(data) if op == record][-1]
     log = tmp_path / "log.mcap"
-    log.write_bytes(data[:at] + b"\x88" + data[at + 1 :])  # an opcode MCAP readers skip
+    log.write_bytes(data[:at] + bytes([data[at] | 0x80]) + data[at + 1 :])
     code, doc, err = replay(log, tmp_path / "r.json", capsys)
     assert code == 0 and doc == clean_run.result
-    assert any("chunk index(es), its statistics count" in line for line in err)
+    assert any(said in line and "read front to back" in line for line in err)
 
 
 @pytest.mark.parametrize(
@@ -207,17 +222,22 @@ def test_an_attachment_index_with_a_damaged_length_is_not_trusted(
     assert any("attachment record at byte" in line and "front to back" in line for line in err)
 
 
-def test_a_chunk_whose_index_and_header_run_past_the_file_is_skipped_without_reading_it(
-    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+@pytest.mark.parametrize("damage", ["length", "offset"])
+def test_a_chunk_whose_index_runs_past_the_file_is_skipped_without_reading_it(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str], damage: str
 ) -> None:
-    """Index and record header agree on 2**40 more bytes (no CRC on the summary; the data
-    section's CRC then fails and the chunk is looked at): skipped, not allocated."""
+    """A chunk index and the record header agreeing on 2**40 more bytes, or an index
+    pointing at byte 2**62 (no CRC on the summary; the data section's CRC then fails and
+    the chunk is looked at): skipped and reported, not allocated, not sought."""
     options: dict[str, Any] = {"enable_crcs": False, "enable_data_crcs": True}
     data = bytearray(rewritten(clean_run.log, tmp_path / "nocrc.mcap", **options).read_bytes())
     at = [pos for op, pos in summary_records(bytes(data)) if op == Opcode.CHUNK_INDEX][-1]
     chunk, length = struct.unpack_from("<QQ", data, at + 9 + 16)
-    struct.pack_into("<Q", data, at + 9 + 24, length + 2**40)
-    struct.pack_into("<Q", data, chunk + 1, length - 9 + 2**40)
+    if damage == "length":
+        struct.pack_into("<Q", data, at + 9 + 24, length + 2**40)
+        struct.pack_into("<Q", data, chunk + 1, length - 9 + 2**40)
+    else:
+        struct.pack_into("<Q", data, at + 9 + 16, chunk + 2**62)
     log = tmp_path / "log.mcap"
     log.write_bytes(data)
     code, doc, _ = replay(log, tmp_path / "r.json", capsys)
