@@ -132,7 +132,7 @@ def open_log(path: str | Path, check_later: bool = False) -> RecordedLog:
         finished = fh.read(len(MAGIC)) == MAGIC and size > 2 * len(MAGIC)
     scan: _Scan | None = None
     report = ReadReport(finished=False, file_bytes=size, readable_bytes=0)
-    closed_early = False
+    closed_early = damaged_summary = False
     if finished:
         try:
             scan = _scan_finished(path)
@@ -142,7 +142,7 @@ def open_log(path: str | Path, check_later: bool = False) -> RecordedLog:
             closed_early = True  # a valid end, read front to back as MCAP's readers do
         except READ_ERRORS as err:
             report.note(f"footer or summary damaged ({describe(err)}): reading front to back")
-            scan = None
+            scan, damaged_summary = None, True
     if scan is None:
         scan = _scan_stream(path)
         report.readable_bytes = scan.readable
@@ -176,14 +176,17 @@ def open_log(path: str | Path, check_later: bool = False) -> RecordedLog:
             f"disk): {scan.chunks} chunk(s){where}; nothing after was recorded"
         )
     elif not report.finished:
-        if scan.data_end:
+        if scan.data_end:  # (a file with a footer: its summary was damaged, not its data)
             tail = "the writer stopped while finishing the file: no data lost"
+            if damaged_summary:
+                tail = "the data section is whole"
         else:
             lost = size - scan.readable
             tail = f"the last {lost} byte(s), the chunk being written, are lost"
-        report.note(
-            f"unfinished recording (no footer): recovered {scan.chunks} chunk(s){where}; {tail}"
-        )
+            if damaged_summary:
+                tail = f"the last {lost} byte(s) could not be read"
+        what = "read front to back" if damaged_summary else "unfinished recording (no footer)"
+        report.note(f"{what}: recovered {scan.chunks} chunk(s){where}; {tail}")
     return log
 
 
