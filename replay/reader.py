@@ -13,41 +13,23 @@ disagrees with the recorded layout) is skipped and counted in
 :class:`replay.recorded_log.ReadReport`; a file that cannot be a replayable recording at all
 raises :class:`replay.errors.LogError` with one line saying why.
 
-The log itself, its report and its iterators are :mod:`replay.recorded_log`.
+The scan itself is :mod:`replay.log_scan`; the log, its report and its iterators are
+:mod:`replay.recorded_log`.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import struct
-from dataclasses import dataclass, field
-from io import BytesIO
 from pathlib import Path
-
-from mcap.data_stream import ReadDataStream
-from mcap.exceptions import McapError
-from mcap.opcode import Opcode
-from mcap.records import Channel, Metadata, Schema
 
 from acquisition.stream import StreamLayout
 from replay import stream_codec
 from replay.chunks import READ_ERRORS
 from replay.errors import LogError, describe
-from replay.integrity import DataCheck, check_data_crc, check_summary_crc
-from replay.mcap_records import (
-    MAGIC,
-    MESSAGE_HEAD,
-    BadChunk,
-    chunk_payload,
-    chunk_records,
-    chunk_times,
-    ends_data,
-    parse_definition,
-    read_at,
-    read_attachment,
-    records,
-)
+from replay.integrity import DataCheck, check_data_crc
+from replay.log_scan import NoSummary, Scan, scan_finished, scan_stream
+from replay.mcap_records import MAGIC
 from replay.recorded_log import ReadReport, RecordedLog
 from replay.schemas import (
     BENCH_ATTACHMENT,
@@ -59,7 +41,6 @@ from replay.schemas import (
     full_name,
     stream_topics,
 )
-from replay.summary import SummaryRecords, read_indexed, read_metadata, read_summary
 
 # A sample rate no acquisition reaches (Hz): a larger one in a recording is damage.
 MAX_RATE_HZ = 1e9
@@ -74,32 +55,6 @@ def find_logs(path: str | Path) -> list[Path]:
             raise LogError(f"{path}: no .mcap files in this directory")
         return logs
     return [path]
-
-
-@dataclass
-class _Scan:
-    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
-    attachments: dict[str, bytes] = field(default_factory=dict)
-    schemas: dict[int, Schema] = field(default_factory=dict)
-    channels: dict[int, Channel] = field(default_factory=dict)
-    counts: dict[str, int] | None = None
-    chunks: int = 0
-    messages: int = 0  # messages outside chunks (mcap's Writer(use_chunking=False))
-    last_log_time: int | None = None
-    readable: int = 0
-    data_end: bool = False  # the data section was complete
-    error: str | None = None
-    definitions_error: str | None = None  # the chunk holding the channels was damaged
-    data_verified: bool = False  # the data section's CRC matched
-    chunk_records: list[tuple[int, int]] | None = None  # (offset, length), finished logs
-    data_end_offset: int | None = None  # where the data end record starts
-    data_crc: int = 0  # the data section's CRC as recorded (0: not written)
-    notes: list[str] = field(default_factory=list)
-
-
-class NoSummary(McapError):
-    """A finished file whose footer declares no summary section: what the recorder
-    writes when it must stop early (a full disk, ``McapOutput.cut``)."""
 
 
 def open_log(path: str | Path, check_later: bool = False) -> RecordedLog:
@@ -130,12 +85,12 @@ def open_log(path: str | Path, check_later: bool = False) -> RecordedLog:
             raise LogError(f"{path}: not an MCAP file (starts with {head[:8]!r})")
         fh.seek(max(0, size - len(MAGIC)))
         finished = fh.read(len(MAGIC)) == MAGIC and size > 2 * len(MAGIC)
-    scan: _Scan | None = None
+    scan: Scan | None = None
     report = ReadReport(finished=False, file_bytes=size, readable_bytes=0)
     closed_early = damaged_summary = False
     if finished:
         try:
-            scan = _scan_finished(path)
+            scan = scan_finished(path)
             report.finished = True
             report.readable_bytes = size
         except NoSummary:
@@ -144,7 +99,7 @@ def open_log(path: str | Path, check_later: bool = False) -> RecordedLog:
             report.note(f"footer or summary damaged ({describe(err)}): reading front to back")
             scan, damaged_summary = None, True
     if scan is None:
-        scan = _scan_stream(path)
+        scan = scan_stream(path)
         report.readable_bytes = scan.readable
         report.data_complete = scan.data_end
         if scan.chunks == 0 and scan.messages == 0:
@@ -190,149 +145,8 @@ def open_log(path: str | Path, check_later: bool = False) -> RecordedLog:
     return log
 
 
-def _scan_finished(path: Path) -> _Scan:
-    """Read the summary section, its CRC checked; the attachments, theirs checked."""
-    scan = _Scan()
-    with open(path, "rb") as fh:
-        summary_start, section = check_summary_crc(fh)
-        if summary_start == 0:
-            raise NoSummary("no summary section")
-        summary = read_summary(section)
-        gap = _unindexed(summary)
-        if gap is not None:  # valid MCAP (mcap's Writer can leave the indexes out): the data has it
-            scan = _scan_stream(path)
-            scan.notes.append(
-                f"the summary does not index the whole file ({gap}): read front to back"
-            )
-            if summary.statistics is not None:
-                counts = summary.statistics.channel_message_counts
-                scan.counts = {
-                    ch.topic: int(counts.get(cid, 0)) for cid, ch in scan.channels.items()
-                }
-            return scan
-        scan.schemas = dict(summary.schemas)
-        scan.channels = dict(summary.channels)
-        scan.chunks = len(summary.chunk_indexes)
-        scan.chunk_records = [(c.chunk_start_offset, c.chunk_length) for c in summary.chunk_indexes]
-        if summary.chunk_indexes:
-            scan.last_log_time = max(c.message_end_time for c in summary.chunk_indexes)
-        if summary.statistics is not None:
-            counts = summary.statistics.channel_message_counts
-            scan.counts = {ch.topic: int(counts.get(cid, 0)) for cid, ch in scan.channels.items()}
-        for meta_index in summary.metadata_indexes:
-            meta = read_metadata(fh, meta_index)
-            scan.metadata[meta.name] = dict(meta.metadata)
-        for index in summary.attachment_indexes:
-            at, length = index.offset, index.length
-            _attach(scan, read_indexed(fh, at, length, Opcode.ATTACHMENT, "attachment"), at)
-        if summary_start > 13:  # the data end record sits just before the summary
-            head = read_at(fh, summary_start - 13, 13)
-            opcode, length, crc = struct.unpack("<BQI", head)
-            if opcode == Opcode.DATA_END and length == 4:
-                scan.data_end_offset, scan.data_crc = summary_start - 13, crc
-    return scan
-
-
-def _unindexed(summary: SummaryRecords) -> str | None:
-    """What the summary leaves out (None: it indexes every chunk, metadata record and
-    attachment and repeats every schema and channel), judged by its statistics when it
-    has them.
-
-    mcap's ``Writer`` writes a valid file without chunk indexes (``use_chunking=False``, or
-    ``index_types`` without ``CHUNK``), without metadata or attachment indexes, or without
-    the schemas and channels (``repeat_channels=False``); a file read by its summary alone
-    would then lose its messages or its run metadata without a word. In a summary without
-    CRC, a count that disagrees is a record lost to damage.
-    """
-    stats = summary.statistics
-    chunks, metas = len(summary.chunk_indexes), len(summary.metadata_indexes)
-    if chunks == 0:
-        return "no chunk index"
-    if not summary.channels:
-        return "no channel"
-    lost = {c.schema_id for c in summary.channels.values()} - {0, *summary.schemas}
-    if lost:
-        return f"a channel refers to schema {min(lost)}, which it does not hold"
-    if stats is None:
-        return "no metadata index" if metas == 0 else None
-    for what, held, counted in (
-        ("chunk index(es)", chunks, stats.chunk_count),
-        ("metadata index(es)", metas, stats.metadata_count),
-        ("attachment index(es)", len(summary.attachment_indexes), stats.attachment_count),
-        ("channel(s)", len(summary.channels), stats.channel_count),
-        ("schema(s)", len(summary.schemas), stats.schema_count),
-    ):
-        if held != counted:
-            return f"{held} {what}, its statistics count {counted}"
-    unknown = set(stats.channel_message_counts) - set(summary.channels)
-    if unknown:
-        return f"its statistics count messages on channel {min(unknown)}, which it does not hold"
-    return None
-
-
-def _attach(scan: _Scan, content: bytes, offset: int) -> None:
-    try:
-        att = read_attachment(content)
-    except BadChunk as err:
-        scan.notes.append(f"{err} (at byte {offset}): attachment ignored")
-        return
-    scan.attachments[att.name] = bytes(att.data)
-
-
-def _scan_stream(path: str | Path) -> _Scan:
-    """Walk the records of an unfinished file, reading only metadata, attachments and the first chunk.
-
-    A chunk is complete when its declared length fits in the file (see
-    :func:`replay.chunks.records`), so the scan seeks past chunk contents.
-    """
-    scan = _Scan()
-    with open(path, "rb") as fh:
-        try:
-            for opcode, offset, length in records(fh):
-                if opcode == Opcode.CHUNK:
-                    if not scan.channels:
-                        try:
-                            payload = chunk_payload(read_at(fh, offset, length))
-                        except BadChunk as err:  # the walk skips it; definitions may follow
-                            scan.definitions_error = f"chunk at byte {offset - 9}: {err}"
-                            payload = b""
-                        for op, content in chunk_records(payload):
-                            if op in (Opcode.SCHEMA, Opcode.CHANNEL):
-                                _define(scan, parse_definition(op, content))
-                    scan.chunks += 1
-                    scan.last_log_time = chunk_times(fh, offset)[1]
-                elif opcode == Opcode.METADATA:
-                    meta = Metadata.read(ReadDataStream(BytesIO(read_at(fh, offset, length))))
-                    scan.metadata[meta.name] = dict(meta.metadata)
-                elif opcode == Opcode.ATTACHMENT:
-                    _attach(scan, read_at(fh, offset, length), offset - 9)
-                elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
-                    _define(scan, parse_definition(opcode, read_at(fh, offset, length)))
-                elif opcode == Opcode.MESSAGE and length >= MESSAGE_HEAD.size:
-                    (log_time,) = struct.unpack("<Q", read_at(fh, offset + 6, 8))
-                    scan.messages += 1
-                    scan.last_log_time = max(log_time, scan.last_log_time or 0)
-                scan.readable = offset + length
-                if ends_data(opcode, length):
-                    if opcode == Opcode.DATA_END:
-                        scan.data_end_offset = offset - 9
-                        (scan.data_crc,) = struct.unpack("<I", read_at(fh, offset, 4))
-                    scan.data_end = True
-                    break
-        except READ_ERRORS as err:
-            scan.error = describe(err)
-    return scan
-
-
-def _define(scan: _Scan, record: Schema | Channel) -> None:
-    if isinstance(record, Schema):
-        scan.schemas[record.id] = record
-    else:
-        scan.channels[record.id] = record
-
-
 def _build(
-    path: Path, scan: _Scan, report: ReadReport, check: DataCheck | None = None
+    path: Path, scan: Scan, report: ReadReport, check: DataCheck | None = None
 ) -> RecordedLog:
     run = scan.metadata.get(META_RUN)
     if run is None or run.get("format") != FORMAT:
@@ -435,7 +249,7 @@ def _metadata_problem(layout: StreamLayout, settings: object, truth: object) -> 
     return None
 
 
-def _origin(scan: _Scan) -> int:
+def _origin(scan: Scan) -> int:
     """The run's time origin (ns), 0 when the metadata does not say (checked in :func:`_build`)."""
     try:
         return int((scan.metadata.get(META_RUN) or {}).get("time_origin_ns", "0"))

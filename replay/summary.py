@@ -122,6 +122,43 @@ def read_summary(summary: bytes) -> SummaryRecords:
     return out
 
 
+def omission(summary: SummaryRecords) -> str | None:
+    """What the summary leaves out (None: it indexes every chunk, metadata record and
+    attachment and repeats every schema and channel), judged by its statistics when it
+    has them.
+
+    mcap's ``Writer`` writes a valid file without chunk indexes (``use_chunking=False``, or
+    ``index_types`` without ``CHUNK``), without metadata or attachment indexes, or without
+    the schemas and channels (``repeat_channels=False``); a file read by its summary alone
+    would then lose its messages or its run metadata without a word. In a summary without
+    CRC, a count that disagrees is a record lost to damage.
+    """
+    stats = summary.statistics
+    chunks, metas = len(summary.chunk_indexes), len(summary.metadata_indexes)
+    if chunks == 0:
+        return "no chunk index"
+    if not summary.channels:
+        return "no channel"
+    lost = {c.schema_id for c in summary.channels.values()} - {0, *summary.schemas}
+    if lost:
+        return f"a channel refers to schema {min(lost)}, which it does not hold"
+    if stats is None:
+        return "no metadata index" if metas == 0 else None
+    for what, held, counted in (
+        ("chunk index(es)", chunks, stats.chunk_count),
+        ("metadata index(es)", metas, stats.metadata_count),
+        ("attachment index(es)", len(summary.attachment_indexes), stats.attachment_count),
+        ("channel(s)", len(summary.channels), stats.channel_count),
+        ("schema(s)", len(summary.schemas), stats.schema_count),
+    ):
+        if held != counted:
+            return f"{held} {what}, its statistics count {counted}"
+    unknown = set(stats.channel_message_counts) - set(summary.channels)
+    if unknown:
+        return f"its statistics count messages on channel {min(unknown)}, which it does not hold"
+    return None
+
+
 def read_metadata(fh: IO[bytes], index: MetadataIndex) -> Metadata:
     """The metadata record a metadata index points at; raises McapError when the record's
     header disagrees with the index (a damaged length is not read: it may say 2**35 bytes)."""
