@@ -28,6 +28,7 @@ file; the walk goes on with the next record.
 
 from __future__ import annotations
 
+import os
 import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -182,7 +183,11 @@ class MessageWalk:
         if self.chunks is None:
             yield from records(fh)
             return
+        size = os.fstat(fh.fileno()).st_size
         for offset, length in self.chunks:  # from the summary's chunk indexes
+            if offset + length > size:  # (a summary without CRC may say anything)
+                self._skip(offset, f"chunk record of {length} bytes runs past the end of the file")
+                continue
             head = read_at(fh, offset, RECORD_HEAD.size)
             _, declared = RECORD_HEAD.unpack(head) if len(head) == RECORD_HEAD.size else (0, 0)
             if declared != length - RECORD_HEAD.size:

@@ -39,7 +39,9 @@ def check_summary_crc(fh: IO[bytes]) -> tuple[int, bytes]:
     opcode, length, start, _, crc = struct.unpack("<BQQQI", footer)
     if opcode != Opcode.FOOTER or length != 20:
         raise McapError("no footer record before the closing magic")
-    if start == 0 and crc == 0:  # no summary (a footer with a CRC must point at one)
+    if start == 0:  # no summary; mcap's Writer still writes the CRC of the footer's fields
+        if crc and crc32(footer[:25]) != crc:
+            raise McapError("summary CRC mismatch (the footer declares no summary)")
         return 0, b""
     if not 0 < start <= size - len(MAGIC) - 29:
         raise McapError(f"footer points the summary at byte {start}, outside the file")
@@ -82,7 +84,10 @@ def check_data_crc(
             return True
         if explained:  # a damaged attachment
             return False
+        size = fh.seek(0, 2)
         for offset, length in chunks or _chunk_records(fh):
+            if offset + length > size:  # the walk skips it
+                return False
             head = read_at(fh, offset, 9)
             if len(head) < 9 or struct.unpack("<BQ", head) != (Opcode.CHUNK, length - 9):
                 return (

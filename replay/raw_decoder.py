@@ -38,6 +38,9 @@ _TIME = b"\x09"  # time_s (field 1, float64), first in both messages: not needed
 _NAME = b"\x12"  # group (SampleBlock) or channel (EdgeBlock): field 2, a string
 _FIRST_INDEX, _N_SAMPLES, _SAMPLES = 0x18, 0x38, 0x42  # SampleBlock fields 3, 7, 8
 _TIMES = 0x1A  # EdgeBlock field 3, float64 bytes
+# What laying out a layout's name can raise: a lone surrogate is legal in the layout's JSON,
+# not in UTF-8; a name that is not a string (a crafted layout)
+_UNENCODABLE = (UnicodeEncodeError, AttributeError, TypeError, struct.error)
 
 
 class RawDecoder:
@@ -53,17 +56,28 @@ class RawDecoder:
         # group field bytes (``group``, field 2) -> (group, bytes of fields 4-6, channels)
         self._groups: dict[bytes, tuple[SampleGroup, bytes, int]] = {}
         longest = 0
+        seen: set[str] = set()
         for group in layout.groups:
-            rates = struct.pack("<dd", group.rate_hz, group.t0_s)
+            if group.name in seen:  # the first group of a name, as StreamLayout.group finds it
+                continue
+            seen.add(group.name)
             names = tuple(c.name for c in group.channels)
-            name_field, fixed = wire.group_fields(group.name, rates, names)
-            # the first group of a name, as StreamLayout.group finds it
+            try:
+                rates = struct.pack("<dd", group.rate_hz, group.t0_s)
+                name_field, fixed = wire.group_fields(group.name, rates, names)
+            except _UNENCODABLE:  # a name our writer cannot have written: the slow path reads it
+                continue
             self._groups.setdefault(name_field, (group, fixed, len(names)))
             longest = max(longest, len(name_field) + len(fixed))
         # time_s (9 bytes), three varints (10 bytes each) with their keys
         self._sample_head = 9 + longest + 3 * 11
         # channel field bytes (``channel``, field 2) -> the edge channel
-        self._edges = {wire.string_field(2, name): name for name in layout.edge_channels}
+        self._edges: dict[bytes, str] = {}
+        for name in layout.edge_channels:
+            try:
+                self._edges.setdefault(wire.string_field(2, name), name)
+            except _UNENCODABLE:
+                continue
         self._edge_head = 9 + max((len(k) for k in self._edges), default=0) + 11
 
     def samples(self, data: bytes | memoryview) -> SampleBlock:

@@ -13,40 +13,23 @@ disagrees with the recorded layout) is skipped and counted in
 :class:`replay.recorded_log.ReadReport`; a file that cannot be a replayable recording at all
 raises :class:`replay.errors.LogError` with one line saying why.
 
-The log itself, its report and its iterators are :mod:`replay.recorded_log`.
+The scan itself is :mod:`replay.log_scan`; the log, its report and its iterators are
+:mod:`replay.recorded_log`.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import struct
-from dataclasses import dataclass, field
-from io import BytesIO
 from pathlib import Path
-
-from mcap.data_stream import ReadDataStream
-from mcap.exceptions import McapError
-from mcap.opcode import Opcode
-from mcap.records import Channel, Metadata, Schema
 
 from acquisition.stream import StreamLayout
 from replay import stream_codec
 from replay.chunks import READ_ERRORS
 from replay.errors import LogError, describe
-from replay.integrity import DataCheck, check_data_crc, check_summary_crc
-from replay.mcap_records import (
-    MAGIC,
-    BadChunk,
-    chunk_payload,
-    chunk_records,
-    chunk_times,
-    ends_data,
-    parse_definition,
-    read_at,
-    read_attachment,
-    records,
-)
+from replay.integrity import DataCheck, check_data_crc
+from replay.log_scan import NoSummary, Scan, scan_finished, scan_stream
+from replay.mcap_records import MAGIC
 from replay.recorded_log import ReadReport, RecordedLog
 from replay.schemas import (
     BENCH_ATTACHMENT,
@@ -58,7 +41,6 @@ from replay.schemas import (
     full_name,
     stream_topics,
 )
-from replay.summary import read_metadata, read_summary
 
 # A sample rate no acquisition reaches (Hz): a larger one in a recording is damage.
 MAX_RATE_HZ = 1e9
@@ -73,31 +55,6 @@ def find_logs(path: str | Path) -> list[Path]:
             raise LogError(f"{path}: no .mcap files in this directory")
         return logs
     return [path]
-
-
-@dataclass
-class _Scan:
-    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
-    attachments: dict[str, bytes] = field(default_factory=dict)
-    schemas: dict[int, Schema] = field(default_factory=dict)
-    channels: dict[int, Channel] = field(default_factory=dict)
-    counts: dict[str, int] | None = None
-    chunks: int = 0
-    last_log_time: int | None = None
-    readable: int = 0
-    data_end: bool = False  # the data section was complete
-    error: str | None = None
-    definitions_error: str | None = None  # the chunk holding the channels was damaged
-    data_verified: bool = False  # the data section's CRC matched
-    chunk_records: list[tuple[int, int]] | None = None  # (offset, length), finished logs
-    data_end_offset: int | None = None  # where the data end record starts
-    data_crc: int = 0  # the data section's CRC as recorded (0: not written)
-    notes: list[str] = field(default_factory=list)
-
-
-class NoSummary(McapError):
-    """A finished file whose footer declares no summary section: what the recorder
-    writes when it must stop early (a full disk, ``McapOutput.cut``)."""
 
 
 def open_log(path: str | Path, check_later: bool = False) -> RecordedLog:
@@ -128,24 +85,24 @@ def open_log(path: str | Path, check_later: bool = False) -> RecordedLog:
             raise LogError(f"{path}: not an MCAP file (starts with {head[:8]!r})")
         fh.seek(max(0, size - len(MAGIC)))
         finished = fh.read(len(MAGIC)) == MAGIC and size > 2 * len(MAGIC)
-    scan: _Scan | None = None
+    scan: Scan | None = None
     report = ReadReport(finished=False, file_bytes=size, readable_bytes=0)
-    closed_early = False
+    closed_early = damaged_summary = False
     if finished:
         try:
-            scan = _scan_finished(path)
+            scan = scan_finished(path)
             report.finished = True
             report.readable_bytes = size
         except NoSummary:
             closed_early = True  # a valid end, read front to back as MCAP's readers do
         except READ_ERRORS as err:
             report.note(f"footer or summary damaged ({describe(err)}): reading front to back")
-            scan = None
+            scan, damaged_summary = None, True
     if scan is None:
-        scan = _scan_stream(path)
+        scan = scan_stream(path)
         report.readable_bytes = scan.readable
         report.data_complete = scan.data_end
-        if scan.chunks == 0:
+        if scan.chunks == 0 and scan.messages == 0:
             raise LogError(
                 f"{path}: truncated before any data ({size} bytes, no complete chunk"
                 + (f"; {scan.error}" if scan.error else "")
@@ -174,106 +131,22 @@ def open_log(path: str | Path, check_later: bool = False) -> RecordedLog:
             f"disk): {scan.chunks} chunk(s){where}; nothing after was recorded"
         )
     elif not report.finished:
-        if scan.data_end:
+        if scan.data_end:  # (a file with a footer: its summary was damaged, not its data)
             tail = "the writer stopped while finishing the file: no data lost"
+            if damaged_summary:
+                tail = "the data section is whole"
         else:
             lost = size - scan.readable
             tail = f"the last {lost} byte(s), the chunk being written, are lost"
-        report.note(
-            f"unfinished recording (no footer): recovered {scan.chunks} chunk(s){where}; {tail}"
-        )
+            if damaged_summary:
+                tail = f"the last {lost} byte(s) could not be read"
+        what = "read front to back" if damaged_summary else "unfinished recording (no footer)"
+        report.note(f"{what}: recovered {scan.chunks} chunk(s){where}; {tail}")
     return log
 
 
-def _scan_finished(path: Path) -> _Scan:
-    """Read the summary section, its CRC checked; the attachments, theirs checked."""
-    scan = _Scan()
-    with open(path, "rb") as fh:
-        summary_start, section = check_summary_crc(fh)
-        if summary_start == 0:
-            raise NoSummary("no summary section")
-        summary = read_summary(section)
-        scan.schemas = dict(summary.schemas)
-        scan.channels = dict(summary.channels)
-        scan.chunks = len(summary.chunk_indexes)
-        scan.chunk_records = [(c.chunk_start_offset, c.chunk_length) for c in summary.chunk_indexes]
-        if summary.chunk_indexes:
-            scan.last_log_time = max(c.message_end_time for c in summary.chunk_indexes)
-        if summary.statistics is not None:
-            counts = summary.statistics.channel_message_counts
-            scan.counts = {ch.topic: int(counts.get(cid, 0)) for cid, ch in scan.channels.items()}
-        for meta_index in summary.metadata_indexes:
-            meta = read_metadata(fh, meta_index)
-            scan.metadata[meta.name] = dict(meta.metadata)
-        for index in summary.attachment_indexes:
-            _attach(scan, read_at(fh, index.offset + 9, index.length - 9), index.offset)
-        if summary_start > 13:  # the data end record sits just before the summary
-            head = read_at(fh, summary_start - 13, 13)
-            opcode, length, crc = struct.unpack("<BQI", head)
-            if opcode == Opcode.DATA_END and length == 4:
-                scan.data_end_offset, scan.data_crc = summary_start - 13, crc
-    return scan
-
-
-def _attach(scan: _Scan, content: bytes, offset: int) -> None:
-    try:
-        att = read_attachment(content)
-    except BadChunk as err:
-        scan.notes.append(f"{err} (at byte {offset}): attachment ignored")
-        return
-    scan.attachments[att.name] = bytes(att.data)
-
-
-def _scan_stream(path: str | Path) -> _Scan:
-    """Walk the records of an unfinished file, reading only metadata, attachments and the first chunk.
-
-    A chunk is complete when its declared length fits in the file (see
-    :func:`replay.chunks.records`), so the scan seeks past chunk contents.
-    """
-    scan = _Scan()
-    with open(path, "rb") as fh:
-        try:
-            for opcode, offset, length in records(fh):
-                if opcode == Opcode.CHUNK:
-                    if not scan.channels:
-                        try:
-                            payload = chunk_payload(read_at(fh, offset, length))
-                        except BadChunk as err:  # the walk skips it; definitions may follow
-                            scan.definitions_error = f"chunk at byte {offset - 9}: {err}"
-                            payload = b""
-                        for op, content in chunk_records(payload):
-                            if op in (Opcode.SCHEMA, Opcode.CHANNEL):
-                                _define(scan, parse_definition(op, content))
-                    scan.chunks += 1
-                    scan.last_log_time = chunk_times(fh, offset)[1]
-                elif opcode == Opcode.METADATA:
-                    meta = Metadata.read(ReadDataStream(BytesIO(read_at(fh, offset, length))))
-                    scan.metadata[meta.name] = dict(meta.metadata)
-                elif opcode == Opcode.ATTACHMENT:
-                    _attach(scan, read_at(fh, offset, length), offset - 9)
-                elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
-                    _define(scan, parse_definition(opcode, read_at(fh, offset, length)))
-                scan.readable = offset + length
-                if ends_data(opcode, length):
-                    if opcode == Opcode.DATA_END:
-                        scan.data_end_offset = offset - 9
-                        (scan.data_crc,) = struct.unpack("<I", read_at(fh, offset, 4))
-                    scan.data_end = True
-                    break
-        except READ_ERRORS as err:
-            scan.error = describe(err)
-    return scan
-
-
-def _define(scan: _Scan, record: Schema | Channel) -> None:
-    if isinstance(record, Schema):
-        scan.schemas[record.id] = record
-    else:
-        scan.channels[record.id] = record
-
-
 def _build(
-    path: Path, scan: _Scan, report: ReadReport, check: DataCheck | None = None
+    path: Path, scan: Scan, report: ReadReport, check: DataCheck | None = None
 ) -> RecordedLog:
     run = scan.metadata.get(META_RUN)
     if run is None or run.get("format") != FORMAT:
@@ -376,7 +249,7 @@ def _metadata_problem(layout: StreamLayout, settings: object, truth: object) -> 
     return None
 
 
-def _origin(scan: _Scan) -> int:
+def _origin(scan: Scan) -> int:
     """The run's time origin (ns), 0 when the metadata does not say (checked in :func:`_build`)."""
     try:
         return int((scan.metadata.get(META_RUN) or {}).get("time_origin_ns", "0"))

@@ -273,5 +273,7 @@ def layout_from_json(text: str) -> StreamLayout:
         for g in doc["groups"]
     )
     return StreamLayout(
-        groups, tuple(doc.get("edge_channels", ())), dict(doc.get("metadata") or {})
+        groups,
+        tuple(str(e) for e in doc.get("edge_channels", ())),
+        dict(doc.get("metadata") or {}),
     )

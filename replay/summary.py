@@ -38,6 +38,22 @@ from replay.mcap_records import RECORD_HEAD, read_at
 
 # message start time, message end time, chunk start offset, chunk length
 _CHUNK_INDEX = struct.Struct("<QQQQ")
+# Records MCAP puts in the data section only: one in a summary is damage (a chunk index
+# 0x08 flipped to an attachment 0x09, a metadata index 0x0D to metadata 0x0C), not a
+# record to skip, or a summary without CRC loses the index without a word.
+_DATA_ONLY = frozenset(
+    int(op)
+    for op in (
+        Opcode.HEADER,
+        Opcode.FOOTER,
+        Opcode.MESSAGE,
+        Opcode.CHUNK,
+        Opcode.MESSAGE_INDEX,
+        Opcode.ATTACHMENT,
+        Opcode.METADATA,
+        Opcode.DATA_END,
+    )
+)
 
 
 @dataclass(frozen=True)
@@ -83,10 +99,12 @@ def _stream(content: memoryview) -> ReadDataStream:
 
 def read_summary(summary: bytes) -> SummaryRecords:
     """The records of a summary section's bytes (its CRC checked by the caller); raises
-    McapError or ``struct.error`` on a record that does not parse. Unknown records and
-    summary offsets are skipped, as the mcap reader does."""
+    McapError or ``struct.error`` on a record that does not parse or has no place in a
+    summary. Unknown records and summary offsets are skipped, as the mcap reader does."""
     out = SummaryRecords()
     for opcode, content in _records(summary):
+        if opcode in _DATA_ONLY:
+            raise McapError(f"a record with opcode {opcode:#04x} in the summary section")
         if opcode == Opcode.CHUNK_INDEX:
             out.chunk_indexes.append(ChunkSpan(*_CHUNK_INDEX.unpack_from(content, 0)))
         elif opcode == Opcode.SCHEMA:
@@ -104,20 +122,64 @@ def read_summary(summary: bytes) -> SummaryRecords:
     return out
 
 
+def omission(summary: SummaryRecords) -> str | None:
+    """What the summary leaves out (None: it indexes every chunk, metadata record and
+    attachment and repeats every schema and channel), judged by its statistics when it
+    has them.
+
+    mcap's ``Writer`` writes a valid file without chunk indexes (``use_chunking=False``, or
+    ``index_types`` without ``CHUNK``), without metadata or attachment indexes, or without
+    the schemas and channels (``repeat_channels=False``); a file read by its summary alone
+    would then lose its messages or its run metadata without a word. In a summary without
+    CRC, a count that disagrees is a record lost to damage.
+    """
+    stats = summary.statistics
+    chunks, metas = len(summary.chunk_indexes), len(summary.metadata_indexes)
+    if chunks == 0:
+        return "no chunk index"
+    if not summary.channels:
+        return "no channel"
+    lost = {c.schema_id for c in summary.channels.values()} - {0, *summary.schemas}
+    if lost:
+        return f"a channel refers to schema {min(lost)}, which it does not hold"
+    if stats is None:
+        return "no metadata index" if metas == 0 else None
+    for what, held, counted in (
+        ("chunk index(es)", chunks, stats.chunk_count),
+        ("metadata index(es)", metas, stats.metadata_count),
+        ("attachment index(es)", len(summary.attachment_indexes), stats.attachment_count),
+        ("channel(s)", len(summary.channels), stats.channel_count),
+        ("schema(s)", len(summary.schemas), stats.schema_count),
+    ):
+        if held != counted:
+            return f"{held} {what}, its statistics count {counted}"
+    unknown = set(stats.channel_message_counts) - set(summary.channels)
+    if unknown:
+        return f"its statistics count messages on channel {min(unknown)}, which it does not hold"
+    return None
+
+
 def read_metadata(fh: IO[bytes], index: MetadataIndex) -> Metadata:
     """The metadata record a metadata index points at; raises McapError when the record's
     header disagrees with the index (a damaged length is not read: it may say 2**35 bytes)."""
-    size = fh.seek(0, 2)
-    head = read_at(fh, index.offset, RECORD_HEAD.size)
-    if len(head) < RECORD_HEAD.size:
-        raise McapError(f"metadata index points past the end of the file ({index.offset})")
-    opcode, length = RECORD_HEAD.unpack(head)
-    if opcode != Opcode.METADATA:
-        raise McapError(f"expected a metadata record at byte {index.offset}, got {opcode:#04x}")
-    if length != index.length - RECORD_HEAD.size or index.offset + index.length > size:
-        raise McapError(
-            f"metadata record at byte {index.offset}: {length} bytes, its index says "
-            f"{index.length - RECORD_HEAD.size} ({size} bytes in the file)"
-        )
-    content = read_at(fh, index.offset + RECORD_HEAD.size, length)
+    content = read_indexed(fh, index.offset, index.length, Opcode.METADATA, "metadata")
     return Metadata.read(ReadDataStream(BytesIO(content)))
+
+
+def read_indexed(fh: IO[bytes], offset: int, length: int, opcode: int, what: str) -> bytes:
+    """The content of the ``opcode`` record an index puts at ``offset``, ``length`` bytes
+    with its header; raises McapError when the record's header disagrees with the index or
+    the record does not fit in the file (a summary without CRC may say 2**60 bytes)."""
+    size = fh.seek(0, 2)
+    head = read_at(fh, offset, RECORD_HEAD.size)
+    if len(head) < RECORD_HEAD.size:
+        raise McapError(f"{what} index points past the end of the file ({offset})")
+    found, declared = RECORD_HEAD.unpack(head)
+    if found != opcode:
+        raise McapError(f"expected a {what} record at byte {offset}, got {found:#04x}")
+    if declared != length - RECORD_HEAD.size or offset + length > size:
+        raise McapError(
+            f"{what} record at byte {offset}: {declared} bytes, its index says "
+            f"{length - RECORD_HEAD.size} ({size} bytes in the file)"
+        )
+    return read_at(fh, offset + RECORD_HEAD.size, declared)

@@ -192,6 +192,9 @@ def test_a_damaged_summary_falls_back_to_the_data_and_gives_the_clean_result(
     code, doc, err = replay(log, tmp_path / "r.json", capsys)
     assert code == 0 and doc == clean_run.result
     assert any("summary damaged" in line for line in err)
+    # the file has its footer: not called unfinished
+    assert not any("no footer" in line or "writer stopped" in line for line in err)
+    assert any("the data section is whole" in line for line in err)
 
 
 def test_a_cut_recording_says_what_it_lost(

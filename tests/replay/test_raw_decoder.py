@@ -112,3 +112,23 @@ def test_edge_blocks_read_as_decode_edges_reads_them(monkeypatch: pytest.MonkeyP
     for message in ours:  # our writer's: the head matched, no protobuf parse
         decoder.edges(message)
     assert calls == [] and len(ours) == 12
+
+
+def test_names_that_do_not_encode_are_left_to_the_field_by_field_decoders() -> None:
+    """A crafted layout: a lone surrogate (legal JSON, not UTF-8) in a group's name and in
+    a channel's, a non-string edge channel; the other names keep the fast path."""
+    odd_groups = (
+        SampleGroup("\ud800", 10.0, CHANNELS),
+        SampleGroup("q", 10.0, (ChannelSpec("\ud800", "V"),)),
+    )
+    layout = StreamLayout((*GROUPS, *odd_groups), (*EDGES, 5))  # type: ignore[arg-type]
+    decoder = raw_decoder.RawDecoder(layout)
+    block = SampleBlock("acc", 3, np.ones((2, 4)))
+    message = stream_codec.encode_samples(block, GROUPS[0])
+    assert outcome(decoder.samples, message) == outcome(
+        lambda m: stream_codec.decode_samples(m, layout), message
+    )
+    edges = stream_codec.encode_edges(EdgeBlock("tacho", np.arange(3.0)), 0.0)
+    assert outcome(decoder.edges, edges)[:2] == (EdgeBlock, "tacho")
+    assert set(decoder._groups) == {wire.string_field(2, g.name) for g in GROUPS}
+    assert set(decoder._edges.values()) == set(EDGES)

@@ -1,0 +1,171 @@
+"""One pass over a recording's structure before it is read: the summary of a finished file,
+or its records front to back, giving the metadata, attachments, schemas, channels and chunks.
+
+A finished log (footer and summary present) is scanned through its summary
+(:mod:`replay.summary`), unless the summary leaves something out (mcap's
+``Writer`` can write a file without indexes; a summary without CRC may have
+lost a record): then, as for a log whose writer died, the records are walked
+front to back, seeking past chunk contents. :mod:`replay.reader` builds the
+log from the scan.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, field
+from io import BytesIO
+from pathlib import Path
+
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
+from mcap.opcode import Opcode
+from mcap.records import Channel, Metadata, Schema
+
+from replay.chunks import READ_ERRORS
+from replay.errors import describe
+from replay.integrity import check_summary_crc
+from replay.mcap_records import (
+    MESSAGE_HEAD,
+    BadChunk,
+    chunk_payload,
+    chunk_records,
+    chunk_times,
+    ends_data,
+    parse_definition,
+    read_at,
+    read_attachment,
+    records,
+)
+from replay.summary import omission, read_indexed, read_metadata, read_summary
+
+
+@dataclass
+class Scan:
+    """What a scan found (see the module docstring)."""
+
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    attachments: dict[str, bytes] = field(default_factory=dict)
+    schemas: dict[int, Schema] = field(default_factory=dict)
+    channels: dict[int, Channel] = field(default_factory=dict)
+    counts: dict[str, int] | None = None
+    chunks: int = 0
+    messages: int = 0  # messages outside chunks (mcap's Writer(use_chunking=False))
+    last_log_time: int | None = None
+    readable: int = 0
+    data_end: bool = False  # the data section was complete
+    error: str | None = None
+    definitions_error: str | None = None  # the chunk holding the channels was damaged
+    data_verified: bool = False  # the data section's CRC matched
+    chunk_records: list[tuple[int, int]] | None = None  # (offset, length), finished logs
+    data_end_offset: int | None = None  # where the data end record starts
+    data_crc: int = 0  # the data section's CRC as recorded (0: not written)
+    notes: list[str] = field(default_factory=list)
+
+
+class NoSummary(McapError):
+    """A finished file whose footer declares no summary section: what the recorder
+    writes when it must stop early (a full disk, ``McapOutput.cut``)."""
+
+
+def scan_finished(path: Path) -> Scan:
+    """Read the summary section, its CRC checked; the attachments, theirs checked."""
+    scan = Scan()
+    with open(path, "rb") as fh:
+        summary_start, section = check_summary_crc(fh)
+        if summary_start == 0:
+            raise NoSummary("no summary section")
+        summary = read_summary(section)
+        gap = omission(summary)
+        if gap is not None:  # valid MCAP (mcap's Writer can leave the indexes out): the data has it
+            scan = scan_stream(path)
+            scan.notes.append(
+                f"the summary does not index the whole file ({gap}): read front to back"
+            )
+            if summary.statistics is not None:
+                counts = summary.statistics.channel_message_counts
+                scan.counts = {
+                    ch.topic: int(counts.get(cid, 0)) for cid, ch in scan.channels.items()
+                }
+            return scan
+        scan.schemas = dict(summary.schemas)
+        scan.channels = dict(summary.channels)
+        scan.chunks = len(summary.chunk_indexes)
+        scan.chunk_records = [(c.chunk_start_offset, c.chunk_length) for c in summary.chunk_indexes]
+        if summary.chunk_indexes:
+            scan.last_log_time = max(c.message_end_time for c in summary.chunk_indexes)
+        if summary.statistics is not None:
+            counts = summary.statistics.channel_message_counts
+            scan.counts = {ch.topic: int(counts.get(cid, 0)) for cid, ch in scan.channels.items()}
+        for meta_index in summary.metadata_indexes:
+            meta = read_metadata(fh, meta_index)
+            scan.metadata[meta.name] = dict(meta.metadata)
+        for index in summary.attachment_indexes:
+            at, length = index.offset, index.length
+            _attach(scan, read_indexed(fh, at, length, Opcode.ATTACHMENT, "attachment"), at)
+        if summary_start > 13:  # the data end record sits just before the summary
+            head = read_at(fh, summary_start - 13, 13)
+            opcode, length, crc = struct.unpack("<BQI", head)
+            if opcode == Opcode.DATA_END and length == 4:
+                scan.data_end_offset, scan.data_crc = summary_start - 13, crc
+    return scan
+
+
+def _attach(scan: Scan, content: bytes, offset: int) -> None:
+    try:
+        att = read_attachment(content)
+    except BadChunk as err:
+        scan.notes.append(f"{err} (at byte {offset}): attachment ignored")
+        return
+    scan.attachments[att.name] = bytes(att.data)
+
+
+def scan_stream(path: str | Path) -> Scan:
+    """Walk the records of an unfinished file, reading only metadata, attachments and the first chunk.
+
+    A chunk is complete when its declared length fits in the file (see
+    :func:`replay.chunks.records`), so the scan seeks past chunk contents.
+    """
+    scan = Scan()
+    with open(path, "rb") as fh:
+        try:
+            for opcode, offset, length in records(fh):
+                if opcode == Opcode.CHUNK:
+                    if not scan.channels:
+                        try:
+                            payload = chunk_payload(read_at(fh, offset, length))
+                        except BadChunk as err:  # the walk skips it; definitions may follow
+                            scan.definitions_error = f"chunk at byte {offset - 9}: {err}"
+                            payload = b""
+                        for op, content in chunk_records(payload):
+                            if op in (Opcode.SCHEMA, Opcode.CHANNEL):
+                                _define(scan, parse_definition(op, content))
+                    scan.chunks += 1
+                    scan.last_log_time = chunk_times(fh, offset)[1]
+                elif opcode == Opcode.METADATA:
+                    meta = Metadata.read(ReadDataStream(BytesIO(read_at(fh, offset, length))))
+                    scan.metadata[meta.name] = dict(meta.metadata)
+                elif opcode == Opcode.ATTACHMENT:
+                    _attach(scan, read_at(fh, offset, length), offset - 9)
+                elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
+                    _define(scan, parse_definition(opcode, read_at(fh, offset, length)))
+                elif opcode == Opcode.MESSAGE and length >= MESSAGE_HEAD.size:
+                    (log_time,) = struct.unpack("<Q", read_at(fh, offset + 6, 8))
+                    scan.messages += 1
+                    scan.last_log_time = max(log_time, scan.last_log_time or 0)
+                scan.readable = offset + length
+                if ends_data(opcode, length):
+                    if opcode == Opcode.DATA_END:
+                        scan.data_end_offset = offset - 9
+                        (scan.data_crc,) = struct.unpack("<I", read_at(fh, offset, 4))
+                    scan.data_end = True
+                    break
+        except READ_ERRORS as err:
+            scan.error = describe(err)
+    return scan
+
+
+def _define(scan: Scan, record: Schema | Channel) -> None:
+    if isinstance(record, Schema):
+        scan.schemas[record.id] = record
+    else:
+        scan.channels[record.id] = record

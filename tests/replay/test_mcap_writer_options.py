@@ -1,0 +1,272 @@
+"""Recordings rewritten by mcap's own ``Writer`` with the options a user's tool may choose.
+
+A file without chunk indexes, metadata indexes or statistics is valid MCAP: the
+replay reads it front to back, says so, and gives the clean result.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+from mcap.opcode import Opcode
+from mcap.records import Attachment, Channel, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import IndexType, Writer
+from support.clean_run import CleanRun
+
+from ptinertia.cli import main
+from replay.schemas import META_RUN
+
+
+def replay(log: Path, out: Path, capsys: pytest.CaptureFixture[str]) -> Any:
+    """Exit code, result document (or None), stderr lines of ``ptinertia replay log``."""
+    out.unlink(missing_ok=True)
+    code = main(["replay", str(log), "--quiet", "--json", str(out)])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    return code, json.loads(out.read_text()) if out.exists() else None, err
+
+
+def rewritten(
+    source: Path,
+    path: Path,
+    edit_layout: Callable[[dict[str, Any]], None] | None = None,
+    topics: dict[str, str] | None = None,
+    **options: Any,
+) -> Path:
+    """``source``'s records written again, in file order, by ``Writer(**options)``;
+    ``edit_layout`` changes the run metadata's layout (a channel is registered for each
+    sample group it adds); ``topics`` renames channels."""
+    with open(source, "rb") as src, open(path, "wb") as out:
+        writer = Writer(out, **options)
+        writer.start(profile="", library="a user's tool")
+        schemas, channels = {0: 0}, {}
+        added: list[str] = []  # sample groups edit_layout added
+        for rec in StreamReader(src).records:
+            if isinstance(rec, Schema) and rec.id not in schemas:
+                schemas[rec.id] = writer.register_schema(rec.name, rec.encoding, rec.data)
+            elif isinstance(rec, Channel) and rec.id not in channels:
+                topic = (topics or {}).get(rec.topic, rec.topic)
+                channels[rec.id] = writer.register_channel(
+                    topic, rec.message_encoding, schemas[rec.schema_id], rec.metadata
+                )
+                for group in added if rec.topic == "/raw/accel" else ():
+                    topic = f"/raw/{group}"
+                    writer.register_channel(topic, rec.message_encoding, schemas[rec.schema_id])
+            elif isinstance(rec, Message):
+                writer.add_message(
+                    channels[rec.channel_id], rec.log_time, rec.data, rec.publish_time, rec.sequence
+                )
+            elif isinstance(rec, Metadata):
+                metadata = dict(rec.metadata)
+                if rec.name == META_RUN and edit_layout is not None:
+                    layout = json.loads(metadata["layout"])
+                    before = {g["name"] for g in layout["groups"]}
+                    edit_layout(layout)
+                    added = [g["name"] for g in layout["groups"] if g["name"] not in before]
+                    metadata["layout"] = json.dumps(layout)
+                writer.add_metadata(rec.name, metadata)
+            elif isinstance(rec, Attachment):
+                writer.add_attachment(
+                    rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data
+                )
+        writer.finish()
+    return path
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {"use_chunking": False},
+        {"use_chunking": False, "enable_crcs": False, "use_statistics": False},
+        {"index_types": IndexType.NONE},
+        {"index_types": IndexType.CHUNK},
+        {"index_types": IndexType.METADATA | IndexType.ATTACHMENT},
+        {"repeat_channels": False, "repeat_schemas": False},
+    ],
+    ids=[
+        "no-chunks",
+        "no-chunks-crcs-statistics",
+        "no-indexes",
+        "chunk-index-only",
+        "no-chunk-index",
+        "no-channels",
+    ],
+)
+def test_a_summary_without_indexes_is_read_front_to_back_with_the_clean_result(
+    clean_run: CleanRun,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    options: dict[str, Any],
+) -> None:
+    log = rewritten(clean_run.log, tmp_path / "log.mcap", **options)
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert code == 0 and doc == clean_run.result
+    assert any("the summary does not index the whole file" in line for line in err)
+
+
+def test_an_indexed_summary_is_read_by_its_indexes_without_a_note(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    log = rewritten(clean_run.log, tmp_path / "log.mcap")
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert code == 0 and doc == clean_run.result
+    assert not any("index" in line for line in err)
+
+
+def summary_records(data: bytes) -> list[tuple[int, int]]:
+    """(opcode, byte offset) of every record of a finished file's summary section."""
+    footer = len(data) - 8 - 29
+    (start,) = struct.unpack_from("<Q", data, footer + 9)
+    out, pos = [], start
+    while pos < footer:
+        opcode, length = struct.unpack_from("<BQ", data, pos)
+        out.append((opcode, pos))
+        pos += 9 + length
+    return out
+
+
+@pytest.mark.parametrize(
+    ("record", "said"),
+    [
+        (Opcode.CHUNK_INDEX, "1 chunk index(es), its statistics count 2"),
+        (Opcode.CHANNEL, "channel(s), its statistics count"),
+        (Opcode.SCHEMA, "a channel refers to schema"),
+    ],
+)
+def test_a_record_lost_from_a_summary_without_crc_is_caught_by_the_statistics(
+    clean_run: CleanRun,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    record: int,
+    said: str,
+) -> None:
+    """A record whose opcode turned into one MCAP readers skip: the counts disagree."""
+    data = rewritten(clean_run.log, tmp_path / "nocrc.mcap", enable_crcs=False).read_bytes()
+    at = [pos for op, pos in summary_records(data) if op == record][-1]
+    log = tmp_path / "log.mcap"
+    log.write_bytes(data[:at] + bytes([data[at] | 0x80]) + data[at + 1 :])
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert code == 0 and doc == clean_run.result
+    assert any(said in line and "read front to back" in line for line in err)
+
+
+@pytest.mark.parametrize(
+    ("index", "flipped_to"),
+    [(Opcode.CHUNK_INDEX, Opcode.ATTACHMENT), (Opcode.METADATA_INDEX, Opcode.METADATA)],
+)
+def test_a_data_section_record_in_a_summary_without_crc_is_damage(
+    clean_run: CleanRun,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    index: int,
+    flipped_to: int,
+) -> None:
+    """Without a CRC and statistics, only the opcode tells the index was damaged."""
+    options: dict[str, Any] = {"enable_crcs": False, "use_statistics": False}
+    data = rewritten(clean_run.log, tmp_path / "nocrc.mcap", **options).read_bytes()
+    at = next(pos for op, pos in summary_records(data) if op == index)
+    log = tmp_path / "log.mcap"
+    log.write_bytes(data[:at] + bytes([flipped_to]) + data[at + 1 :])
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert code == 0 and doc == clean_run.result
+    assert any(f"opcode {flipped_to:#04x} in the summary section" in line for line in err)
+
+
+def test_layout_names_utf8_cannot_hold_replay_as_the_clean_run(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A lone surrogate is legal in the layout's JSON, not in UTF-8: the fast decoder
+    leaves that group to the field-by-field one instead of failing to start."""
+
+    def extra_group(layout: dict[str, Any]) -> None:
+        channel = {"name": "\ud800", "unit": "V"}
+        layout["groups"].append({"name": "extra", "rate_hz": 10.0, "channels": [channel]})
+
+    log = rewritten(clean_run.log, tmp_path / "log.mcap", edit_layout=extra_group)
+    code, doc, _ = replay(log, tmp_path / "r.json", capsys)
+    assert code == 0 and doc == clean_run.result
+
+
+def test_an_edge_channel_that_is_not_a_string_is_one_line(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    def number(layout: dict[str, Any]) -> None:
+        layout["edge_channels"] = [5]
+
+    topics = {"/raw/edges/tacho": "/raw/edges/5"}
+    log = rewritten(clean_run.log, tmp_path / "log.mcap", edit_layout=number, topics=topics)
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert code == 2 and doc is None
+    assert len(err) == 1 and "edge channel 'tacho'" in err[0] and "edge channels: 5" in err[0]
+
+
+def test_an_attachment_index_with_a_damaged_length_is_not_trusted(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A summary without CRC whose attachment index says 2**40 bytes more: read front to
+    back, not allocated."""
+    data = bytearray(
+        rewritten(clean_run.log, tmp_path / "nocrc.mcap", enable_crcs=False).read_bytes()
+    )
+    at = next(pos for op, pos in summary_records(bytes(data)) if op == Opcode.ATTACHMENT_INDEX)
+    struct.pack_into("<Q", data, at + 9 + 8, struct.unpack_from("<Q", data, at + 17)[0] + 2**40)
+    log = tmp_path / "log.mcap"
+    log.write_bytes(data)
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert code == 0 and doc == clean_run.result
+    assert any("attachment record at byte" in line and "front to back" in line for line in err)
+
+
+@pytest.mark.parametrize("damage", ["length", "offset"])
+def test_a_chunk_whose_index_runs_past_the_file_is_skipped_without_reading_it(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str], damage: str
+) -> None:
+    """A chunk index and the record header agreeing on 2**40 more bytes, or an index
+    pointing at byte 2**62 (no CRC on the summary; the data section's CRC then fails and
+    the chunk is looked at): skipped and reported, not allocated, not sought."""
+    options: dict[str, Any] = {"enable_crcs": False, "enable_data_crcs": True}
+    data = bytearray(rewritten(clean_run.log, tmp_path / "nocrc.mcap", **options).read_bytes())
+    at = [pos for op, pos in summary_records(bytes(data)) if op == Opcode.CHUNK_INDEX][-1]
+    chunk, length = struct.unpack_from("<QQ", data, at + 9 + 16)
+    if damage == "length":
+        struct.pack_into("<Q", data, at + 9 + 24, length + 2**40)
+        struct.pack_into("<Q", data, chunk + 1, length - 9 + 2**40)
+    else:
+        struct.pack_into("<Q", data, at + 9 + 16, chunk + 2**62)
+    log = tmp_path / "log.mcap"
+    log.write_bytes(data)
+    code, doc, _ = replay(log, tmp_path / "r.json", capsys)
+    assert code == 0
+    (skipped,) = doc["recording_skipped"]
+    assert skipped["kind"] == "damaged" and "runs past the end of the file" in skipped["reason"]
+
+
+def test_an_empty_summary_with_a_crc_is_valid_and_its_crc_checked(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Nothing in the summary: mcap's Writer points the footer at byte 0 with the CRC of
+    the footer's own fields (valid MCAP), not a footer pointing outside the file."""
+    options: dict[str, Any] = {
+        "index_types": IndexType.NONE,
+        "repeat_channels": False,
+        "repeat_schemas": False,
+        "use_statistics": False,
+        "use_summary_offsets": False,
+    }
+    data = rewritten(clean_run.log, tmp_path / "empty.mcap", **options).read_bytes()
+    footer = len(data) - 8 - 29
+    start, _, crc = struct.unpack_from("<QQI", data, footer + 9)
+    assert start == 0 and crc != 0
+    code, doc, err = replay(tmp_path / "empty.mcap", tmp_path / "r.json", capsys)
+    assert code == 0 and doc == clean_run.result
+    assert not any("damaged" in line for line in err)
+    log = tmp_path / "flipped.mcap"
+    log.write_bytes(data[:-9] + bytes([data[-9] ^ 1]) + data[-8:])  # the CRC's last byte
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert code == 0 and doc == clean_run.result
+    assert any("summary CRC mismatch" in line for line in err)
