@@ -43,7 +43,9 @@ Prints:
    each with the dsp on the processing thread and on its own (issue 24, 2026-11-26 afternoon,
    load 1.0-1.2: live 123-126x, 117-118x with the dsp thread, replay 243-246x, 235-242x;
    numpy live 56-73x, replay 113-122x; the morning's build, interleaved: live 106-111x,
-   replay 179-182x).
+   replay 179-182x. Evening, load 1.0-1.7, two rounds interleaved with the afternoon's
+   d450fdd: live 143-144x (129-136x), 129-138x with the dsp thread, replay 286x (255-260x),
+   275-291x with the dsp thread; numpy replay best of three 137-141x (115-127x)).
 
 Usage: python benchmarks/bench_pipeline.py [--hours 1.0] [--skip-long]
 """
