@@ -51,6 +51,14 @@ def check_summary_crc(fh: IO[bytes]) -> tuple[int, bytes]:
     return int(start), summary
 
 
+def summary_crc_written(fh: IO[bytes]) -> bool:
+    """Whether the footer holds a summary CRC (0: not written), i.e. whether
+    :func:`check_summary_crc` checked the summary it returned."""
+    size = fh.seek(0, 2)
+    footer = read_at(fh, size - len(MAGIC) - 29, 29)
+    return len(footer) == 29 and struct.unpack_from("<I", footer, 25)[0] != 0
+
+
 def check_data_crc(
     path: Path,
     data_end_offset: int | None,

@@ -23,7 +23,7 @@ from mcap.records import Channel, Metadata, Schema
 
 from replay.chunks import READ_ERRORS
 from replay.errors import describe
-from replay.integrity import check_summary_crc
+from replay.integrity import check_summary_crc, summary_crc_written
 from replay.mcap_records import (
     MESSAGE_HEAD,
     BadChunk,
@@ -60,6 +60,9 @@ class Scan:
     data_end_offset: int | None = None  # where the data end record starts
     data_crc: int = 0  # the data section's CRC as recorded (0: not written)
     notes: list[str] = field(default_factory=list)
+    # an attachment was damaged: it explains a data CRC mismatch (the notes do not: they
+    # also say the summary left records out, which explains no damage)
+    attachment_damaged: bool = False
 
 
 class NoSummary(McapError):
@@ -99,9 +102,20 @@ def scan_finished(path: Path) -> Scan:
         for meta_index in summary.metadata_indexes:
             meta = read_metadata(fh, meta_index)
             scan.metadata[meta.name] = dict(meta.metadata)
+        checked = summary_crc_written(fh)
         for index in summary.attachment_indexes:
             at, length = index.offset, index.length
-            _attach(scan, read_indexed(fh, at, length, Opcode.ATTACHMENT, "attachment"), at)
+            try:
+                content = read_indexed(fh, at, length, Opcode.ATTACHMENT, "attachment")
+            except McapError as err:
+                if not checked:  # the index itself may be what is damaged: read front to back
+                    raise
+                # the summary's CRC vouches for the index: the attachment's own record is
+                # damaged (the walk could not get past it either)
+                scan.notes.append(f"{err}: attachment ignored")
+                scan.attachment_damaged = True
+                continue
+            _attach(scan, content, at)
         if summary_start > 13:  # the data end record sits just before the summary
             head = read_at(fh, summary_start - 13, 13)
             opcode, length, crc = struct.unpack("<BQI", head)
@@ -115,6 +129,7 @@ def _attach(scan: Scan, content: bytes, offset: int) -> None:
         att = read_attachment(content)
     except BadChunk as err:
         scan.notes.append(f"{err} (at byte {offset}): attachment ignored")
+        scan.attachment_damaged = True
         return
     scan.attachments[att.name] = bytes(att.data)
 

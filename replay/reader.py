@@ -112,7 +112,13 @@ def open_log(path: str | Path, check_later: bool = False) -> RecordedLog:
     report.time_origin_ns = _origin(scan)
     for line in scan.notes:
         report.note(line)
-    crc_args = (path, scan.data_end_offset, scan.data_crc, scan.chunk_records, bool(scan.notes))
+    crc_args = (
+        path,
+        scan.data_end_offset,
+        scan.data_crc,
+        scan.chunk_records,
+        scan.attachment_damaged,
+    )
     if check_later:
         check = DataCheck(*crc_args)
         try:
@@ -169,7 +175,7 @@ def _build(
         settings = json.loads(run.get("settings") or "{}")
         truth = json.loads(run.get("truth") or "null")
         origin = int(run.get("time_origin_ns", "0"))
-    except (KeyError, ValueError, TypeError, AttributeError) as err:
+    except (KeyError, ValueError, TypeError, AttributeError, OverflowError) as err:
         raise LogError(f"{path}: unreadable run metadata ({describe(err)})") from None
     problem = _metadata_problem(layout, settings, truth)
     if problem is not None:

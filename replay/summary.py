@@ -135,8 +135,8 @@ def omission(summary: SummaryRecords) -> str | None:
     """
     stats = summary.statistics
     chunks, metas = len(summary.chunk_indexes), len(summary.metadata_indexes)
-    if chunks == 0:
-        return "no chunk index"
+    if chunks == 0 and not (stats is not None and stats.message_count == 0 == stats.chunk_count):
+        return "no chunk index"  # (a file without a message needs none)
     if not summary.channels:
         return "no channel"
     lost = {c.schema_id for c in summary.channels.values()} - {0, *summary.schemas}

@@ -20,6 +20,8 @@ from mcap.writer import IndexType, Writer
 from support.clean_run import CleanRun
 
 from ptinertia.cli import main
+from replay.errors import LogError
+from replay.reader import open_log
 from replay.schemas import META_RUN
 
 
@@ -113,9 +115,11 @@ def test_an_indexed_summary_is_read_by_its_indexes_without_a_note(
     clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     log = rewritten(clean_run.log, tmp_path / "log.mcap")
+    for path in (log, clean_run.log):  # a user's tool's copy, and our own recording
+        opened = open_log(path)
+        assert opened.chunk_records is not None and opened.report.notes == []
     code, doc, err = replay(log, tmp_path / "r.json", capsys)
-    assert code == 0 and doc == clean_run.result
-    assert not any("index" in line for line in err)
+    assert (code, doc, err) == (0, clean_run.result, [])
 
 
 def summary_records(data: bytes) -> list[tuple[int, int]]:
@@ -270,3 +274,74 @@ def test_an_empty_summary_with_a_crc_is_valid_and_its_crc_checked(
     code, doc, err = replay(log, tmp_path / "r.json", capsys)
     assert code == 0 and doc == clean_run.result
     assert any("summary CRC mismatch" in line for line in err)
+
+
+def test_a_damaged_layout_is_refused_when_the_summary_indexes_no_metadata(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A file read front to back because its summary indexes chunks only: its note explains
+    no damage, so a data CRC mismatch (a rate changed in the run metadata) still refuses it."""
+    log = rewritten(
+        clean_run.log, tmp_path / "log.mcap", enable_data_crcs=True, index_types=IndexType.CHUNK
+    )
+    data = bytearray(log.read_bytes())
+    at = data.index(b'"rate_hz": 5120.0') + len(b'"rate_hz": 5')
+    data[at] = ord("2")  # 5120 -> 5220 Hz
+    log.write_bytes(data)
+    with pytest.raises(LogError, match="data section's CRC does not match"):
+        open_log(log)
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert (code, doc) == (2, None) and "data section's CRC does not match" in err[-1]
+
+
+def test_a_damaged_attachment_header_under_a_checked_summary_loses_that_attachment_only(
+    clean_run: CleanRun, tmp_path: Path
+) -> None:
+    """The summary's CRC vouches for the attachment index: the attachment's own record is
+    what is damaged. The stream stays readable; the attachment is said to be ignored."""
+    log = rewritten(clean_run.log, tmp_path / "log.mcap")
+    data = bytearray(log.read_bytes())
+    at = next(pos for op, pos in summary_records(bytes(data)) if op == Opcode.ATTACHMENT_INDEX)
+    offset = struct.unpack_from("<Q", data, at + 9)[0]
+    data[offset + 1] ^= 1  # the attachment record's length
+    log.write_bytes(data)
+    opened = open_log(log)
+    assert opened.chunk_records is not None
+    assert any("attachment ignored" in n for n in opened.report.notes)
+    assert sum(1 for _ in opened.items()) == sum(1 for _ in open_log(clean_run.log).items())
+
+
+def test_a_finished_file_without_a_message_opens_as_an_empty_log(
+    clean_run: CleanRun, tmp_path: Path
+) -> None:
+    """mcap's Writer leaves a file without messages without chunk indexes: nothing is
+    missing, so it is not read front to back (its channels are in the summary only)."""
+    with open(clean_run.log, "rb") as src, open(tmp_path / "empty.mcap", "wb") as out:
+        writer = Writer(out, enable_data_crcs=True)
+        writer.start(profile="", library="a user's tool")
+        schemas: dict[int, int] = {0: 0}
+        channels: set[int] = set()
+        for rec in StreamReader(src).records:
+            if isinstance(rec, Schema) and rec.id not in schemas:
+                schemas[rec.id] = writer.register_schema(rec.name, rec.encoding, rec.data)
+            elif isinstance(rec, Channel) and rec.id not in channels:
+                channels.add(rec.id)
+                writer.register_channel(
+                    rec.topic, rec.message_encoding, schemas[rec.schema_id], rec.metadata
+                )
+            elif isinstance(rec, Metadata):
+                writer.add_metadata(rec.name, dict(rec.metadata))
+        writer.finish()
+    opened = open_log(tmp_path / "empty.mcap")
+    assert opened.report.notes == [] and list(opened.items()) == []
+
+
+def test_a_rate_too_large_for_a_float_is_one_line(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    def huge(layout: dict[str, Any]) -> None:
+        layout["groups"][0]["rate_hz"] = 10**400
+
+    log = rewritten(clean_run.log, tmp_path / "log.mcap", edit_layout=huge)
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert (code, doc) == (2, None) and len(err) == 1 and str(log) in err[0]
