@@ -31,9 +31,10 @@ from replay.mcap_records import (
 )
 
 
-def check_summary_crc(fh: IO[bytes]) -> tuple[int, bytes]:
-    """The summary's start offset (0: none) and its bytes (up to the footer); raises
-    McapError when the footer's CRC does not match."""
+def check_summary_crc(fh: IO[bytes]) -> tuple[int, bytes, bool]:
+    """The summary's start offset (0: none), its bytes (up to the footer) and whether its
+    CRC was written and checked (0 in the footer: not written); raises McapError when the
+    footer's CRC does not match."""
     size = fh.seek(0, 2)
     footer = read_at(fh, size - len(MAGIC) - 29, 29)
     opcode, length, start, _, crc = struct.unpack("<BQQQI", footer)
@@ -42,21 +43,13 @@ def check_summary_crc(fh: IO[bytes]) -> tuple[int, bytes]:
     if start == 0:  # no summary; mcap's Writer still writes the CRC of the footer's fields
         if crc and crc32(footer[:25]) != crc:
             raise McapError("summary CRC mismatch (the footer declares no summary)")
-        return 0, b""
+        return 0, b"", bool(crc)
     if not 0 < start <= size - len(MAGIC) - 29:
         raise McapError(f"footer points the summary at byte {start}, outside the file")
     summary = read_at(fh, start, size - len(MAGIC) - 29 - start)
     if crc and crc32(footer[:25], crc32(summary)) != crc:
         raise McapError("summary CRC mismatch")
-    return int(start), summary
-
-
-def summary_crc_written(fh: IO[bytes]) -> bool:
-    """Whether the footer holds a summary CRC (0: not written), i.e. whether
-    :func:`check_summary_crc` checked the summary it returned."""
-    size = fh.seek(0, 2)
-    footer = read_at(fh, size - len(MAGIC) - 29, 29)
-    return len(footer) == 29 and struct.unpack_from("<I", footer, 25)[0] != 0
+    return int(start), summary, bool(crc)
 
 
 def check_data_crc(
@@ -134,8 +127,10 @@ def _data_crc(path: Path, size: int) -> int:
 
     helper = threading.Thread(target=run, name="ptinertia-data-crc-2", daemon=True)
     helper.start()
-    first = _crc_of(path, 0, half)
-    helper.join()
+    try:
+        first = _crc_of(path, 0, half)
+    finally:
+        helper.join()  # (not left reading a file its caller gave up on)
     if isinstance(second[0], BaseException):
         raise second[0]
     return crc32_combine(first, second[0], size - half)

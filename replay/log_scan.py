@@ -23,7 +23,7 @@ from mcap.records import Channel, Metadata, Schema
 
 from replay.chunks import READ_ERRORS
 from replay.errors import describe
-from replay.integrity import check_summary_crc, summary_crc_written
+from replay.integrity import check_summary_crc
 from replay.mcap_records import (
     MESSAGE_HEAD,
     BadChunk,
@@ -74,11 +74,11 @@ def scan_finished(path: Path) -> Scan:
     """Read the summary section, its CRC checked; the attachments, theirs checked."""
     scan = Scan()
     with open(path, "rb") as fh:
-        summary_start, section = check_summary_crc(fh)
+        summary_start, section, checked = check_summary_crc(fh)
         if summary_start == 0:
             raise NoSummary("no summary section")
         summary = read_summary(section)
-        gap = omission(summary)
+        gap = omission(summary, checked)
         if gap is not None:  # valid MCAP (mcap's Writer can leave the indexes out): the data has it
             scan = scan_stream(path)
             scan.notes.append(
@@ -102,7 +102,6 @@ def scan_finished(path: Path) -> Scan:
         for meta_index in summary.metadata_indexes:
             meta = read_metadata(fh, meta_index)
             scan.metadata[meta.name] = dict(meta.metadata)
-        checked = summary_crc_written(fh)
         for index in summary.attachment_indexes:
             at, length = index.offset, index.length
             try:
@@ -110,10 +109,11 @@ def scan_finished(path: Path) -> Scan:
             except McapError as err:
                 if not checked:  # the index itself may be what is damaged: read front to back
                     raise
-                # the summary's CRC vouches for the index: the attachment's own record is
-                # damaged (the walk could not get past it either)
+                # the summary's CRC vouches for the index: the attachment's own record
+                # header is damaged (the walk could not get past it either). That is damage
+                # no CRC of its own locates: it explains no data CRC mismatch, so a
+                # recording with a data CRC is refused (its run metadata may be hit too)
                 scan.notes.append(f"{err}: attachment ignored")
-                scan.attachment_damaged = True
                 continue
             _attach(scan, content, at)
         if summary_start > 13:  # the data end record sits just before the summary
@@ -128,7 +128,10 @@ def _attach(scan: Scan, content: bytes, offset: int) -> None:
     try:
         att = read_attachment(content)
     except BadChunk as err:
-        scan.notes.append(f"{err} (at byte {offset}): attachment ignored")
+        scan.notes.append(
+            f"{err} (at byte {offset}): attachment ignored; a data CRC mismatch is put down to "
+            "it, so the run metadata is not verified by that CRC"
+        )
         scan.attachment_damaged = True
         return
     scan.attachments[att.name] = bytes(att.data)

@@ -183,9 +183,14 @@ def chunk_records(payload: bytes) -> Iterator[tuple[int, memoryview]]:
 
 
 def read_attachment(content: bytes) -> Attachment:
-    """An attachment record from its content, its CRC checked; raises :class:`BadChunk`."""
-    attachment = Attachment.read(ReadDataStream(BytesIO(content)))
-    (crc,) = struct.unpack_from("<I", content, len(content) - 4)
+    """An attachment record from its content, its CRC checked; raises :class:`BadChunk`
+    (a damaged name or media type too: the record is framed by its length, so the walk
+    goes on past it)."""
+    try:
+        attachment = Attachment.read(ReadDataStream(BytesIO(content)))
+        (crc,) = struct.unpack_from("<I", content, len(content) - 4)
+    except (McapError, struct.error, ValueError, EOFError, IndexError) as err:
+        raise BadChunk(f"attachment record unreadable ({type(err).__name__})") from None
     if crc and crc32(memoryview(content)[:-4]) != crc:
         raise BadChunk(f"attachment {attachment.name!r}: CRC mismatch")
     return attachment

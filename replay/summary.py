@@ -122,7 +122,7 @@ def read_summary(summary: bytes) -> SummaryRecords:
     return out
 
 
-def omission(summary: SummaryRecords) -> str | None:
+def omission(summary: SummaryRecords, checked: bool) -> str | None:
     """What the summary leaves out (None: it indexes every chunk, metadata record and
     attachment and repeats every schema and channel), judged by its statistics when it
     has them.
@@ -135,8 +135,9 @@ def omission(summary: SummaryRecords) -> str | None:
     """
     stats = summary.statistics
     chunks, metas = len(summary.chunk_indexes), len(summary.metadata_indexes)
-    if chunks == 0 and not (stats is not None and stats.message_count == 0 == stats.chunk_count):
-        return "no chunk index"  # (a file without a message needs none)
+    empty = checked and stats is not None and stats.message_count == 0 == stats.chunk_count
+    if chunks == 0 and not empty:  # (a file without a message needs none: its statistics
+        return "no chunk index"  # say so, trusted when the summary's CRC was checked)
     if not summary.channels:
         return "no channel"
     lost = {c.schema_id for c in summary.channels.values()} - {0, *summary.schemas}

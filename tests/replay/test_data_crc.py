@@ -3,6 +3,7 @@ combined CRC is zlib's CRC of the whole, for any split, and a damaged or cut fil
 
 from __future__ import annotations
 
+import threading
 import zlib
 from pathlib import Path
 
@@ -20,9 +21,15 @@ def data(tmp_path: Path) -> tuple[Path, bytes]:
     return path, payload
 
 
+@pytest.mark.parametrize("isal", [True, False], ids=["two-threads", "zlib-only"])
 @pytest.mark.parametrize("size", [0, 1, 4097, (8 << 20) - 1, 8 << 20, (9 << 20) - 3])
-def test_the_crc_of_any_prefix_is_zlibs(data: tuple[Path, bytes], size: int) -> None:
+def test_the_crc_of_any_prefix_is_zlibs(
+    data: tuple[Path, bytes], size: int, isal: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
     path, payload = data
+    if not isal:  # a platform without isal wheels: zlib's CRC, one thread
+        monkeypatch.setattr(integrity, "crc32_combine", None)
+        monkeypatch.setattr(integrity, "crc32", zlib.crc32)
     # below SPLIT_ABOVE_BYTES one thread reads it; above, two halves are combined
     assert integrity._data_crc(path, size) == zlib.crc32(payload[:size])
 
@@ -43,3 +50,21 @@ def test_a_cut_file_gets_a_crc_no_record_holds(data: tuple[Path, bytes]) -> None
     size = len(payload)
     path.write_bytes(payload[: size - 1000])
     assert integrity._data_crc(path, size) != zlib.crc32(payload)
+
+
+def test_a_read_error_in_either_half_is_raised_and_no_thread_is_left(
+    data: tuple[Path, bytes], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path, payload = data
+    real = integrity._crc_of
+    for failing in (0, len(payload) // 2):
+
+        def crc_of(p: Path, start: int, end: int, failing: int = failing) -> int:
+            if start == failing:
+                raise OSError(5, "Input/output error")
+            return real(p, start, end)
+
+        monkeypatch.setattr(integrity, "_crc_of", crc_of)
+        with pytest.raises(OSError, match="Input/output"):
+            integrity._data_crc(path, len(payload))
+        assert not any(t.name == "ptinertia-data-crc-2" for t in threading.enumerate())

@@ -294,20 +294,59 @@ def test_a_damaged_layout_is_refused_when_the_summary_indexes_no_metadata(
     assert (code, doc) == (2, None) and "data section's CRC does not match" in err[-1]
 
 
-def test_a_damaged_attachment_header_under_a_checked_summary_loses_that_attachment_only(
-    clean_run: CleanRun, tmp_path: Path
+@pytest.mark.parametrize("data_crc", [False, True], ids=["no-data-crc", "data-crc"])
+def test_a_damaged_attachment_header_under_a_checked_summary(
+    clean_run: CleanRun, tmp_path: Path, data_crc: bool
 ) -> None:
-    """The summary's CRC vouches for the attachment index: the attachment's own record is
-    what is damaged. The stream stays readable; the attachment is said to be ignored."""
-    log = rewritten(clean_run.log, tmp_path / "log.mcap")
+    """The summary's CRC vouches for the attachment index: the attachment's own record
+    header is what is damaged. Without a data CRC (mcap Writer's default) that attachment
+    alone is lost; with one, the mismatch is not put down to it (the run metadata beside
+    it may be hit too): the file is refused."""
+    log = rewritten(clean_run.log, tmp_path / "log.mcap", enable_data_crcs=data_crc)
     data = bytearray(log.read_bytes())
     at = next(pos for op, pos in summary_records(bytes(data)) if op == Opcode.ATTACHMENT_INDEX)
     offset = struct.unpack_from("<Q", data, at + 9)[0]
     data[offset + 1] ^= 1  # the attachment record's length
     log.write_bytes(data)
+    if data_crc:
+        with pytest.raises(LogError, match="data section's CRC does not match"):
+            open_log(log)
+        return
     opened = open_log(log)
     assert opened.chunk_records is not None
     assert any("attachment ignored" in n for n in opened.report.notes)
+    assert sum(1 for _ in opened.items()) == sum(1 for _ in open_log(clean_run.log).items())
+
+
+def test_a_damaged_attachment_header_does_not_hide_a_damaged_layout(
+    clean_run: CleanRun, tmp_path: Path
+) -> None:
+    """Our recording (data CRC written) with its attachment's header and the layout's rate
+    both damaged: refused, not opened with a 5220 Hz layout."""
+    data = bytearray(clean_run.data)
+    at = data.index(b'"rate_hz": 5120.0') + len(b'"rate_hz": 5')
+    data[at] = ord("2")
+    att = data.index(b"bench.toml") - 29  # the record's opcode: name length, times, before
+    assert data[att] == Opcode.ATTACHMENT
+    data[att + 1] ^= 1
+    log = tmp_path / "log.mcap"
+    log.write_bytes(data)
+    with pytest.raises(LogError):
+        open_log(log)
+
+
+def test_an_attachment_whose_media_type_does_not_decode_is_ignored_alone(
+    clean_run: CleanRun, tmp_path: Path
+) -> None:
+    """A flipped bit in the attachment's media type (not UTF-8 any more): that attachment
+    is ignored and said to be, the stream replays (before: 'truncated before any data')."""
+    data = bytearray(clean_run.data)
+    at = data.index(b"application/toml")
+    data[at] ^= 0x80
+    log = tmp_path / "log.mcap"
+    log.write_bytes(data)
+    opened = open_log(log)
+    assert any("attachment" in n and "ignored" in n for n in opened.report.notes)
     assert sum(1 for _ in opened.items()) == sum(1 for _ in open_log(clean_run.log).items())
 
 
