@@ -12,32 +12,15 @@ from dataclasses import fields, replace
 
 import numpy as np
 import pytest
-from support.tracking import frames_and_events
+from support.tracking import TDC, run_tracker, synthetic_bench, tracker_config
 
 from acquisition.stream import EdgeBlock, SampleBlock, SourceEvent
-from dsp.config import OrderTrackerConfig, make_plan
+from dsp.config import make_plan
 from dsp.errors import DspConfigError
 from dsp.frames import OrderFrame
 from dsp.orders import OrderTracker, initial_state, track
-from dsp.synthetic import Ramp, SyntheticBench, random_content
+from dsp.synthetic import Ramp, SyntheticBench
 from dsp.tacho import TachoConfig
-
-TDC = 84.0
-
-
-def _bench(seed: int = 3, ramp: Ramp | None = None, **kw) -> SyntheticBench:
-    rng = np.random.default_rng(seed)
-    contents = [random_content(rng) for _ in range(3)]
-    return SyntheticBench(ramp or Ramp(1500.0, 2500.0, 4.0), contents, tdc_after_gap_deg=TDC, **kw)
-
-
-def _config(**kw) -> OrderTrackerConfig:
-    tacho = kw.pop("tacho", TachoConfig(tdc_after_gap_deg=TDC))
-    return OrderTrackerConfig(tacho=tacho, orders=(0.5, 1.0, 1.5, 2.0), **kw)
-
-
-def _run(bench, items, config=None):
-    return frames_and_events(bench.layout, items, config or _config())
 
 
 def _one_block(bench: SyntheticBench, duration: float):
@@ -87,20 +70,20 @@ def _assert_same_frames(a, b, tol=1e-9):
 @pytest.mark.parametrize("tacho", ["edges", "sampled"])
 def test_random_block_splits_give_the_same_frames(tacho):
     duration = 1.2 if tacho == "sampled" else 3.0
-    bench = _bench(tacho=tacho, ramp=Ramp(1500.0, 3000.0, 2.0))
-    config = _config(tacho=TachoConfig(tdc_after_gap_deg=TDC, delivery=tacho))
-    reference, _ = _run(bench, _one_block(bench, duration), config)
+    bench = synthetic_bench(tacho=tacho, ramp=Ramp(1500.0, 3000.0, 2.0))
+    config = tracker_config(tacho=TachoConfig(tdc_after_gap_deg=TDC, delivery=tacho))
+    reference, _ = run_tracker(bench, _one_block(bench, duration), config)
     rng = np.random.default_rng(7)
     # blocks of 1 .. ~2 x 0.03 s, so many are a single sample
     split = _split_edges(bench.items(duration, block_s=0.03, rng_blocks=rng), rng)
-    frames, _ = _run(bench, split, config)
+    frames, _ = run_tracker(bench, split, config)
     _assert_same_frames(reference, frames)
 
 
 def test_lost_samples_and_edges_give_the_same_frames_in_any_blocks():
     # what a lossy CAN bus leaves: runs of 9 NaN samples on one channel, runs of 5 edges
     # missing; the fills (dsp.gap_fit, dsp.wheel) must not depend on the block cut
-    bench = _bench(ramp=Ramp(1500.0, 3000.0, 2.0))
+    bench = synthetic_bench(ramp=Ramp(1500.0, 3000.0, 2.0))
     duration = 2.0
     rng = np.random.default_rng(11)
     holes = {
@@ -127,7 +110,7 @@ def test_lost_samples_and_edges_give_the_same_frames_in_any_blocks():
                 item = EdgeBlock(item.channel, t[keep])
             yield item
 
-    reference, events = _run(bench, spoiled(_one_block(bench, duration)))
+    reference, events = run_tracker(bench, spoiled(_one_block(bench, duration)))
     assert [e.kind for e in events].count("tacho_filled") == len(lost_edges)
     assert sum(f.variance_factor is not None for f in reference) > 20
     assert all(
@@ -136,7 +119,7 @@ def test_lost_samples_and_edges_give_the_same_frames_in_any_blocks():
         if not f.flags - {"cycle_ambiguous", "leakage_uncorrected"}
     )
     split = _split_edges(bench.items(duration, block_s=0.03, rng_blocks=rng), rng)
-    frames, _ = _run(bench, spoiled(split))
+    frames, _ = run_tracker(bench, spoiled(split))
     _assert_same_frames(reference, frames)
     for fa, fb in zip(reference, frames, strict=True):
         assert (fa.variance_factor is None) == (fb.variance_factor is None)
@@ -145,9 +128,9 @@ def test_lost_samples_and_edges_give_the_same_frames_in_any_blocks():
 
 
 def test_single_sample_blocks_give_the_same_frames():
-    bench = _bench()
+    bench = synthetic_bench()
     duration = 0.6
-    reference, _ = _run(bench, _one_block(bench, duration))
+    reference, _ = run_tracker(bench, _one_block(bench, duration))
     items = []
     for item in bench.items(duration, block_s=0.05):
         if isinstance(item, SampleBlock):
@@ -157,15 +140,15 @@ def test_single_sample_blocks_give_the_same_frames():
             ]
         else:
             items.append(item)
-    frames, _ = _run(bench, items)
+    frames, _ = run_tracker(bench, items)
     _assert_same_frames(reference, frames)
 
 
 def test_pure_step_and_class_agree_and_step_leaves_its_input_alone():
-    bench = _bench()
+    bench = synthetic_bench()
     items = list(bench.items(1.5, block_s=0.07))
-    tracker = OrderTracker.from_layout(bench.layout, _config())
-    state = initial_state(make_plan(bench.layout, _config()))
+    tracker = OrderTracker.from_layout(bench.layout, tracker_config())
+    state = initial_state(make_plan(bench.layout, tracker_config()))
     pure, wrapped = [], []
     for item in items:
         before = state
@@ -178,18 +161,18 @@ def test_pure_step_and_class_agree_and_step_leaves_its_input_alone():
 
 
 def test_source_events_pass_through_and_stream_continues():
-    bench = _bench()
+    bench = synthetic_bench()
     items = list(bench.items(1.0, block_s=0.1))
     items.insert(3, SourceEvent("gap", "3 CAN frames lost", 0.25))
-    frames, events = _run(bench, items)
+    frames, events = run_tracker(bench, items)
     assert any(e.kind == "gap" for e in events)
     assert len(frames) > 20
 
 
 def test_frames_sit_at_whole_revolutions_with_consistent_time_and_rpm():
     ramp = Ramp(2000.0, 2600.0, 3.0)
-    bench = _bench(ramp=ramp)
-    frames, _ = _run(bench, bench.items(3.0))
+    bench = synthetic_bench(ramp=ramp)
+    frames, _ = run_tracker(bench, bench.items(3.0))
     phis = np.array([f.crank_angle_rad for f in frames])
     np.testing.assert_allclose(np.diff(phis), 2 * math.pi, rtol=0, atol=1e-12)
     for f in frames:
@@ -206,8 +189,8 @@ def test_frames_sit_at_whole_revolutions_with_consistent_time_and_rpm():
 
 def test_latency_is_two_revolutions_plus_taper_plus_lookahead():
     # one sample per block: a frame comes out with the block that completes it
-    bench = _bench(ramp=Ramp(3000.0, 3000.0, 1.0))
-    config = _config()
+    bench = synthetic_bench(ramp=Ramp(3000.0, 3000.0, 1.0))
+    config = tracker_config()
     tracker = OrderTracker.from_layout(bench.layout, config)
     worst = 0.0
     for item in bench.items(1.0, block_s=1 / 5120):
@@ -227,126 +210,9 @@ def test_latency_is_two_revolutions_plus_taper_plus_lookahead():
     assert 2.0 < worst < 2.0 + (config.taper_deg + 4 * 6.0) / 360.0
 
 
-def test_nan_clipped_and_gap_flag_only_the_frames_they_touch():
-    bench = _bench(ramp=Ramp(3000.0, 3000.0, 2.0))
-    items = list(bench.items(2.0, block_s=0.1))
-
-    def spoiled(nan: bool):
-        for item in items:
-            if isinstance(item, SampleBlock) and item.first_index == 512 * 5:  # t = 0.5 s
-                data = item.data.copy()
-                if nan:
-                    data[1, 10] = np.nan
-                data[2, 200] = 1e3
-                item = SampleBlock(item.group, item.first_index, data)
-            if (
-                isinstance(item, SampleBlock) and item.first_index == 512 * 12
-            ):  # t = 1.2 s: dropped block
-                continue
-            yield item
-
-    frames, _ = _run(bench, spoiled(nan=True), _config(clip_level=100.0))
-    whole, _ = _run(bench, spoiled(nan=False), _config(clip_level=100.0))
-    assert [f.time_s for f in frames] == [f.time_s for f in whole]
-    t_nan = 0.5 + 10 / 5120
-    t_clip = 0.5 + 200 / 5120
-    taper = _config().taper_deg
-    half = (360 + taper / 2) / (3000 * 6)  # the window reaches 360 deg + taper/2 each side (s)
-    for f, ref in zip(frames, whole, strict=True):
-        near = lambda t, f=f: abs(f.time_s - t) < half  # noqa: E731
-        # a missing sample costs that sample, not the channel (dsp.gap_fit): filled from
-        # the cycle before, the channel's amplitudes stay within the noise of the whole
-        # window's, and only its variance factor says so
-        assert "nan" not in f.flags
-        if near(t_nan):
-            assert f.channel_ok[1] and np.isfinite(f.amplitudes[:, 1]).all()
-            assert f.variance_factor is not None and f.variance_factor[1] > 1.0
-            assert np.all(np.delete(f.variance_factor, 1) == 1.0)
-            err = np.abs(f.amplitudes[:, 1] - ref.amplitudes[:, 1])
-            assert err.max() <= 0.01 * np.abs(ref.amplitudes[:, 1]).max()
-        else:
-            assert f.variance_factor is None
-        # the other channels are untouched; the channel's later frames see the filled window
-        # through the sweep-leakage correction (it takes the frames a cycle away in)
-        others = [0, 2]
-        assert np.array_equal(f.amplitudes[:, others], ref.amplitudes[:, others], equal_nan=True)
-        if f.time_s < t_nan - half:
-            assert np.array_equal(f.amplitudes, ref.amplitudes, equal_nan=True)
-        elif np.isfinite(ref.amplitudes[:, 1]).all():
-            err = np.abs(f.amplitudes[:, 1] - ref.amplitudes[:, 1])
-            assert err.max() <= 0.01 * np.abs(ref.amplitudes[:, 1]).max()
-        assert ("clipped" in f.flags) == near(t_clip)
-        gap = abs(f.time_s - 1.25) < 0.05 + half
-        assert ("missing_channel" in f.flags) == gap
-        if gap:
-            assert not f.channel_ok.any()
-        if not f.flags - {"cycle_ambiguous", "leakage_uncorrected"}:
-            assert f.channel_ok.all()
-    assert frames[-1].time_s > 1.8  # the stream went on
-
-
-def test_a_channel_that_lost_most_of_its_window_is_left_out_and_flagged():
-    bench = _bench(ramp=Ramp(3000.0, 3000.0, 1.0))
-
-    def spoiled():
-        for item in bench.items(1.0, block_s=0.1):
-            if isinstance(item, SampleBlock) and item.first_index in (512 * 5, 512 * 6):
-                data = item.data.copy()
-                data[1] = np.nan  # 0.5 - 0.7 s: five engine cycles of one channel
-                item = SampleBlock(item.group, item.first_index, data)
-            yield item
-
-    frames, _ = _run(bench, spoiled(), _config())
-    taper = _config().taper_deg
-    half = (360 + taper / 2) / (3000 * 6)
-    # the first cycle of the stretch is filled from the cycle before; past it nothing is
-    # left to fill from, and a window that lost most of its samples is not fitted
-    inside = [f for f in frames if 0.5 + 0.04 + half <= f.time_s <= 0.7 - half]
-    assert inside
-    for f in inside:
-        assert "nan" in f.flags and not f.channel_ok[1] and np.isnan(f.amplitudes[:, 1]).all()
-        assert np.delete(f.channel_ok, 1).all() and np.isfinite(np.delete(f.amplitudes, 1, 1)).all()
-    far = [f for f in frames if abs(f.time_s - 0.6) > 0.1 + half]
-    assert far and all("nan" not in f.flags and f.channel_ok.all() for f in far)
-
-
-def test_rpm_out_of_range_is_flagged():
-    bench = _bench(ramp=Ramp(1000.0, 2000.0, 2.0))
-    frames, _ = _run(bench, bench.items(2.0), _config(rpm_min=1200.0, rpm_max=6000.0))
-    for f in frames:
-        assert ("rpm_out_of_range" in f.flags) == (f.rpm < 1200.0)
-    assert any("rpm_out_of_range" in f.flags for f in frames)
-
-
-def test_dead_tacho_drops_samples_reports_once_and_recovers():
-    bench = _bench(ramp=Ramp(3000.0, 3000.0, 8.0))
-    items = [
-        i
-        for i in bench.items(8.0, block_s=0.1)
-        if not (isinstance(i, EdgeBlock) and 2.0 < i.times_s[0] < 5.0)
-    ]
-    tracker = OrderTracker.from_layout(bench.layout, _config())
-    frames, events = [], []
-    sizes = []
-    for item in items:
-        f, e = tracker.process(item)
-        frames += f
-        events += e
-        sizes.append(sum(r.shape[1] for _, r in tracker.state.groups[0].pend))
-    kinds = [e.kind for e in events]
-    assert kinds.count("no_tacho") >= 1 and kinds.count("tacho_sync") == 2
-    assert max(sizes) <= 2.1 * 5120  # bounded by max_wait_s
-    times = np.array([f.time_s for f in frames])
-    # edges stop after the block that starts at 2.0 s (its last edge ~2.1 s) and resume at 5.0 s
-    assert not ((times > 2.15) & (times < 4.95)).any()
-    assert times.max() > 7.5
-    after = [f for f in frames if f.time_s > 5.2]
-    assert after and all("no_tacho" not in f.flags for f in after)
-
-
 def test_memory_stays_flat_on_a_long_stream():
-    bench = _bench(ramp=Ramp(4000.0, 4000.0, 30.0))
-    tracker = OrderTracker.from_layout(bench.layout, _config())
+    bench = synthetic_bench(ramp=Ramp(4000.0, 4000.0, 30.0))
+    tracker = OrderTracker.from_layout(bench.layout, tracker_config())
     sizes = []
     for k, item in enumerate(bench.items(30.0, block_s=0.5)):
         tracker.process(item)
@@ -373,18 +239,18 @@ def test_memory_stays_flat_on_a_long_stream():
     ],
 )
 def test_configurations_that_cannot_work_raise_one_line(kwargs, message):
-    bench = _bench()
+    bench = synthetic_bench()
     with pytest.raises(DspConfigError, match=message) as info:
         if "tacho" in kwargs:
             kwargs = {**kwargs, "tacho": TachoConfig(**kwargs["tacho"])}
-        OrderTracker.from_layout(bench.layout, replace(_config(), **kwargs))
+        OrderTracker.from_layout(bench.layout, replace(tracker_config(), **kwargs))
     assert "\n" not in str(info.value)
     assert isinstance(info.value, ValueError)
 
 
 def test_sampled_tacho_too_slow_for_the_wheel_is_refused():
-    bench = _bench(tacho="sampled", tacho_rate_hz=20_000.0)
-    config = _config(tacho=TachoConfig(delivery="sampled", tdc_after_gap_deg=TDC))
+    bench = synthetic_bench(tacho="sampled", tacho_rate_hz=20_000.0)
+    config = tracker_config(tacho=TachoConfig(delivery="sampled", tdc_after_gap_deg=TDC))
     with pytest.raises(DspConfigError, match="samples per tooth"):
         OrderTracker.from_layout(bench.layout, config)
 
@@ -393,12 +259,12 @@ def test_driver_yields_the_frames_and_events_of_the_stream_in_order():
     from dsp.driver import track_items
     from dsp.frames import OrderFrame
 
-    bench = _bench()
+    bench = synthetic_bench()
     items = list(bench.items(1.0, block_s=0.1))
-    out = list(track_items(bench.layout, items, _config()))
+    out = list(track_items(bench.layout, items, tracker_config()))
     frames = [o for o in out if isinstance(o, OrderFrame)]
     events = [o for o in out if isinstance(o, SourceEvent)]
-    reference, ref_events = _run(bench, items)
+    reference, ref_events = run_tracker(bench, items)
     _assert_same_frames(reference, frames, tol=0.0)
     assert events == ref_events and events[0].kind == "tacho_sync"
     assert out.index(events[0]) < out.index(frames[0])
@@ -406,9 +272,9 @@ def test_driver_yields_the_frames_and_events_of_the_stream_in_order():
 
 def test_four_frames_per_revolution_sit_every_90_deg_and_stay_exact():
     ramp = Ramp(2400.0, 2400.0, 1.5)
-    bench = _bench(ramp=ramp)
-    config = _config(frames_per_rev=4, taper_deg=45.0)
-    frames, _ = _run(bench, bench.items(1.5), config)
+    bench = synthetic_bench(ramp=ramp)
+    config = tracker_config(frames_per_rev=4, taper_deg=45.0)
+    frames, _ = run_tracker(bench, bench.items(1.5), config)
     np.testing.assert_allclose(
         np.diff([f.crank_angle_rad for f in frames]), math.pi / 2, atol=1e-12
     )
@@ -420,18 +286,18 @@ def test_four_frames_per_revolution_sit_every_90_deg_and_stay_exact():
                 f.amplitudes[:, c], exact, rtol=0, atol=1e-5 * np.abs(exact).max()
             )
     rng = np.random.default_rng(2)
-    split, _ = _run(bench, bench.items(1.5, block_s=0.02, rng_blocks=rng), config)
+    split, _ = run_tracker(bench, bench.items(1.5, block_s=0.02, rng_blocks=rng), config)
     _assert_same_frames(frames, split)
 
 
 def test_a_block_with_the_wrong_channel_count_is_dropped_and_reported():
-    bench = _bench(ramp=Ramp(3000.0, 3000.0, 1.5))
+    bench = synthetic_bench(ramp=Ramp(3000.0, 3000.0, 1.5))
     items = []
     for item in bench.items(1.5, block_s=0.1):
         if isinstance(item, SampleBlock) and item.first_index == 512 * 7:
             item = SampleBlock(item.group, item.first_index, item.data[:2])  # a channel lost
         items.append(item)
-    frames, events = _run(bench, items)
+    frames, events = run_tracker(bench, items)
     assert any(e.kind == "missing_channel" and "(2, 512)" in e.message for e in events)
     hit = [f for f in frames if "missing_channel" in f.flags]
     assert hit and all(not f.channel_ok.any() for f in hit)
@@ -477,8 +343,8 @@ def test_taper_table_is_np_interp_bit_for_bit():
 def test_frames_carry_every_field_of_the_dataclass():
     """The assembler sets the frame's fields directly (dsp.assemble._finish): a field added
     to OrderFrame must not be left unset."""
-    bench = _bench()
-    frames, _ = _run(bench, bench.items(1.0, block_s=0.25))
+    bench = synthetic_bench()
+    frames, _ = run_tracker(bench, bench.items(1.0, block_s=0.25))
     assert frames
     assert set(vars(frames[0])) == {f.name for f in fields(OrderFrame)}
 
@@ -491,7 +357,7 @@ def test_held_back_samples_change_no_frame_and_delay_none(block_s, monkeypatch):
     down to one sample."""
     from dsp import segments
 
-    bench = _bench(ramp=Ramp(1500.0, 3000.0, 2.0))
+    bench = synthetic_bench(ramp=Ramp(1500.0, 3000.0, 2.0))
     rng = None if block_s else np.random.default_rng(5)
     items = list(bench.items(2.0, block_s=block_s or 0.03, rng_blocks=rng))
     waits = []
@@ -502,7 +368,7 @@ def test_held_back_samples_change_no_frame_and_delay_none(block_s, monkeypatch):
         return waits[-1]
 
     def emitted(tracker_items):
-        tracker = OrderTracker.from_layout(bench.layout, _config())
+        tracker = OrderTracker.from_layout(bench.layout, tracker_config())
         return [(k, f) for k, item in enumerate(tracker_items) for f in tracker.process(item)[0]]
 
     monkeypatch.setattr(segments, "_can_wait", counted)
