@@ -67,7 +67,13 @@ class Scan:
 
 class NoSummary(McapError):
     """A finished file whose footer declares no summary section: what the recorder
-    writes when it must stop early (a full disk, ``McapOutput.cut``)."""
+    writes when it must stop early (a full disk, ``McapOutput.cut``, with no footer CRC),
+    and what mcap's Writer writes for a file it was told to finish without one (``crc``:
+    the footer's CRC of its own fields, then matched)."""
+
+    def __init__(self, message: str, crc: bool) -> None:
+        super().__init__(message)
+        self.crc = crc
 
 
 def scan_finished(path: Path) -> Scan:
@@ -76,7 +82,7 @@ def scan_finished(path: Path) -> Scan:
     with open(path, "rb") as fh:
         summary_start, section, checked = check_summary_crc(fh)
         if summary_start == 0:
-            raise NoSummary("no summary section")
+            raise NoSummary("no summary section", checked)
         summary = read_summary(section)
         gap = omission(summary, checked)
         if gap is not None:  # valid MCAP (mcap's Writer can leave the indexes out): the data has it

@@ -87,14 +87,16 @@ def open_log(path: str | Path, check_later: bool = False) -> RecordedLog:
         finished = fh.read(len(MAGIC)) == MAGIC and size > 2 * len(MAGIC)
     scan: Scan | None = None
     report = ReadReport(finished=False, file_bytes=size, readable_bytes=0)
-    closed_early = damaged_summary = False
+    closed_early = damaged_summary = no_summary = False
     if finished:
         try:
             scan = scan_finished(path)
             report.finished = True
             report.readable_bytes = size
-        except NoSummary:
-            closed_early = True  # a valid end, read front to back as MCAP's readers do
+        except NoSummary as end:
+            # a valid end, read front to back as MCAP's readers do; our recorder's cut
+            # writes no footer CRC, a writer that meant to leave the summary out one
+            closed_early, no_summary = not end.crc, end.crc
         except READ_ERRORS as err:
             report.note(f"footer or summary damaged ({describe(err)}): reading front to back")
             scan, damaged_summary = None, True
@@ -131,7 +133,9 @@ def open_log(path: str | Path, check_later: bool = False) -> RecordedLog:
         log = _build(path, scan, report)
     until = report.recorded_until_s
     where = f" up to t = {until:.2f} s" if until is not None else ""
-    if closed_early:
+    if no_summary:
+        report.note(f"a finished recording without a summary section: read front to back{where}")
+    elif closed_early:
         report.note(
             f"recording closed early, without its summary (the writer stopped, e.g. on a full "
             f"disk): {scan.chunks} chunk(s){where}; nothing after was recorded"
