@@ -80,11 +80,11 @@ def check_data_crc(
     """
     if data_end_offset is None or data_crc == 0:
         return False
-    with open(path, "rb", buffering=0) as fh:
-        if _data_crc(path, data_end_offset) == data_crc:
-            return True
-        if explained:  # a damaged attachment
-            return False
+    if _data_crc(path, data_end_offset) == data_crc:
+        return True
+    if explained:  # a damaged attachment
+        return False
+    with open(path, "rb", buffering=0) as fh:  # what else explains the mismatch
         size = fh.seek(0, 2)
         for offset, length in chunks or _chunk_records(fh):
             if offset + length > size:  # the walk skips it
