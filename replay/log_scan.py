@@ -19,7 +19,7 @@ from pathlib import Path
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.opcode import Opcode
-from mcap.records import Channel, Metadata, Schema
+from mcap.records import Channel, Metadata, Schema, Statistics
 
 from replay.chunks import READ_ERRORS
 from replay.errors import describe
@@ -90,11 +90,7 @@ def scan_finished(path: Path) -> Scan:
             scan.notes.append(
                 f"the summary does not index the whole file ({gap}): read front to back"
             )
-            if summary.statistics is not None:
-                counts = summary.statistics.channel_message_counts
-                scan.counts = {
-                    ch.topic: int(counts.get(cid, 0)) for cid, ch in scan.channels.items()
-                }
+            _count_messages(scan, summary.statistics)
             return scan
         scan.schemas = dict(summary.schemas)
         scan.channels = dict(summary.channels)
@@ -102,9 +98,7 @@ def scan_finished(path: Path) -> Scan:
         scan.chunk_records = [(c.chunk_start_offset, c.chunk_length) for c in summary.chunk_indexes]
         if summary.chunk_indexes:
             scan.last_log_time = max(c.message_end_time for c in summary.chunk_indexes)
-        if summary.statistics is not None:
-            counts = summary.statistics.channel_message_counts
-            scan.counts = {ch.topic: int(counts.get(cid, 0)) for cid, ch in scan.channels.items()}
+        _count_messages(scan, summary.statistics)
         for meta_index in summary.metadata_indexes:
             meta = read_metadata(fh, meta_index)
             scan.metadata[meta.name] = dict(meta.metadata)
@@ -128,6 +122,13 @@ def scan_finished(path: Path) -> Scan:
             if opcode == Opcode.DATA_END and length == 4:
                 scan.data_end_offset, scan.data_crc = summary_start - 13, crc
     return scan
+
+
+def _count_messages(scan: Scan, stats: Statistics | None) -> None:
+    """Messages per topic of the scan's channels, from the summary's statistics (if any)."""
+    if stats is not None:
+        counts = stats.channel_message_counts
+        scan.counts = {ch.topic: int(counts.get(cid, 0)) for cid, ch in scan.channels.items()}
 
 
 def _attach(scan: Scan, content: bytes, offset: int) -> None:
