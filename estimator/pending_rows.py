@@ -217,21 +217,22 @@ class RowAssembler:
         """:func:`estimator.compiled_rows.row_constants` and
         :func:`estimator.compiled_model_rows.model_constants`, kept while ``lin`` stays."""
         kept = self._constants
-        if kept is not None and kept[0] is not lin and kept[1] == measured:
+        if kept is not None and kept[1] == measured:
+            if kept[0] is lin:
+                return kept[2]
             # (a relinearisation, before nearly every flush: only what lin moves anew)
             rows, model = kept[2]
             made = (
                 (*row_linearisation(self.layout, lin), *rows[2:]),
                 (*model[:3], model_linearisation(self.setup, lin, not self.layout.mass)),
             )
-            kept = self._constants = (lin, measured, made)
-        elif kept is None or kept[0] is not lin or kept[1] != measured:
+        else:
             made = (
                 row_constants(self.setup, self.layout, lin, measured),
                 model_constants(self.setup, lin, not self.layout.mass),
             )
-            kept = self._constants = (lin, measured, made)
-        return kept[2]
+        self._constants = (lin, measured, made)
+        return made
 
     def _sensor_blocks(self, fit: RigidFit) -> SensorBlocks:
         if self._blocks is None or self._blocks[0] is not fit:

@@ -6,7 +6,8 @@ crank-offset columns, d residual / d measurement, the row covariance, its Choles
 and inverse, the whitened rows), and :class:`estimator.pending_rows.RowAssembler`'s
 whitened sensitivities ``dr`` beside them. Layouts with estimated mount stiffness scales
 stay on the numpy path. :func:`jit` compiles this module's kernels and those of
-:mod:`estimator.compiled_rows` and :mod:`estimator.compiled_sums` (``cache=True``,
+:mod:`estimator.compiled_rows`, :mod:`estimator.compiled_model_rows` and
+:mod:`estimator.compiled_sums` (``cache=True``,
 ``nogil=True``: they release the GIL), importing numba on the first call: the default
 path (``PTINERTIA_NUMBA`` unset) never imports it. Why, what it gains and how close it
 stays to the numpy reference: :mod:`estimator.compiled_rows`.
@@ -280,11 +281,6 @@ def pair_rows(
         for a in range(6):
             for b in range(6):
                 cu[a, b] = cov_unit[p, a, b] * var[p]
-        # D = [[R, -I], [I, R]] (R, I: Re and Im of d_c), so the half D[:, 6:] C is the
-        # half D[:, :6] C with its row blocks swapped, the lower one negated (the same
-        # products, signs exact), and the covariance's lower right block its upper left
-        # one (R C R^T + I C I^T: the two halves' sums are added in either order, which
-        # is exact): the same bits from 2/3 of the products
         dcu[:, :] = 0.0
         for a in range(12):
             for k in range(6):

@@ -76,7 +76,7 @@ def _difference(
             )
         )
 
-    return _per_pair(parts)
+    return _PairDerivative(parts)
 
 
 def _gas_part(engine: Engine, about: np.ndarray) -> PairExcitationFn:
@@ -87,18 +87,14 @@ def _gas_part(engine: Engine, about: np.ndarray) -> PairExcitationFn:
         none = np.zeros_like(full.unit_inertia_force)
         return OrderExcitation(full.gas_force, full.gas_moment, none, none)
 
-    return _per_pair(parts)
-
-
-def _per_pair(parts: Callable[[tuple[float, ...]], OrderExcitation]) -> PairExcitationFn:
-    """``parts`` (the speed-split excitation of a set of orders, cached) evaluated for
-    (frame, order) pairs at once: the gas part plus ``omega^2`` times the inertia part."""
     return _PairDerivative(parts)
 
 
 class _PairDerivative:
     """A :data:`estimator.setup.PairExcitationFn` from the speed-split parts of a set of
-    orders, offering the parts themselves as ``split`` (the compiled rows gather them)."""
+    orders (cached): evaluated for (frame, order) pairs at once, the gas part plus
+    ``omega^2`` times the inertia part; offering the parts themselves as ``split`` (the
+    compiled rows gather them)."""
 
     def __init__(self, parts: Callable[[tuple[float, ...]], OrderExcitation]) -> None:
         self.parts = parts
