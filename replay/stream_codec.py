@@ -132,16 +132,13 @@ MAX_INDEX = 2**53
 def decode_samples(data: bytes | memoryview, layout: StreamLayout) -> SampleBlock:
     """A :class:`SampleBlock` with float64 data holding the recorded float32 values.
 
-    The message is read by :func:`replay.wire.read_sample_block`, its samples cast from a
-    view of ``data`` (the protobuf class copied them three times: FromString and each read
-    of ``msg.data``); what that reader does not take, the protobuf class parses.
+    Parsed by the protobuf class: the replay reads our writer's blocks with
+    :class:`replay.raw_decoder.RawDecoder`, which hands every other layout of the bytes
+    (another writer's, a damaged one) to this function.
     """
-    try:
-        _, name, first_index, _, _, channels, n, samples = wire.read_sample_block(data)
-    except wire.Unparsed:
-        msg = wire_class("SampleBlock").FromString(data)
-        name, first_index, channels = msg.group, msg.first_index, list(msg.channels)
-        samples, n = memoryview(msg.data), msg.n_samples
+    msg = wire_class("SampleBlock").FromString(data)
+    name, first_index, channels = msg.group, msg.first_index, list(msg.channels)
+    samples, n = memoryview(msg.data), msg.n_samples
     try:
         group = layout.group(name)
     except KeyError:

@@ -115,13 +115,8 @@ def group_fields(group: str, rates: bytes, channels: tuple[str, ...]) -> tuple[b
 
 
 class Unparsed(ValueError):
-    """Bytes :func:`read_sample_block` leaves to the protobuf library (which says what is wrong)."""
-
-
-_DOUBLE = struct.Struct("<d").unpack_from
-# SampleBlock fields by number: double (time_s, rate_hz, t0_s), varint (first_index,
-# n_samples), length-delimited (group, channels, data)
-_DOUBLES, _VARINTS, _LENGTHS = (1, 4, 5), (3, 7), (2, 6, 8)
+    """A message head :class:`replay.raw_decoder.RawDecoder` leaves to the protobuf library
+    (which says what is wrong)."""
 
 
 def read_varint(buf: bytes | memoryview, pos: int) -> tuple[int, int]:
@@ -136,62 +131,6 @@ def read_varint(buf: bytes | memoryview, pos: int) -> tuple[int, int]:
         shift += 7
         if shift > 63:
             raise Unparsed("varint longer than 10 bytes")
-
-
-def read_sample_block(
-    data: bytes | memoryview,
-) -> tuple[float, str, int, float, float, list[str], int, memoryview]:
-    """A ``SampleBlock`` message's fields, its float32 bytes as a view of ``data`` (no copy).
-
-    ``(time_s, group, first_index, rate_hz, t0_s, channels, n_samples, data)`` as the
-    protobuf class parses them (the last of a repeated scalar field wins; int64 and uint32
-    as they wrap); :class:`Unparsed` for anything else (unknown fields, wrong wire types,
-    bad UTF-8, truncation), which the caller hands to the protobuf library.
-    """
-    view = memoryview(data).cast("B")
-    end = len(view)
-    fields: list[Any] = [0.0, "", 0, 0.0, 0.0, None, 0, view[0:0]]
-    channels: list[str] = []
-    pos = 0
-    try:
-        while pos < end:
-            tag, pos = read_varint(view, pos)
-            number, wire_type = tag >> 3, tag & 7
-            if wire_type == _I64 and number in _DOUBLES:
-                if pos + 8 > end:
-                    raise Unparsed("truncated double")
-                fields[number - 1] = _DOUBLE(view, pos)[0]
-                pos += 8
-            elif wire_type == _VARINT and number in _VARINTS:
-                fields[number - 1], pos = read_varint(view, pos)
-            elif wire_type == _LEN and number in _LENGTHS:
-                n, pos = read_varint(view, pos)
-                if pos + n > end:
-                    raise Unparsed("truncated field")
-                part = view[pos : pos + n]
-                pos += n
-                if number == 8:
-                    fields[7] = part
-                elif number == 2:
-                    fields[1] = str(part, "utf-8")
-                else:
-                    channels.append(str(part, "utf-8"))
-            else:
-                raise Unparsed(f"field {number} of wire type {wire_type}")
-    except (IndexError, UnicodeDecodeError) as err:
-        raise Unparsed(str(err)) from None
-    first = fields[2] & 0xFFFF_FFFF_FFFF_FFFF
-    first -= (first >> 63) << 64  # int64: two's complement
-    return (
-        fields[0],
-        fields[1],
-        first,
-        fields[3],
-        fields[4],
-        channels,
-        fields[6] & 0xFFFF_FFFF,
-        fields[7],
-    )
 
 
 class _Layout:
