@@ -27,6 +27,7 @@ class FrameConstants(NamedTuple):
     spectrum_k: np.ndarray  # (spectrum_size,) the spectrum's orders times two: 0, 1, ..
     signs: np.ndarray  # (2, n_orders) offset_rotation of parity 0 and 1 with a wheel
     spectrum_signs: np.ndarray  # (2, spectrum_size) the same for the spectrum's orders
+    half: np.ndarray  # rows of the half orders among the output orders (dsp.rejoin)
 
 
 _MADE: dict[int, tuple[Plan, FrameConstants]] = {}
@@ -44,6 +45,7 @@ def frame_constants(plan: Plan) -> FrameConstants:
     const = FrameConstants(
         tuple(float(h) for h in cfg.orders), k2, k,
         cycle.offset_rotation(both, k2, 1), cycle.offset_rotation(both, k, 1),
+        np.flatnonzero(k2 % 2 == 1),
     )  # fmt: skip
     if len(_MADE) > 16:
         _MADE.clear()  # plans come and go in studies: keep a few

@@ -21,11 +21,11 @@ rpm) frames keep the ``angle_rebased`` flag and the estimator does not use them.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import replace
 
 import numpy as np
 
+from dsp.frame_constants import frame_constants
 from dsp.frames import OrderFrame
 from dsp.immutable import evolve
 from dsp.state import TWO_PI, TrackerState
@@ -37,7 +37,7 @@ def rejoin(
     st: TrackerState, frames: list[OrderFrame], chains: np.ndarray
 ) -> tuple[TrackerState, list[OrderFrame]]:
     """Frames of re-synchronised chains with their angle re-acquired where it can be."""
-    half = _half_rows(tuple(st.plan.config.orders))
+    half = frame_constants(st.plan).half
     if not any("angle_rebased" in f.flags for f in frames):
         # the rule: nothing to re-acquire; only the reference moves on to the last frame
         # whose half orders were measured (found from the end: usually the last one)
@@ -68,12 +68,6 @@ def rejoin(
     if signs is not st.chain_sign or ref is not st.half_ref:
         st = evolve(st, chain_sign=signs, half_ref=ref)
     return st, out
-
-
-@functools.cache
-def _half_rows(orders: tuple[float, ...]) -> np.ndarray:
-    """The rows of the half orders among ``orders`` (made once per set of orders)."""
-    return np.flatnonzero(np.array([round(2 * h) for h in orders], dtype=np.int64) % 2 == 1)
 
 
 def _measured(x: np.ndarray) -> bool:
