@@ -30,8 +30,8 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
     spacing = TWO_PI / n
     tw = math.radians(cfg.taper_deg)
     f, n_ch, n_int = js.size, len(plan.channels), plan.k2.size
-    # a frame's flags: the shared empty set until it gets one (most frames never do)
-    flags: list[set[str] | frozenset[str]] = [_NONE] * f
+    # a frame's flags: one shared empty set until it gets one (most frames never do)
+    flags: list[frozenset[str]] = [frozenset()] * f
     tacho_bad = np.zeros(f, bool)
     bad_group = np.zeros((f, len(plan.groups)), bool)
     if st.invalid:
@@ -110,18 +110,10 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
     }
 
 
-_NONE: frozenset[str] = frozenset()
-
-
-def _flag(flags: list[set[str] | frozenset[str]], frames: np.ndarray, reason: str) -> None:
+def _flag(flags: list[frozenset[str]], frames: np.ndarray, reason: str) -> None:
     """Add ``reason`` to the flags of ``frames`` (indices into ``flags``)."""
     for i in frames.tolist():
-        have = flags[i]
-        if have is _NONE:
-            flags[i] = {reason}
-        else:
-            assert isinstance(have, set)
-            have.add(reason)
+        flags[i] |= {reason}
 
 
 @functools.cache
