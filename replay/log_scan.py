@@ -15,6 +15,7 @@ import struct
 from dataclasses import dataclass, field
 from io import BytesIO
 from pathlib import Path
+from typing import IO
 
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
@@ -25,7 +26,9 @@ from replay.chunks import READ_ERRORS
 from replay.errors import describe
 from replay.integrity import check_summary_crc
 from replay.mcap_records import (
+    MAGIC,
     MESSAGE_HEAD,
+    RECORD_HEAD,
     BadChunk,
     chunk_payload,
     chunk_records,
@@ -36,7 +39,7 @@ from replay.mcap_records import (
     read_attachment,
     records,
 )
-from replay.summary import omission, read_indexed, read_metadata, read_summary
+from replay.summary import omission, read_indexed, read_metadata, read_summary, untiled
 
 
 @dataclass
@@ -84,14 +87,22 @@ def scan_finished(path: Path) -> Scan:
         if summary_start == 0:
             raise NoSummary("no summary section", checked)
         summary = read_summary(section)
+        data_end, data_crc = _data_end(fh, summary_start)
         gap = omission(summary, checked)
+        walked = None
         if gap is not None:  # valid MCAP (mcap's Writer can leave the indexes out): the data has it
-            scan = scan_stream(path)
-            scan.notes.append(
+            walked = scan_stream(path)
+        elif not checked:  # an index lost to damage leaves a gap: read front to back if whole
+            gap = untiled(summary, _data_start(fh), data_end or summary_start)
+            walked = scan_stream(path) if gap is not None else None
+            if walked is not None and not (walked.data_end and walked.error is None):
+                walked = None  # the data is damaged too: its indexes skip what is (as before)
+        if walked is not None:
+            walked.notes.append(
                 f"the summary does not index the whole file ({gap}): read front to back"
             )
-            _count_messages(scan, summary.statistics)
-            return scan
+            _count_messages(walked, summary.statistics)
+            return walked
         scan.schemas = dict(summary.schemas)
         scan.channels = dict(summary.channels)
         scan.chunks = len(summary.chunk_indexes)
@@ -116,12 +127,26 @@ def scan_finished(path: Path) -> Scan:
                 scan.notes.append(f"{err}: attachment ignored")
                 continue
             _attach(scan, content, at)
-        if summary_start > 13:  # the data end record sits just before the summary
-            head = read_at(fh, summary_start - 13, 13)
-            opcode, length, crc = struct.unpack("<BQI", head)
-            if opcode == Opcode.DATA_END and length == 4:
-                scan.data_end_offset, scan.data_crc = summary_start - 13, crc
+        if data_end is not None:
+            scan.data_end_offset, scan.data_crc = data_end, data_crc
     return scan
+
+
+def _data_end(fh: IO[bytes], summary_start: int) -> tuple[int | None, int]:
+    """Where the data end record starts (None: not just before the summary) and its CRC."""
+    if summary_start > 13:
+        opcode, length, crc = struct.unpack("<BQI", read_at(fh, summary_start - 13, 13))
+        if opcode == Opcode.DATA_END and length == 4:
+            return summary_start - 13, crc
+    return None, 0
+
+
+def _data_start(fh: IO[bytes]) -> int:
+    """Where the data section's first record after the header starts."""
+    opcode, length = RECORD_HEAD.unpack(read_at(fh, len(MAGIC), RECORD_HEAD.size))
+    if opcode != Opcode.HEADER:
+        raise McapError(f"the file starts with record {opcode:#04x}, not a header")
+    return len(MAGIC) + RECORD_HEAD.size + length
 
 
 def _count_messages(scan: Scan, stats: Statistics | None) -> None:

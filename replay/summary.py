@@ -58,12 +58,14 @@ _DATA_ONLY = frozenset(
 
 @dataclass(frozen=True)
 class ChunkSpan:
-    """A chunk index's numbers a replay reads: log times (ns) and the chunk record's place."""
+    """A chunk index's numbers a replay reads: log times (ns), the chunk record's place, and
+    the length of the message index records that follow it (bytes)."""
 
     message_start_time: int
     message_end_time: int
     chunk_start_offset: int
     chunk_length: int
+    message_index_length: int
 
 
 @dataclass
@@ -106,7 +108,11 @@ def read_summary(summary: bytes) -> SummaryRecords:
         if opcode in _DATA_ONLY:
             raise McapError(f"a record with opcode {opcode:#04x} in the summary section")
         if opcode == Opcode.CHUNK_INDEX:
-            out.chunk_indexes.append(ChunkSpan(*_CHUNK_INDEX.unpack_from(content, 0)))
+            # the message index offsets (a map of its own byte length) lie between
+            (map_bytes,) = struct.unpack_from("<I", content, _CHUNK_INDEX.size)
+            (indexes,) = struct.unpack_from("<Q", content, _CHUNK_INDEX.size + 4 + map_bytes)
+            span = ChunkSpan(*_CHUNK_INDEX.unpack_from(content, 0), indexes)
+            out.chunk_indexes.append(span)
         elif opcode == Opcode.SCHEMA:
             schema = Schema.read(_stream(content))
             out.schemas[schema.id] = schema
@@ -158,6 +164,37 @@ def omission(summary: SummaryRecords, checked: bool) -> str | None:
     if unknown:
         return f"its statistics count messages on channel {min(unknown)}, which it does not hold"
     return None
+
+
+def untiled(summary: SummaryRecords, data_start: int, data_end: int) -> str | None:
+    """Which bytes of the data section (``data_start`` to ``data_end``, the data end record)
+    no index of the summary covers, or None when its chunks (with their message indexes),
+    metadata and attachments follow each other from the header to the data end.
+
+    Only for a summary without CRC: an index lost to damage that the statistics cannot
+    count (they may be absent, or the index an attachment's) leaves a gap, and an index
+    pointing elsewhere leaves one where its record is. (Our recorder and mcap's ``Writer``
+    index every record of the data section; a writer that put channels outside chunks
+    would have its files read front to back: slower, the same data.)
+    """
+    spans = sorted(
+        [
+            (c.chunk_start_offset, c.chunk_length + c.message_index_length)
+            for c in summary.chunk_indexes
+        ]
+        + [(m.offset, m.length) for m in summary.metadata_indexes]
+        + [(a.offset, a.length) for a in summary.attachment_indexes]
+    )
+    at = data_start
+    for start, length in spans:
+        if start != at:
+            return (
+                f"bytes {at} to {start} not indexed"
+                if start > at
+                else f"indexes overlap at byte {start}"
+            )
+        at = start + length
+    return None if at == data_end else f"bytes {at} to {data_end} not indexed"
 
 
 def read_metadata(fh: IO[bytes], index: MetadataIndex) -> Metadata:

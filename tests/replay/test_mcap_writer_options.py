@@ -6,78 +6,20 @@ replay reads it front to back, says so, and gives the clean result.
 
 from __future__ import annotations
 
-import json
 import struct
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
 from mcap.opcode import Opcode
-from mcap.records import Attachment, Channel, Message, Metadata, Schema
+from mcap.records import Channel, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import IndexType, Writer
 from support.clean_run import CleanRun
+from support.rewritten_logs import replay, rewritten, summary_records
 
-from ptinertia.cli import main
 from replay.errors import LogError
 from replay.reader import open_log
-from replay.schemas import META_RUN
-
-
-def replay(log: Path, out: Path, capsys: pytest.CaptureFixture[str]) -> Any:
-    """Exit code, result document (or None), stderr lines of ``ptinertia replay log``."""
-    out.unlink(missing_ok=True)
-    code = main(["replay", str(log), "--quiet", "--json", str(out)])
-    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
-    return code, json.loads(out.read_text()) if out.exists() else None, err
-
-
-def rewritten(
-    source: Path,
-    path: Path,
-    edit_layout: Callable[[dict[str, Any]], None] | None = None,
-    topics: dict[str, str] | None = None,
-    **options: Any,
-) -> Path:
-    """``source``'s records written again, in file order, by ``Writer(**options)``;
-    ``edit_layout`` changes the run metadata's layout (a channel is registered for each
-    sample group it adds); ``topics`` renames channels."""
-    with open(source, "rb") as src, open(path, "wb") as out:
-        writer = Writer(out, **options)
-        writer.start(profile="", library="a user's tool")
-        schemas, channels = {0: 0}, {}
-        added: list[str] = []  # sample groups edit_layout added
-        for rec in StreamReader(src).records:
-            if isinstance(rec, Schema) and rec.id not in schemas:
-                schemas[rec.id] = writer.register_schema(rec.name, rec.encoding, rec.data)
-            elif isinstance(rec, Channel) and rec.id not in channels:
-                topic = (topics or {}).get(rec.topic, rec.topic)
-                channels[rec.id] = writer.register_channel(
-                    topic, rec.message_encoding, schemas[rec.schema_id], rec.metadata
-                )
-                for group in added if rec.topic == "/raw/accel" else ():
-                    topic = f"/raw/{group}"
-                    writer.register_channel(topic, rec.message_encoding, schemas[rec.schema_id])
-            elif isinstance(rec, Message):
-                writer.add_message(
-                    channels[rec.channel_id], rec.log_time, rec.data, rec.publish_time, rec.sequence
-                )
-            elif isinstance(rec, Metadata):
-                metadata = dict(rec.metadata)
-                if rec.name == META_RUN and edit_layout is not None:
-                    layout = json.loads(metadata["layout"])
-                    before = {g["name"] for g in layout["groups"]}
-                    edit_layout(layout)
-                    added = [g["name"] for g in layout["groups"] if g["name"] not in before]
-                    metadata["layout"] = json.dumps(layout)
-                writer.add_metadata(rec.name, metadata)
-            elif isinstance(rec, Attachment):
-                writer.add_attachment(
-                    rec.create_time, rec.log_time, rec.name, rec.media_type, rec.data
-                )
-        writer.finish()
-    return path
 
 
 @pytest.mark.parametrize(
@@ -120,18 +62,6 @@ def test_an_indexed_summary_is_read_by_its_indexes_without_a_note(
         assert opened.chunk_records is not None and opened.report.notes == []
     code, doc, err = replay(log, tmp_path / "r.json", capsys)
     assert (code, doc, err) == (0, clean_run.result, [])
-
-
-def summary_records(data: bytes) -> list[tuple[int, int]]:
-    """(opcode, byte offset) of every record of a finished file's summary section."""
-    footer = len(data) - 8 - 29
-    (start,) = struct.unpack_from("<Q", data, footer + 9)
-    out, pos = [], start
-    while pos < footer:
-        opcode, length = struct.unpack_from("<BQ", data, pos)
-        out.append((opcode, pos))
-        pos += 9 + length
-    return out
 
 
 @pytest.mark.parametrize(
@@ -213,7 +143,7 @@ def test_an_attachment_index_with_a_damaged_length_is_not_trusted(
     clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """A summary without CRC whose attachment index says 2**40 bytes more: read front to
-    back, not allocated."""
+    back, not allocated (its indexes no longer follow each other to the data end)."""
     data = bytearray(
         rewritten(clean_run.log, tmp_path / "nocrc.mcap", enable_crcs=False).read_bytes()
     )
@@ -223,25 +153,22 @@ def test_an_attachment_index_with_a_damaged_length_is_not_trusted(
     log.write_bytes(data)
     code, doc, err = replay(log, tmp_path / "r.json", capsys)
     assert code == 0 and doc == clean_run.result
-    assert any("attachment record at byte" in line and "front to back" in line for line in err)
+    assert any("does not index the whole file" in line and "front to back" in line for line in err)
 
 
-@pytest.mark.parametrize("damage", ["length", "offset"])
 def test_a_chunk_whose_index_runs_past_the_file_is_skipped_without_reading_it(
-    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str], damage: str
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """A chunk index and the record header agreeing on 2**40 more bytes, or an index
-    pointing at byte 2**62 (no CRC on the summary; the data section's CRC then fails and
-    the chunk is looked at): skipped and reported, not allocated, not sought."""
+    """A chunk index and the record header agreeing on 2**40 more bytes (no CRC on the
+    summary; the data section's CRC then fails and the chunk is looked at; the walk front
+    to back cannot get past it either): skipped and reported, not allocated, not sought.
+    (An index alone pointing elsewhere: tests/replay/test_mcap_summary_gaps.py.)"""
     options: dict[str, Any] = {"enable_crcs": False, "enable_data_crcs": True}
     data = bytearray(rewritten(clean_run.log, tmp_path / "nocrc.mcap", **options).read_bytes())
     at = [pos for op, pos in summary_records(bytes(data)) if op == Opcode.CHUNK_INDEX][-1]
     chunk, length = struct.unpack_from("<QQ", data, at + 9 + 16)
-    if damage == "length":
-        struct.pack_into("<Q", data, at + 9 + 24, length + 2**40)
-        struct.pack_into("<Q", data, chunk + 1, length - 9 + 2**40)
-    else:
-        struct.pack_into("<Q", data, at + 9 + 16, chunk + 2**62)
+    struct.pack_into("<Q", data, at + 9 + 24, length + 2**40)
+    struct.pack_into("<Q", data, chunk + 1, length - 9 + 2**40)
     log = tmp_path / "log.mcap"
     log.write_bytes(data)
     code, doc, _ = replay(log, tmp_path / "r.json", capsys)
