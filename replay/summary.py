@@ -111,8 +111,8 @@ def read_summary(summary: bytes) -> SummaryRecords:
             # the message index offsets (a map of its own byte length) lie between
             (map_bytes,) = struct.unpack_from("<I", content, _CHUNK_INDEX.size)
             (indexes,) = struct.unpack_from("<Q", content, _CHUNK_INDEX.size + 4 + map_bytes)
-            span = ChunkSpan(*_CHUNK_INDEX.unpack_from(content, 0), indexes)
-            out.chunk_indexes.append(span)
+            start, end, offset, length = _CHUNK_INDEX.unpack_from(content, 0)
+            out.chunk_indexes.append(ChunkSpan(start, end, offset, length, indexes))
         elif opcode == Opcode.SCHEMA:
             schema = Schema.read(_stream(content))
             out.schemas[schema.id] = schema
