@@ -92,10 +92,13 @@ def scan_finished(path: Path) -> Scan:
         walked = None
         if gap is not None:  # valid MCAP (mcap's Writer can leave the indexes out): the data has it
             walked = scan_stream(path)
-        elif not checked:  # an index lost to damage leaves a gap: read front to back if whole
-            gap = untiled(summary, _data_start(fh), data_end or summary_start)
+        elif not checked and data_end is not None and (start := _data_start(fh)) is not None:
+            # an index lost to damage leaves a gap: read front to back if the data is whole
+            gap = untiled(summary, start, data_end)
             walked = scan_stream(path) if gap is not None else None
-            if walked is not None and not (walked.data_end and walked.error is None):
+            if walked is not None and not (
+                walked.data_end_offset == data_end and walked.error is None
+            ):
                 walked = None  # the data is damaged too: its indexes skip what is (as before)
         if walked is not None:
             walked.notes.append(
@@ -141,12 +144,11 @@ def _data_end(fh: IO[bytes], summary_start: int) -> tuple[int | None, int]:
     return None, 0
 
 
-def _data_start(fh: IO[bytes]) -> int:
-    """Where the data section's first record after the header starts."""
+def _data_start(fh: IO[bytes]) -> int | None:
+    """Where the data section's first record after the header starts (None: the header
+    record is damaged; the summary's indexes are then used as they are)."""
     opcode, length = RECORD_HEAD.unpack(read_at(fh, len(MAGIC), RECORD_HEAD.size))
-    if opcode != Opcode.HEADER:
-        raise McapError(f"the file starts with record {opcode:#04x}, not a header")
-    return len(MAGIC) + RECORD_HEAD.size + length
+    return len(MAGIC) + RECORD_HEAD.size + length if opcode == Opcode.HEADER else None
 
 
 def _count_messages(scan: Scan, stats: Statistics | None) -> None:

@@ -8,8 +8,9 @@ with the offsets of its message indexes for every channel) was about 30 of
 them, 3400 for a 60 s log, 1.5 ms of the replay's set-up holding the GIL.
 Here the records are framed with ``struct`` over the bytes
 :func:`replay.integrity.check_summary_crc` read and checked, a chunk index is
-read up to the four numbers a replay uses (its time range and its chunk's
-offset and length), and the few other records go through the mcap library's
+read up to the five numbers a replay uses (its time range, its chunk's
+offset and length, and the length of the message indexes after the chunk,
+with which :func:`untiled` checks a summary without CRC), and the few other records go through the mcap library's
 record classes, as before. A test checks both readers agree on our files and on
 the mcap writer's.
 """
@@ -59,7 +60,7 @@ _DATA_ONLY = frozenset(
 @dataclass(frozen=True)
 class ChunkSpan:
     """A chunk index's numbers a replay reads: log times (ns), the chunk record's place, and
-    the length of the message index records that follow it (bytes)."""
+    the length of the message index records that follow it (bytes; -1: unreadable)."""
 
     message_start_time: int
     message_end_time: int
@@ -108,10 +109,12 @@ def read_summary(summary: bytes) -> SummaryRecords:
         if opcode in _DATA_ONLY:
             raise McapError(f"a record with opcode {opcode:#04x} in the summary section")
         if opcode == Opcode.CHUNK_INDEX:
-            # the message index offsets (a map of its own byte length) lie between
-            (map_bytes,) = struct.unpack_from("<I", content, _CHUNK_INDEX.size)
-            (indexes,) = struct.unpack_from("<Q", content, _CHUNK_INDEX.size + 4 + map_bytes)
             start, end, offset, length = _CHUNK_INDEX.unpack_from(content, 0)
+            # the message index offsets (a map of its own byte length) lie between; a
+            # damaged map length leaves the span unknown (untiled: -1), not the summary
+            (map_bytes,) = struct.unpack_from("<I", content, _CHUNK_INDEX.size)
+            at = _CHUNK_INDEX.size + 4 + map_bytes
+            indexes = struct.unpack_from("<Q", content, at)[0] if at + 8 <= len(content) else -1
             out.chunk_indexes.append(ChunkSpan(start, end, offset, length, indexes))
         elif opcode == Opcode.SCHEMA:
             schema = Schema.read(_stream(content))
@@ -177,6 +180,8 @@ def untiled(summary: SummaryRecords, data_start: int, data_end: int) -> str | No
     index every record of the data section; a writer that put channels outside chunks
     would have its files read front to back: slower, the same data.)
     """
+    if any(c.message_index_length < 0 for c in summary.chunk_indexes):
+        return "a chunk index's message index map is damaged"
     spans = sorted(
         [
             (c.chunk_start_offset, c.chunk_length + c.message_index_length)

@@ -40,11 +40,13 @@ def test_the_summary_reads_as_the_mcap_reader_reads_it(clean_run: CleanRun, sour
             span.message_end_time,
             span.chunk_start_offset,
             span.chunk_length,
+            span.message_index_length,
         ) == (
             index.message_start_time,
             index.message_end_time,
             index.chunk_start_offset,
             index.chunk_length,
+            index.message_index_length,
         )
     metadata = [read_metadata(fh, index) for index in ours.metadata_indexes]
     assert metadata == list(SeekingReader(io.BytesIO(data)).iter_metadata()) != []

@@ -15,6 +15,7 @@ from typing import Any
 
 import pytest
 from mcap.opcode import Opcode
+from mcap.writer import CompressionType
 from support.clean_run import CleanRun
 from support.rewritten_logs import replay, rewritten, summary_records
 
@@ -60,12 +61,54 @@ def test_a_chunk_index_pointing_past_the_file_is_read_front_to_back(
     assert any("read front to back" in line for line in err)
 
 
+@pytest.mark.parametrize(
+    "options",
+    [
+        UNCHECKED,
+        {"enable_crcs": False, "compression": CompressionType.NONE},
+        {"enable_crcs": False, "chunk_size": 4096},  # many chunks, metadata between them
+    ],
+    ids=["zstd", "uncompressed", "small-chunks"],
+)
 def test_an_unchecked_summary_that_tiles_the_data_section_is_read_by_its_indexes(
-    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    clean_run: CleanRun,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    options: dict[str, Any],
 ) -> None:
     """The check costs a whole file nothing: its indexes are used, without a note."""
-    log = rewritten(clean_run.log, tmp_path / "log.mcap", **UNCHECKED)
+    log = rewritten(clean_run.log, tmp_path / "log.mcap", **options)
     opened = open_log(log)
     assert opened.chunk_records is not None and opened.report.notes == []
     code, doc, err = replay(log, tmp_path / "r.json", capsys)
     assert (code, doc, err) == (0, clean_run.result, [])
+
+
+@pytest.mark.parametrize("damage", ["data end opcode", "header opcode"])
+def test_damage_outside_the_indexes_leaves_them_in_use_without_a_note(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str], damage: str
+) -> None:
+    """Without the data end or header record in place the data section's bounds are not
+    known: the summary's indexes are used as they are (a walk front to back would run into
+    the summary, or blame it), and they hold everything."""
+    data = bytearray(rewritten(clean_run.log, tmp_path / "nocrc.mcap", **UNCHECKED).read_bytes())
+    (summary_start,) = struct.unpack_from("<Q", data, len(data) - 8 - 29 + 9)
+    data[summary_start - 13 if damage == "data end opcode" else 8] ^= 0x80
+    log = tmp_path / "log.mcap"
+    log.write_bytes(data)
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert (code, doc, err) == (0, clean_run.result, [])
+
+
+def test_a_damaged_message_index_map_length_is_a_gap_not_a_damaged_summary(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The chunk index's own numbers stand; where its message indexes end does not."""
+    data = bytearray(rewritten(clean_run.log, tmp_path / "nocrc.mcap", **UNCHECKED).read_bytes())
+    at = next(pos for op, pos in summary_records(bytes(data)) if op == Opcode.CHUNK_INDEX)
+    struct.pack_into("<I", data, at + 9 + 32, 2**31)
+    log = tmp_path / "log.mcap"
+    log.write_bytes(data)
+    code, doc, err = replay(log, tmp_path / "r.json", capsys)
+    assert code == 0 and doc == clean_run.result
+    assert any("message index map is damaged" in line and "front to back" in line for line in err)
