@@ -153,8 +153,11 @@ def segment_cuts(
 
 
 def append_knots(*args: Any) -> tuple[np.ndarray, ...]:
-    """:func:`dsp.angle_loops.append_knots` compiled (on the first call, as :func:`piece_sums`)."""
-    return cast(tuple[np.ndarray, ...], _jit(knots_loops)(*args))
+    """:func:`dsp.angle_loops.append_knots` compiled (on the first call, as :func:`piece_sums`),
+    with numpy's division (a zero divisor gives inf or NaN, as the numpy path's arrays,
+    instead of Python's check before each division, which keeps LLVM from vectorising
+    them: 2.3 -> 1.5 ms a minute of the run's log, the same bits)."""
+    return cast(tuple[np.ndarray, ...], _jit(knots_loops, numpy_division=True)(*args))
 
 
 def pressure_sums(
@@ -287,13 +290,15 @@ def cubic_times(*args: Any) -> None:
     _jit(_cubic_times)(*args)
 
 
-def _jit(fn: _Fn) -> _Fn:
-    """``fn`` compiled by numba, once per process."""
+def _jit(fn: _Fn, numpy_division: bool = False) -> _Fn:
+    """``fn`` compiled by numba, once per process (``numpy_division``: numba's numpy
+    error model, a float division by zero gives inf or NaN instead of raising)."""
     compiled = _compiled.get(fn)
     if compiled is None:
         from numba import njit  # heavy (0.3 s): only where a kernel is used
 
-        compiled = _compiled[fn] = njit(cache=True, nogil=True)(fn)
+        model = "numpy" if numpy_division else "python"
+        compiled = _compiled[fn] = njit(cache=True, nogil=True, error_model=model)(fn)
     return cast(_Fn, compiled)
 
 
