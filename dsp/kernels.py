@@ -297,8 +297,11 @@ def _jit(fn: _Fn, numpy_division: bool = False) -> _Fn:
     if compiled is None:
         from numba import njit  # heavy (0.3 s): only where a kernel is used
 
-        model = "numpy" if numpy_division else "python"
-        compiled = _compiled[fn] = njit(cache=True, nogil=True, error_model=model)(fn)
+        if numpy_division:
+            compiled = njit(cache=True, nogil=True, error_model="numpy")(fn)
+        else:
+            compiled = njit(cache=True, nogil=True)(fn)
+        _compiled[fn] = compiled
     return cast(_Fn, compiled)
 
 
