@@ -253,7 +253,7 @@ def _sums1(x, c, s0, n, e, rp, r0, sums, top, clipping):
 # theirs change this file too (tests/dsp/test_kernels.py recomputes it and fails with
 # the new value), so a stale cache is never loaded.
 HELPERS = ("fused_segments.py", "spectrum_lanes.py", "vec8.py")
-HELPERS_SHA256 = "d6b0d6e515130c056c7ffe99d45e7bd92ff0fd5abb47803ee37e920ba36c6b7f"
+HELPERS_SHA256 = "074f33fd46a31b45d5a75bddd65c09f2e1986b15683d7ae623e06919b9117aca"
 
 # one signature, compiled (or loaded from numba's cache) when this module is imported, so
 # after the helpers above: the samples as any 2-d layout (blocks come channel-fastest,
@@ -265,7 +265,7 @@ _SAMPLES = nt.Array(nt.float64, 2, "A", readonly=True)
 _H1 = nt.float32[::1]
 _SIGNATURE = nt.void(
     _SAMPLES, _F1, _F1, _H1, _H1, _F1, _I1, _I1, _I1, nt.float64, _I1, nt.boolean,
-    nt.int64, nt.int64, nt.float64, _F1, _F1, _F1, _I1, _F1, _F1, nt.float64[:, ::1],
+    nt.int64, nt.int64, nt.float64, _F1, _I1, _F1, _F1, nt.float64[:, ::1],
     nt.int64, nt.int64, nt.int64,
 )  # fmt: skip
 
@@ -273,7 +273,7 @@ _SIGNATURE = nt.void(
 @njit(_SIGNATURE, cache=True, nogil=True)
 def piece_sums(
     x, phi, q, cos_half, sin_half, c_lo, starts, ends, zone_end, taper_rad, k2, tracked,
-    power_from, power_stride, clip_level, grid, table, slope, mu, turn_re, turn_im, w, p0, i0, i1,
+    power_from, power_stride, clip_level, rise_packed, mu, turn_re, turn_im, w, p0, i0, i1,
 ):  # fmt: skip
     """Add the sums of the segments of one piece (one set of channels) to ``out``.
 
@@ -286,8 +286,8 @@ def piece_sums(
     carrier, and the mean square (samples ``power_from + power_stride * i``) and the
     clip flags (``|x| >= clip_level``; NaN for none) are summed; else it multiplies the
     sample (the spectrum channel's layout, as :func:`dsp.sum_sets.numpy_sums` does).
-    ``grid``, ``table``, ``slope``: :func:`dsp.frames.rise_table`'s, whose arithmetic is
-    repeated here. ``mu`` (seg,) the segments' numbers, ``turn_re``, ``turn_im``
+    ``rise_packed``: :func:`dsp.frames.rise_table`'s grid, slopes and values
+    (:data:`dsp.frames.RISE_PACKED`), whose arithmetic is repeated here. ``mu`` (seg,) the segments' numbers, ``turn_re``, ``turn_im``
     (period,) ``exp(-2 pi i m / period)``, ``period = 2 frames_per_rev``: the rotation to
     the frame angle, ``exp(-i h c_m)`` for ``h = k2 / 2``, reduced exactly with integers.
     Writes each segment's :data:`dsp.sum_rows.Row` into ``w`` (seg, row_size): the sums
@@ -346,7 +346,7 @@ def piece_sums(
         for s in range(n, (n + 7) // 8 * 8):
             pb_re[s] = pb_im[s] = pq[s] = 0.0
         wa = total
-        wd = falling_taper(phi, q, s0, nz, c_lo[i], taper_rad, grid, table, slope, fall)
+        wd = falling_taper(phi, q, s0, nz, c_lo[i], taper_rad, rise_packed, fall)
         if not tracked:
             # the spectrum channel: one channel, many orders; lanes are samples throughout
             for ch in range(n_ch):

@@ -100,7 +100,7 @@ import numpy as np
 from dsp.angle_loops import append_knots as knots_loops
 from dsp.angle_loops import grid_values as grid_loops
 from dsp.frame_figures import frame_figures as figures_loops
-from dsp.frames import RISE_GRID, RISE_SLOPE, RISE_TABLE
+from dsp.frames import RISE_PACKED
 from dsp.ramp_slopes import ramp_slopes as slopes_loops
 from dsp.sum_rows import (
     add_windows,
@@ -297,11 +297,8 @@ def _jit(fn: _Fn, numpy_division: bool = False) -> _Fn:
     if compiled is None:
         from numba import njit  # heavy (0.3 s): only where a kernel is used
 
-        if numpy_division:
-            compiled = njit(cache=True, nogil=True, error_model="numpy")(fn)
-        else:
-            compiled = njit(cache=True, nogil=True)(fn)
-        _compiled[fn] = compiled
+        jit = njit(cache=True, nogil=True, error_model="numpy") if numpy_division else None
+        compiled = _compiled[fn] = (jit or njit(cache=True, nogil=True))(fn)
     return cast(_Fn, compiled)
 
 
@@ -353,7 +350,7 @@ def compiled_rows(
             piece_sums(
                 xp, phi, q, cos_half, sin_half, c_lo, seg.starts, seg.ends, seg.zone_end,
                 2.0 * seg.half, st.k2, st.tracked, (-(first_index + p0)) % POWER_STRIDE,
-                POWER_STRIDE, level, RISE_GRID, RISE_TABLE, RISE_SLOPE, seg.mu, turn_re,
+                POWER_STRIDE, level, RISE_PACKED, seg.mu, turn_re,
                 turn_im, w, p0, i, i + count,
             )  # fmt: skip
             i += count
