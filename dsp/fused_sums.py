@@ -53,7 +53,7 @@ from numba import types as nt
 
 from dsp.fused_segments import falling_taper
 from dsp.spectrum_lanes import lane_sums
-from dsp.vec8 import vadd, vfma, vload, vmul, vsplat, vstore, vsub, vtranspose8, vzero
+from dsp.vec8 import vadd, vfma, vload, vmul, vprefetch, vsplat, vstore, vsub, vtranspose8, vzero
 
 
 @njit(cache=True, nogil=True)
@@ -253,7 +253,7 @@ def _sums1(x, c, s0, n, e, rp, r0, sums, top, clipping):
 # theirs change this file too (tests/dsp/test_kernels.py recomputes it and fails with
 # the new value), so a stale cache is never loaded.
 HELPERS = ("fused_segments.py", "spectrum_lanes.py", "vec8.py")
-HELPERS_SHA256 = "074f33fd46a31b45d5a75bddd65c09f2e1986b15683d7ae623e06919b9117aca"
+HELPERS_SHA256 = "5c7b749ac14281830f58c6d8c248995c27498018cdd72a262c2f838ba5d9108a"
 
 # one signature, compiled (or loaded from numba's cache) when this module is imported, so
 # after the helpers above: the samples as any 2-d layout (blocks come channel-fastest,
@@ -354,14 +354,15 @@ def piece_sums(
             _pack(w[i], mu[i], k2, turn_re, turn_im, period, acc_a, acc_d, wa, wd, s2, 0, clip)
             continue
         for s in range(0, n, 8):
+            for ch in range(n_ch):  # the sums' samples on their way while the carriers are made
+                vprefetch(x, ch, s0 + s)
             _carriers(pb_re, pb_im, pq, s, k2, blk)
             for g in range(0, n_cols8, 8):
                 vtranspose8(blk, 8 * g, e, s * rp + g, rp)
-        if tracked:
-            for s in range(nz):
-                f = vsplat(fall[s])
-                for g in range(0, n_cols8, 8):
-                    vstore(ez, s * rp + g, vmul(vload(e, s * rp + g), f))
+        for s in range(nz):  # (tracked: the spectrum channel's went on above)
+            f = vsplat(fall[s])
+            for g in range(0, n_cols8, 8):
+                vstore(ez, s * rp + g, vmul(vload(e, s * rp + g), f))
         for quad in range(quads):
             ch = min(4 * quad, n_ch - 4)
             for r0 in range(0, rp, 16):
