@@ -285,7 +285,9 @@ def piece_sums(
             pb_re[s] = np.float64(ch_s[s])  # exp(-i delta / 2), widened exactly
             pb_im[s] = -np.float64(sh_s[s])
             pq[s] = q_s[s]
-            total += q_s[s]
+        if not tracked:  # (the tracked channels' wa: below)
+            for s in range(n):
+                total += q_s[s]
         for s in range(n, (n + 7) // 8 * 8):
             pb_re[s] = pb_im[s] = pq[s] = 0.0
         wa = total
@@ -308,6 +310,11 @@ def piece_sums(
             _carriers(pb_re, pb_im, pq, s, k2, blk)
             for g in range(0, n_cols8, 8):
                 vtranspose8(blk, 8 * g, e, s * rp + g, rp)
+            # wa = sum q in sample order, a chain of additions that waits on itself: here
+            # it hides behind the carriers' work (issue 24: 19.8 -> 19.3 ms a minute)
+            for t in range(s, min(s + 8, n)):
+                total += pq[t]
+        wa = total
         for s in range(nz):  # (tracked: the spectrum channel's went on above)
             f = vsplat(fall[s])
             for g in range(0, n_cols8, 8):
