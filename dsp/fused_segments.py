@@ -88,3 +88,17 @@ def falling_taper(phi, q, s0, nz, c_lo, taper_rad, rise_packed, fall):
         fall[s] = 1.0 - rise
         total += q[s0 + s] * fall[s]
     return total
+
+
+@njit(cache=True, nogil=True)
+def zone_falls(phi, q, starts, zone_end, c_lo, taper_rad, rise_packed, fall, wd):
+    """:func:`falling_taper` of every segment: each zone's ``1 - rise`` into ``fall`` (n,)
+    at its samples' places (the flat stretches' entries left as they are) and each
+    segment's ``sum q (1 - rise)`` into ``wd`` (seg,), once for every set of sums on the
+    cut. Issue 24 (the run's 60 s log, CPU per function, load 3): the spectrum channel's
+    calls made them a second time; the sums' calls 25.5 -> 23.3-24.0 ms a minute, the cut
+    4.2-4.4 -> 5.3 ms, the same bits."""
+    for i in range(starts.size):
+        s0 = starts[i]
+        nz = zone_end[i] - s0
+        wd[i] = falling_taper(phi, q, s0, nz, c_lo[i], taper_rad, rise_packed, fall[s0:])

@@ -52,7 +52,6 @@ from numba import njit
 from numba import types as nt
 
 from dsp.fused_rows import pack_row, power_sums, put_rows
-from dsp.fused_segments import falling_taper
 from dsp.spectrum_lanes import lane_sums
 from dsp.vec8 import vadd, vfma, vload, vmul, vprefetch, vsplat, vstore, vsub, vtranspose8, vzero
 
@@ -196,7 +195,7 @@ def _sums1(x, c, s0, n, e, rp, r0, sums, top, clipping):
 # theirs change this file too (tests/dsp/test_kernels.py recomputes it and fails with
 # the new value), so a stale cache is never loaded.
 HELPERS = ("fused_rows.py", "fused_segments.py", "spectrum_lanes.py", "vec8.py")
-HELPERS_SHA256 = "4644e5dedac5dc48299164b5d325ee9fb08a0b613183e08c9dc06413840feff3"
+HELPERS_SHA256 = "94e8f57a96f06f1748db52d6b7b20a5eac0549f395663bf7ecfd8ee8ecc3ca1a"
 
 # one signature, compiled (or loaded from numba's cache) when this module is imported, so
 # after the helpers above: the samples as any 2-d layout (blocks come channel-fastest,
@@ -207,30 +206,30 @@ _F1, _I1 = nt.float64[::1], nt.int64[::1]
 _SAMPLES = nt.Array(nt.float64, 2, "A", readonly=True)
 _H1 = nt.float32[::1]
 _SIGNATURE = nt.void(
-    _SAMPLES, _F1, _F1, _H1, _H1, _F1, _I1, _I1, _I1, nt.float64, _I1, nt.boolean,
-    nt.int64, nt.int64, nt.float64, _F1, _I1, _F1, _F1, nt.float64[:, ::1],
+    _SAMPLES, _F1, _F1, _H1, _H1, _F1, _F1, _I1, _I1, _I1, _I1, nt.boolean,
+    nt.int64, nt.int64, nt.float64, _I1, _F1, _F1, nt.float64[:, ::1],
     nt.int64, nt.int64, nt.int64,
 )  # fmt: skip
 
 
 @njit(_SIGNATURE, cache=True, nogil=True)
 def piece_sums(
-    x, phi, q, cos_half, sin_half, c_lo, starts, ends, zone_end, taper_rad, k2, tracked,
-    power_from, power_stride, clip_level, rise_packed, mu, turn_re, turn_im, w, p0, i0, i1,
+    x, phi, q, cos_half, sin_half, fall_all, wd_seg, starts, ends, zone_end, k2, tracked,
+    power_from, power_stride, clip_level, mu, turn_re, turn_im, w, p0, i0, i1,
 ):  # fmt: skip
     """Add the sums of the segments of one piece (one set of channels) to ``out``.
 
     ``x`` (n_ch, n) the piece's samples, ``p0 .. p0 + n - 1`` of the call's ``phi`` (rad),
     ``q = omega dt`` (rad), ``cos_half``, ``sin_half`` (float32) the carriers' base ``exp(-i delta / 2)`` as
     :func:`dsp.sum_sets.base_parts` makes it (``cos - i sin``, widened here); per segment
-    (the call's; the piece's are ``i0 .. i1 - 1``): ``c_lo`` the start of its zone
-    ``c_m - tau / 2`` (rad), ``starts``, ``ends``, ``zone_end`` (samples). ``taper_rad`` the zone's width,
-    ``k2`` (no,) ascending (0 the mean). ``tracked``: the zone weight multiplies the
+    (the call's; the piece's are ``i0 .. i1 - 1``): ``starts``, ``ends``, ``zone_end``
+    (samples) and ``wd_seg`` the zone's ``sum q (1 - rise)``; ``fall_all`` (the call's
+    samples) each zone's falling taper ``1 - rise`` (:func:`dsp.fused_segments.zone_falls`,
+    made once for every set on the cut), ``k2`` (no,) ascending (0 the mean). ``tracked``: the zone weight multiplies the
     carrier, and the mean square (samples ``power_from + power_stride * i``) and the
     clip flags (``|x| >= clip_level``; NaN for none) are summed; else it multiplies the
     sample (the spectrum channel's layout, as :func:`dsp.sum_sets.numpy_sums` does).
-    ``rise_packed``: :func:`dsp.frames.rise_table`'s grid, slopes and values
-    (:data:`dsp.frames.RISE_PACKED`), whose arithmetic is repeated here. ``mu`` (seg,) the segments' numbers, ``turn_re``, ``turn_im``
+    ``mu`` (seg,) the segments' numbers, ``turn_re``, ``turn_im``
     (period,) ``exp(-2 pi i m / period)``, ``period = 2 frames_per_rev``: the rotation to
     the frame angle, ``exp(-i h c_m)`` for ``h = k2 / 2``, reduced exactly with integers.
     Writes each segment's :data:`dsp.sum_rows.Row` into ``w`` (seg, row_size): the sums
@@ -255,7 +254,6 @@ def piece_sums(
     size = (longest8 + 3) * rp if tracked else 0
     e = np.zeros(size)
     ez = np.zeros(size)
-    fall = np.empty(longest)
     blk = np.zeros(8 * rp)  # one block of 8 samples, a row per column of e
     pb_re = np.zeros(longest8)
     pb_im = np.zeros(longest8)
@@ -291,7 +289,8 @@ def piece_sums(
         for s in range(n, (n + 7) // 8 * 8):
             pb_re[s] = pb_im[s] = pq[s] = 0.0
         wa = total
-        wd = falling_taper(phi, q, s0, nz, c_lo[i], taper_rad, rise_packed, fall)
+        wd = wd_seg[i]  # and the zone's falling taper (dsp.fused_segments.zone_falls)
+        fall = fall_all[starts[i] : zone_end[i]]
         if not tracked:
             # the spectrum channel: one channel, many orders; lanes are samples throughout.
             # The next segment's samples on their way while this one's are summed (issue
