@@ -98,6 +98,7 @@ import numpy as np
 
 from dsp.angle_loops import append_knots as knots_loops
 from dsp.angle_loops import grid_values as grid_loops
+from dsp.frame_figures import frame_codes as codes_loops
 from dsp.frame_figures import frame_figures as figures_loops
 from dsp.frames import RISE_PACKED
 from dsp.ramp_slopes import ramp_slopes as slopes_loops
@@ -245,16 +246,9 @@ def _window_totals(
 
 
 def group_amplitudes(
-    rows: dict[int, np.ndarray],
-    js: np.ndarray,
-    n: int,
-    no: int,
-    usable: np.ndarray,
-    cols: np.ndarray,
-    x: np.ndarray,
-    ms: np.ndarray,
-    ok: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
+    rows: dict[int, np.ndarray], js: np.ndarray, n: int, no: int, usable: np.ndarray,
+    cols: np.ndarray, x: np.ndarray, ms: np.ndarray, ok: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """A group's window sums, amplitudes and flags of frames ``js`` in two compiled calls
     (:func:`dsp.sum_rows.add_windows`, :func:`dsp.sum_rows.amplitudes_of_windows`: the
     numpy path's bits); returns the frames with a non-finite amplitude and with clipped
@@ -269,19 +263,20 @@ def group_amplitudes(
 
 
 def frame_figures(
-    times: np.ndarray,
-    omegas: np.ndarray,
-    x: np.ndarray,
-    ms: np.ndarray,
-    corrected: np.ndarray,
-    out: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    times: np.ndarray, omegas: np.ndarray, x: np.ndarray, ms: np.ndarray,
+    corrected: np.ndarray, out: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """The frames' rpm, rpm change (f,) and leakage figures (f, n_ch) in one compiled call
     after numpy's magnitudes (:func:`dsp.frame_figures.frame_figures`: the numpy path's bits)."""
     f, _, n_ch = x.shape
     rpm, rpm_change, leak = np.empty(f), np.empty(f), np.empty((f, n_ch))
     _jit(figures_loops)(times, omegas, np.abs(x), ms, corrected, out, rpm, rpm_change, leak)
     return rpm, rpm_change, leak
+
+
+def frame_codes(*args: Any) -> None:
+    """:func:`dsp.frame_figures.frame_codes` compiled (on the first call, as :func:`piece_sums`)."""
+    _jit(codes_loops)(*args)
 
 
 def cubic_times(*args: Any) -> None:

@@ -194,6 +194,49 @@ def test_compiled_frame_figures_give_the_numpy_bits(compiled, monkeypatch):
     assert (ms < 0.5 * np.sum(np.abs(x) ** 2, axis=1)).any()
 
 
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize("steps", [1, 3])
+def test_compiled_frame_codes_give_the_numpy_bits(compiled, steps, monkeypatch):
+    """Each frame's angle and flag bits (dsp.frame_figures.frame_codes through dsp.kernels,
+    compiled and as plain loops) against dsp.frame_figures.frame_codes_numpy: the same
+    angles bit for bit, the same codes, with every flag set somewhere and left out
+    somewhere (a NaN variance factor counts as lost samples, an rpm on the range's edge
+    is in it), with and without the leakage correction."""
+    from dsp.frame_figures import frame_codes_numpy
+
+    rng = np.random.default_rng(5)
+    f, n_ch = 60, 4
+    js = np.arange(1_000_003, 1_000_003 + f)
+    parity = rng.integers(0, steps + 1, f)
+    chains = rng.integers(-1, 3, f)
+    ambiguous = rng.random(f) < 0.3
+    rpm = rng.uniform(500.0, 7000.0, f)
+    rpm[:2] = 600.0, 6000.0  # the range's ends
+    rpm[2] = np.nan
+    ok = rng.random((f, n_ch)) < 0.8
+    corrected = rng.random((f, n_ch)) < 0.7
+    variance = np.ones((f, n_ch))
+    variance[[4, 9], [1, 3]] = 1.7, np.nan
+    spacing = 2 * np.pi / 4
+    if not compiled:
+        monkeypatch.setattr(kernels, "_jit", lambda fn: fn)
+    for correcting in (True, False):
+        args = (js, parity, spacing, steps, chains, ambiguous, rpm)
+        more = (ok, corrected, correcting, variance)
+        want_angles, want_codes = frame_codes_numpy(*args, (600.0, 6000.0), *more)
+        angles, codes = np.empty(f), np.empty(f, np.int64)
+        kernels.frame_codes(*args, 600.0, 6000.0, *more, angles, codes)
+        np.testing.assert_array_equal(angles, want_angles)
+        assert angles.tobytes() == want_angles.tobytes()
+        np.testing.assert_array_equal(codes, want_codes)
+        for bit in (16, 8, 4, 2) + ((1,) if correcting else ()):
+            assert 0 < np.count_nonzero(codes & bit) < f
+        assert codes[2] & 2 == 0 and codes[0] & 2 and codes[1] & 2
+        assert codes[4] & 16 and codes[9] & 16
+        if not correcting:
+            assert not (codes & 1).any()
+
+
 def test_compiled_frames_agree_with_numpy_in_any_blocks(monkeypatch):
     """Whole frames, the compiled path (every kernel: sums, lookup, window times, window
     sums, ramps) against the numpy path on the same blocks: times, speeds, flags and
