@@ -22,9 +22,19 @@ uncompiled; the compiled path (:data:`dsp.kernels.USE`) runs it through numba.
 :func:`dsp.angle.cubic_pieces`'s divided differences knot by knot (the same operations in
 the same order, so the same bits) and the new columns (issue 24: some 25 array operations
 a step in numpy, 26 -> 14.5 us of CPU at load 6; :func:`dsp.kernels.append_knots` compiles it).
+
+Issue 24, third pass (the run's 60 s log, the kernels alone over the calls of a replay,
+CPU best of 15, load 3): :func:`grid_values` 3.7 -> 2.7 ms a minute (each piece's last
+sample found from where the grid puts it, not by a scan of its samples; the flags and
+runs of one run written in one fill); :func:`append_knots` 2.3 -> 1.5-1.7 ms (the old
+columns copied as slices, each run's divided differences on slices indexed from 0 and
+compiled with numpy's division, so LLVM vectorises them). The same bits (each kernel's
+outputs compared on every call of that log; the tests compare them with the numpy path).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -76,12 +86,19 @@ def grid_values(
         omega[i] = 0.0
         run[i] = 0
         i += 1
+    i_first = i
     # piece by piece: a sample belongs to the last piece that starts at or before it
     while i < n:
         j = n
         if p + 1 < end:
-            j = i
-            while j < n and t[j] < t_lo[p + 1]:
+            # the first sample at or after the next piece's start: from where the grid puts
+            # it, settled with the times themselves (a piece holds some ten samples at
+            # 25.6 kHz: a step or two, not a scan of all of them)
+            t_next = t_lo[p + 1]
+            j = min(max(math.ceil((t_next - t0_s) * rate_hz) - first, i), n)
+            while j > i and not t[j - 1] < t_next:
+                j -= 1
+            while j < n and t[j] < t_next:
                 j += 1
         # the piece's samples as slices indexed from 0: numba then knows no index is
         # negative and vectorises the loop (from the piece's first sample it checked
@@ -94,11 +111,16 @@ def grid_values(
             tau = ts[k] - tl
             ps[k] = ((tau * a3 + a2) * tau + a1) * tau + pl
             ws[k] = (tau * a3x3 + a2x2) * tau + a1
-        for k in range(i, j):
-            ok[k] = True if one_run else t[k] < t_hi[p]
-            run[k] = run0 if one_run else runs[p]
+        if not one_run:
+            t_end, run_p = t_hi[p], runs[p]
+            for k in range(i, j):
+                ok[k] = t[k] < t_end
+                run[k] = run_p
         i = j
         p += 1
+    if one_run:  # every sample from the first piece on: one fill each
+        ok[i_first:] = True
+        run[i_first:] = run0
 
 
 def append_knots(
@@ -147,30 +169,48 @@ def append_knots(
     cols = [np.empty(old + new) for _ in range(7)]
     o_tlo, o_thi, o_plo, o_phi, o_c1, o_c2, o_c3 = cols
     o_run = np.empty(old + new, np.int64)
-    for i in range(old):
-        o_tlo[i], o_thi[i], o_plo[i], o_phi[i] = t_lo[i], t_hi[i], phi_lo[i], phi_hi[i]
-        o_c1[i], o_c2[i], o_c3[i], o_run[i] = c1[i], c2[i], c3[i], run[i]
+    o_tlo[:old], o_thi[:old], o_plo[:old], o_phi[:old] = t_lo, t_hi, phi_lo, phi_hi
+    o_c1[:old], o_c2[:old], o_c3[:old], o_run[:old] = c1, c2, c3, run
     at = old
     a = 0
     for i in range(1, k + 1):
         if i == k or kr[i] != kr[i - 1]:
-            # the interval from knot j to j + 1, its cubic through knots j - 1 .. j + 2
-            for j in range(a + 1, i - 2):
-                t_j, p_j = kt[j], kp[j]
-                z1 = kt[j + 1] - t_j
-                z2 = kt[j - 1] - t_j
-                z3 = kt[j + 2] - t_j
-                f01 = (kp[j + 1] - p_j) / z1
-                f02 = (kp[j - 1] - p_j) / z2
-                f03 = (kp[j + 2] - p_j) / z3
-                f012 = (f02 - f01) / (z2 - z1)
-                f013 = (f03 - f01) / (z3 - z1)
-                f0123 = (f013 - f012) / (z3 - z2)
-                o_c3[at] = f0123
-                o_c2[at] = f012 - f0123 * (z1 + z2)
-                o_c1[at] = f01 - f012 * z1 + f0123 * z1 * z2
-                o_tlo[at], o_thi[at], o_plo[at], o_phi[at] = t_j, kt[j + 1], p_j, kp[j + 1]
-                o_run[at] = kr[j]
-                at += 1
+            # the intervals from knot j to j + 1 (j = a + 1 .. i - 3), each cubic through
+            # knots j - 1 .. j + 2, as slices indexed from 0 (numba checks no index for
+            # wrap-around and, without Python's zero-division checks, LLVM vectorises the
+            # divisions: dsp.kernels.append_knots)
+            m = i - a - 3
+            if m > 0:
+                tm, t0, t1, t2 = (
+                    kt[a : a + m],
+                    kt[a + 1 : a + 1 + m],
+                    kt[a + 2 : a + 2 + m],
+                    kt[a + 3 : a + 3 + m],
+                )
+                pm, p0, p1, p2 = (
+                    kp[a : a + m],
+                    kp[a + 1 : a + 1 + m],
+                    kp[a + 2 : a + 2 + m],
+                    kp[a + 3 : a + 3 + m],
+                )
+                w1, w2, w3 = o_c1[at : at + m], o_c2[at : at + m], o_c3[at : at + m]
+                for q in range(m):
+                    t_j, p_j = t0[q], p0[q]
+                    z1 = t1[q] - t_j
+                    z2 = tm[q] - t_j
+                    z3 = t2[q] - t_j
+                    f01 = (p1[q] - p_j) / z1
+                    f02 = (pm[q] - p_j) / z2
+                    f03 = (p2[q] - p_j) / z3
+                    f012 = (f02 - f01) / (z2 - z1)
+                    f013 = (f03 - f01) / (z3 - z1)
+                    f0123 = (f013 - f012) / (z3 - z2)
+                    w3[q] = f0123
+                    w2[q] = f012 - f0123 * (z1 + z2)
+                    w1[q] = f01 - f012 * z1 + f0123 * z1 * z2
+                o_tlo[at : at + m], o_thi[at : at + m] = t0, t1
+                o_plo[at : at + m], o_phi[at : at + m] = p0, p1
+                o_run[at : at + m] = kr[a + 1 : a + 1 + m]
+                at += m
             a = i
     return o_tlo, o_thi, o_plo, o_phi, o_c1, o_c2, o_c3, o_run, kt[tail:], kp[tail:], kr[tail:]

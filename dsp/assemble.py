@@ -24,6 +24,7 @@ import numpy as np
 from dsp import angle as ang
 from dsp import cycle, kernels
 from dsp.frame_constants import frame_constants, rotation
+from dsp.frame_figures import frame_codes_numpy
 from dsp.frames import OrderFrame
 from dsp.gap_fit import forget_holes
 from dsp.immutable import evolve
@@ -261,52 +262,51 @@ def _finish(
     # N pulses without a decided reference: phi is only known modulo 360/N deg
     pulses_unknown = steps > 1
     orders = const.orders
-    in_range = (rpm >= cfg.rpm_min) & (rpm <= cfg.rpm_max)
-    uncorrected = (
-        (raw["ok"] & ~corrected).any(axis=1) if cfg.leakage_correction else in_range & False
-    )
-    cache: dict[tuple[bool, ...], frozenset[str]] = {}
+    # each frame's angle and flag bits (dsp.frame_figures.frame_codes_numpy: 16 a window
+    # lost samples, 8 ambiguous cycle, 4 rebased, 2 rpm in range, 1 uncorrected); the
+    # angle j * spacing + 2 pi p / steps as Python computes it for ints j, p: the same bits
+    code_args = (js, parity, spacing, steps, chains, ambiguous, rpm)
+    more = (raw["ok"], corrected, cfg.leakage_correction, raw["variance"])
+    if kernels.USE:  # one compiled call instead of a dozen array operations: the same bits
+        angles, codes = np.empty(js.size), np.empty(js.size, np.int64)
+        kernels.frame_codes(*code_args, cfg.rpm_min, cfg.rpm_max, *more, angles, codes)
+    else:
+        angles, codes = frame_codes_numpy(*code_args, (cfg.rpm_min, cfg.rpm_max), *more)
+    cache: dict[int, frozenset[str]] = {}
     frames = []
-    # per-frame values as Python objects in one go: a few thousand frames a minute
-    keys = zip(
-        ambiguous.tolist(), (chains > 0).tolist(), in_range.tolist(), uncorrected.tolist(),
-        strict=True,
-    )  # fmt: skip
     # a variance factor only where a window lost samples (most frames have none)
     variances: list[np.ndarray | None] = [None] * js.size
-    holed = raw["variance"] != 1.0
-    if holed.any():
-        for i in np.flatnonzero(holed.any(axis=1)).tolist():
-            variances[i] = raw["variance"][i]
-    # j * spacing + 2 pi p / steps as Python computes it for ints j, p: the same bits
-    angles = js * spacing + TWO_PI * parity / steps
+    code_list = codes.tolist()
+    if max(code_list) >= 16:
+        for i, code in enumerate(code_list):
+            if code & 16:
+                variances[i] = raw["variance"][i]
     columns = zip(
         angles.tolist(), times[:, 1].tolist(), rpm.tolist(), rpm_change.tolist(),
-        list(out), list(raw["ok"]), list(leak), raw["flags"].tolist(), keys, spectra, variances,
-        strict=True,
+        list(out), list(raw["ok"]), list(leak), raw["flags"].tolist(), code_list, spectra,
+        variances, strict=True,
     )  # fmt: skip
     channels, spectrum_channel = plan.channels, cfg.spectrum_channel
-    for angle, t, r, dr, amp, ok, lk, raw_flags, key, sp, var in columns:
+    for angle, t, r, dr, amp, ok, lk, raw_flags, code, sp, var in columns:
         # most frames share one set of flags: build each distinct set once
-        flags = None if raw_flags else cache.get(key)
+        flags = None if raw_flags else cache.get(code & 15)
         if flags is None:
-            is_ambiguous, rebased, in_rpm_range, is_uncorrected = key
             new = set(raw_flags)
-            if is_ambiguous:
+            if code & 8:
                 new.add("cycle_ambiguous")
                 if pulses_unknown:
                     new.add("angle_ambiguous")
-            if rebased:
+            if code & 4:
                 # an unbridged re-sync: revolution count and cycle may differ from the stream start's
                 new.add("angle_rebased")
-            if not in_rpm_range:
+            if not code & 2:
                 new.add("rpm_out_of_range")
-            if is_uncorrected:
+            if code & 1:
                 # no frame one cycle earlier (stream start, long re-sync): sweep leakage remains
                 new.add("leakage_uncorrected")
             flags = frozenset(new)
             if not raw_flags:
-                cache[key] = flags
+                cache[code & 15] = flags
         # the dataclass's fields set directly: its generated __init__ of a frozen class
         # sets them one object.__setattr__ at a time (1.9 us a frame against 0.5 us)
         frame = _new_frame(OrderFrame)

@@ -20,6 +20,9 @@ import math
 
 import numpy as np
 
+TWO_PI = 2.0 * math.pi  # dsp.state's (not imported: the state imports the kernels)
+_CODE_BITS = np.array([8, 4, 2, 1])  # frame_codes_numpy's flags' bits (never modified)
+
 
 def frame_figures(
     times: np.ndarray,
@@ -73,3 +76,73 @@ def frame_figures(
                 leak[i, c] = num / strongest
             else:  # numpy's x / 0 (strongest >= 0): NaN for 0 / 0, else inf
                 leak[i, c] = np.nan if num != num or num == 0.0 else np.inf
+
+
+def frame_codes_numpy(
+    js: np.ndarray,
+    parity: np.ndarray,
+    spacing: float,
+    steps: int,
+    chains: np.ndarray,
+    ambiguous: np.ndarray,
+    rpm: np.ndarray,
+    rpm_range: tuple[float, float],
+    ok: np.ndarray,
+    corrected: np.ndarray,
+    correcting: bool,
+    variance: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each frame's crank angle ``j spacing + 2 pi p / steps`` (rad) and a code of its flag
+    bits (:func:`dsp.assemble._finish`): 16 a window lost samples (a variance factor not
+    1), 8 the cycle is ambiguous, 4 the chain was rebased (``chain > 0``), 2 the rpm is
+    in ``rpm_range``, 1 leakage left uncorrected (a usable channel not corrected while
+    ``correcting``). Frames ``js``, ``parity``, ``chains``, ``ambiguous``, ``rpm`` (f,),
+    ``ok``, ``corrected``, ``variance`` (f, n_ch). The numpy reference of :func:`frame_codes`."""
+    in_range = (rpm >= rpm_range[0]) & (rpm <= rpm_range[1])
+    uncorrected = (ok & ~corrected).any(axis=1) if correcting else in_range & False
+    codes = np.column_stack((ambiguous, chains > 0, in_range, uncorrected)) @ _CODE_BITS
+    lost = variance != 1.0
+    if lost.any():  # (rare: most windows lose no sample)
+        codes += lost.any(axis=1) * 16
+    return js * spacing + TWO_PI * parity / steps, codes
+
+
+def frame_codes(
+    js: np.ndarray,
+    parity: np.ndarray,
+    spacing: float,
+    steps: int,
+    chains: np.ndarray,
+    ambiguous: np.ndarray,
+    rpm: np.ndarray,
+    rpm_lo: float,
+    rpm_hi: float,
+    ok: np.ndarray,
+    corrected: np.ndarray,
+    correcting: bool,
+    variance: np.ndarray,
+    angles: np.ndarray,
+    codes: np.ndarray,
+) -> None:
+    """:func:`frame_codes_numpy` frame by frame into ``angles`` and ``codes`` (f,), for the
+    compiled path (:func:`dsp.kernels.frame_codes`: one call instead of a dozen array
+    operations a batch): the angle's operations in numpy's order, so the same bits."""
+    n_ch = ok.shape[1]
+    for i in range(js.size):
+        angles[i] = js[i] * spacing + TWO_PI * parity[i] / steps
+        code = 0
+        for c in range(n_ch):
+            if variance[i, c] != 1.0:
+                code = 16
+        if ambiguous[i]:
+            code += 8
+        if chains[i] > 0:
+            code += 4
+        if rpm[i] >= rpm_lo and rpm[i] <= rpm_hi:
+            code += 2
+        if correcting:
+            for c in range(n_ch):
+                if ok[i, c] and not corrected[i, c]:
+                    code += 1
+                    break
+        codes[i] = code

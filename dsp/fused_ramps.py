@@ -37,7 +37,7 @@ from numba import njit
 from dsp.vec8 import vadd, vfma, vload, vsplat, vstore, vzero
 
 HELPERS = ("vec8.py",)
-HELPERS_SHA256 = "2af6188e1832f0d6158665d3e3bba70026a7b1eb37d4c616e761f71e240e354f"
+HELPERS_SHA256 = "be8a890e324af3380d1a356d95de5c8ae389e3f0516c8c718f5b57dff00d62a8"
 
 
 @njit(cache=True, nogil=True)

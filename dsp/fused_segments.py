@@ -70,20 +70,35 @@ def _angles(phi, c, delta, half32):
 
 
 @njit(cache=True, nogil=True)
-def falling_taper(phi, q, s0, nz, c_lo, taper_rad, grid, table, slope, fall):
+def falling_taper(phi, q, s0, nz, c_lo, taper_rad, rise_packed, fall):
     """``1 - rise`` over the zone's samples into ``fall``; returns ``sum q (1 - rise)``
-    (:func:`dsp.frames.rise_table`'s arithmetic, the same bits)."""
-    n_grid = grid.size - 1
+    (:func:`dsp.frames.rise_table`'s arithmetic, the same bits; ``rise_packed`` its grid,
+    slope and value side by side, :data:`dsp.frames.RISE_PACKED`)."""
+    n_grid = rise_packed.size // 3 - 1
     total = 0.0
     for s in range(nz):
         u = (phi[s0 + s] - c_lo) / taper_rad
         if u >= 1.0:
-            rise = table[n_grid]
+            rise = rise_packed[3 * n_grid + 2]
         elif u < 0.0:
-            rise = table[0]
+            rise = rise_packed[2]
         else:
-            g = min(math.floor(u * n_grid), n_grid - 1)
-            rise = slope[g] * (u - grid[g]) + table[g]
+            g = 3 * min(math.floor(u * n_grid), n_grid - 1)
+            rise = rise_packed[g + 1] * (u - rise_packed[g]) + rise_packed[g + 2]
         fall[s] = 1.0 - rise
         total += q[s0 + s] * fall[s]
     return total
+
+
+@njit(cache=True, nogil=True)
+def zone_falls(phi, q, starts, zone_end, c_lo, taper_rad, rise_packed, fall, wd):
+    """:func:`falling_taper` of every segment: each zone's ``1 - rise`` into ``fall`` (n,)
+    at its samples' places (the flat stretches' entries left as they are) and each
+    segment's ``sum q (1 - rise)`` into ``wd`` (seg,), once for every set of sums on the
+    cut. Issue 24 (the run's 60 s log, CPU per function, load 3): the spectrum channel's
+    calls made them a second time; the sums' calls 25.5 -> 23.3-24.0 ms a minute, the cut
+    4.2-4.4 -> 5.3 ms, the same bits."""
+    for i in range(starts.size):
+        s0 = starts[i]
+        nz = zone_end[i] - s0
+        wd[i] = falling_taper(phi, q, s0, nz, c_lo[i], taper_rad, rise_packed, fall[s0:])

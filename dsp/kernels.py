@@ -5,14 +5,13 @@ sends the tracker through numba instead, for: the segment sums (:func:`compiled_
 :mod:`dsp.fused_sums`, one vectorised pass per piece that makes the carriers of the
 orders of each set, sums them, and packs each segment's row), the cutting of the pieces
 into segments (:func:`segment_cuts`), the angle lookup of the samples
-(:func:`cubic_values`, and of a block's consecutive samples with their times,
-:func:`grid_values`), the times of the frames' window ends (:func:`cubic_times`), the
-frames' window sums and amplitudes (:func:`window_sums`, :func:`group_amplitudes`), their
-speed and leakage figures (:func:`frame_figures`), the
-leakage correction's ramps and coupling (:func:`ramp_slopes`, :func:`apply_ramps`), the angle
-table's new knots and coefficients (:func:`append_knots`), the pressure votes' candidate sums
-(:func:`pressure_sums`) and the wheel decoder's interval pass (:func:`wheel_intervals`).
-Every compiled function releases the GIL (``nogil=True``).
+(:func:`cubic_values`; of a block's consecutive samples with their times, :func:`grid_values`),
+the times of the frames' window ends (:func:`cubic_times`), the frames' window sums and
+amplitudes (:func:`window_sums`, :func:`group_amplitudes`), their speed and leakage figures
+(:func:`frame_figures`), the leakage correction's ramps and coupling (:func:`ramp_slopes`,
+:func:`apply_ramps`), the angle table's new knots and coefficients (:func:`append_knots`),
+the pressure votes' candidate sums (:func:`pressure_sums`) and the wheel decoder's interval
+pass (:func:`wheel_intervals`), each releasing the GIL (``nogil=True``).
 
 Why numba, and why off by default. numba (well kept, NumPy's release cadence) over
 hand-written C: no build step, and ``cache=True`` keeps the machine code beside the
@@ -99,8 +98,9 @@ import numpy as np
 
 from dsp.angle_loops import append_knots as knots_loops
 from dsp.angle_loops import grid_values as grid_loops
+from dsp.frame_figures import frame_codes as codes_loops
 from dsp.frame_figures import frame_figures as figures_loops
-from dsp.frames import RISE_GRID, RISE_SLOPE, RISE_TABLE
+from dsp.frames import RISE_PACKED
 from dsp.ramp_slopes import ramp_slopes as slopes_loops
 from dsp.sum_rows import (
     add_windows,
@@ -124,9 +124,7 @@ _Fn = TypeVar("_Fn", bound=Callable[..., Any])
 
 def piece_sums(*args: Any) -> None:
     """:func:`dsp.fused_sums.piece_sums`: the segment sums of one piece in one vectorised pass."""
-    # imported here, not at the top: the module imports numba (0.3 s), which the default
-    # path never loads
-    from dsp import fused_sums
+    from dsp import fused_sums  # not at the top: it imports numba (0.3 s), never by default
 
     fused_sums.piece_sums(*args)
 
@@ -138,23 +136,28 @@ def apply_ramps(*args: Any) -> None:
     fused_ramps.apply_ramps(*args)
 
 
-def segment_cuts(
-    phi: np.ndarray, cuts: np.ndarray, spacing: float, half: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int], np.ndarray, np.ndarray]:
+def segment_cuts(phi: np.ndarray, q: np.ndarray, cuts: np.ndarray, spacing: float, half: float) -> tuple[
+    np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int], np.ndarray, np.ndarray,
+    tuple[np.ndarray, np.ndarray],
+]:  # fmt: skip
     """:func:`dsp.fused_segments.segment_cuts`: the segments of each piece and the samples'
     angles from their segment's frame angle, as :func:`dsp.sums.add_sample_sets` cuts them,
-    and half of those angles in single precision (the carriers')."""
+    half of those angles in single precision (the carriers'), and the zones' falling taper
+    and its sums (:func:`dsp.fused_segments.zone_falls`; ``q`` (rad) as there)."""
     from dsp import fused_segments  # imports numba: see piece_sums
 
-    mu, starts, ends, zone_end, per_piece, delta, half32 = fused_segments.segment_cuts(
-        phi, cuts, spacing, half
-    )
-    return mu, starts, ends, zone_end, per_piece.tolist(), delta, half32
+    mu, starts, ends, zone_end, per_piece, delta, half32 = fused_segments.segment_cuts(phi, cuts, spacing, half)  # fmt: skip
+    fall, wd = np.empty(phi.size), np.empty(mu.size)
+    c_lo = mu * spacing - half  # the zones' starts, as compiled_rows made them
+    fused_segments.zone_falls(phi, q, starts, zone_end, c_lo, 2.0 * half, RISE_PACKED, fall, wd)
+    return mu, starts, ends, zone_end, per_piece.tolist(), delta, half32, (fall, wd)
 
 
 def append_knots(*args: Any) -> tuple[np.ndarray, ...]:
-    """:func:`dsp.angle_loops.append_knots` compiled (on the first call, as :func:`piece_sums`)."""
-    return cast(tuple[np.ndarray, ...], _jit(knots_loops)(*args))
+    """:func:`dsp.angle_loops.append_knots` compiled (on the first call, as :func:`piece_sums`),
+    with numpy's division (inf or NaN for a zero divisor, as the numpy path's, not Python's
+    check before each, which keeps LLVM from vectorising: 2.3 -> 1.5 ms a minute)."""
+    return cast(tuple[np.ndarray, ...], _jit(knots_loops, numpy_division=True)(*args))
 
 
 def pressure_sums(
@@ -243,16 +246,9 @@ def _window_totals(
 
 
 def group_amplitudes(
-    rows: dict[int, np.ndarray],
-    js: np.ndarray,
-    n: int,
-    no: int,
-    usable: np.ndarray,
-    cols: np.ndarray,
-    x: np.ndarray,
-    ms: np.ndarray,
-    ok: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
+    rows: dict[int, np.ndarray], js: np.ndarray, n: int, no: int, usable: np.ndarray,
+    cols: np.ndarray, x: np.ndarray, ms: np.ndarray, ok: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """A group's window sums, amplitudes and flags of frames ``js`` in two compiled calls
     (:func:`dsp.sum_rows.add_windows`, :func:`dsp.sum_rows.amplitudes_of_windows`: the
     numpy path's bits); returns the frames with a non-finite amplitude and with clipped
@@ -267,13 +263,9 @@ def group_amplitudes(
 
 
 def frame_figures(
-    times: np.ndarray,
-    omegas: np.ndarray,
-    x: np.ndarray,
-    ms: np.ndarray,
-    corrected: np.ndarray,
-    out: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    times: np.ndarray, omegas: np.ndarray, x: np.ndarray, ms: np.ndarray,
+    corrected: np.ndarray, out: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """The frames' rpm, rpm change (f,) and leakage figures (f, n_ch) in one compiled call
     after numpy's magnitudes (:func:`dsp.frame_figures.frame_figures`: the numpy path's bits)."""
     f, _, n_ch = x.shape
@@ -282,18 +274,25 @@ def frame_figures(
     return rpm, rpm_change, leak
 
 
+def frame_codes(*args: Any) -> None:
+    """:func:`dsp.frame_figures.frame_codes` compiled (on the first call, as :func:`piece_sums`)."""
+    _jit(codes_loops)(*args)
+
+
 def cubic_times(*args: Any) -> None:
     """:func:`_cubic_times` compiled (on the first call, as :func:`piece_sums`)."""
     _jit(_cubic_times)(*args)
 
 
-def _jit(fn: _Fn) -> _Fn:
-    """``fn`` compiled by numba, once per process."""
+def _jit(fn: _Fn, numpy_division: bool = False) -> _Fn:
+    """``fn`` compiled by numba, once per process (``numpy_division``: numba's numpy
+    error model, a float division by zero gives inf or NaN instead of raising)."""
     compiled = _compiled.get(fn)
     if compiled is None:
         from numba import njit  # heavy (0.3 s): only where a kernel is used
 
-        compiled = _compiled[fn] = njit(cache=True, nogil=True)(fn)
+        jit = njit(cache=True, nogil=True, error_model="numpy") if numpy_division else None
+        compiled = _compiled[fn] = (jit or njit(cache=True, nogil=True))(fn)
     return cast(_Fn, compiled)
 
 
@@ -333,7 +332,8 @@ def compiled_rows(
     """Every set's rows (seg, :func:`dsp.sum_rows.row_size`), packed by :func:`piece_sums`."""
     seg = cut.seg
     phi, q, cos_half, sin_half = cut.phi, cut.q, cut.cos_half, cut.sin_half
-    c_lo = seg.c - seg.half
+    assert cut.falls is not None  # (the compiled cut's)
+    fall, wd = cut.falls
     turn_re, turn_im = _turns(2 * frames_per_rev)
     out = []
     for st in sets:
@@ -343,10 +343,9 @@ def compiled_rows(
         # the whole call's arrays and where the piece is in them (sliced in the kernel)
         for xp, p0, count in zip(st.x, seg.cuts[:-1], seg.per_piece, strict=True):
             piece_sums(
-                xp, phi, q, cos_half, sin_half, c_lo, seg.starts, seg.ends, seg.zone_end,
-                2.0 * seg.half, st.k2, st.tracked, (-(first_index + p0)) % POWER_STRIDE,
-                POWER_STRIDE, level, RISE_GRID, RISE_TABLE, RISE_SLOPE, seg.mu, turn_re,
-                turn_im, w, p0, i, i + count,
+                xp, phi, q, cos_half, sin_half, fall, wd, seg.starts, seg.ends, seg.zone_end,
+                st.k2, st.tracked, (-(first_index + p0)) % POWER_STRIDE, POWER_STRIDE, level,
+                seg.mu, turn_re, turn_im, w, p0, i, i + count,
             )  # fmt: skip
             i += count
         out.append(w)

@@ -113,16 +113,27 @@ def add_windows(
     last = 2 * n
     k = h - n_ch - 2  # offset of wa in the plain block (after a: 2 n_ch no)
     for i in range(f):
+        # row after row into the frame's own sums (slices indexed from 0: numba checks no
+        # index for wrap-around and vectorises over the columns; each column still adds
+        # its rows in the order above, so the same bits)
+        acc, cnt = total[i, :h], total[i, h : h + n_ch]
+        first, minus = rows_w[i, :h], rows_w[i, h : 2 * h]
         for c in range(h):
-            acc = rows_w[i, c] - rows_w[i, h + c]
-            for m in range(1, last):
-                acc += rows_w[i + m, c]
-            total[i, c] = acc + rows_w[i + last, h + c]
+            acc[c] = first[c] - minus[c]
+        clips = rows_w[i, 2 * h : 2 * h + n_ch]
         for c in range(n_ch):
-            cnt = rows_w[i, 2 * h + c]
-            for m in range(1, last + 1):
-                cnt += rows_w[i + m, 2 * h + c]
-            total[i, h + c] = cnt
+            cnt[c] = clips[c]
+        for m in range(1, last + 1):
+            if m < last:
+                plain = rows_w[i + m, :h]
+                for c in range(h):
+                    acc[c] += plain[c]
+            clips = rows_w[i + m, 2 * h : 2 * h + n_ch]
+            for c in range(n_ch):
+                cnt[c] += clips[c]
+        plus = rows_w[i + last, h : 2 * h]
+        for c in range(h):
+            acc[c] += plus[c]
         # s2 / n2 as numpy divides (numba's "/" raises on a zero count, numpy gives inf or nan)
         n2 = total[i, k + 1 + n_ch]
         for c in range(n_ch):

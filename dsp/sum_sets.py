@@ -61,8 +61,10 @@ class Cut:
     sample's frame angle) (n,), the cosine and sine of ``delta / 2`` in single precision
     (n,) float32 (:func:`base_parts`: the carriers' base ``exp(-i delta / 2)`` is
     ``cos_half - i sin_half``), and on the numpy path the zones' samples and weights
-    (:func:`zones`). Groups on one sample clock get the same cut in a step: it is made
-    once for all of them (:mod:`dsp.segments`)."""
+    (:func:`zones`), on the compiled path each zone's falling taper at its samples'
+    places (n,) and its sum with ``q`` (seg,) (:func:`dsp.kernels.segment_cuts`). Groups
+    on one sample clock get the same cut in a step: it is made once for all of them
+    (:mod:`dsp.segments`)."""
 
     seg: Segments
     phi: np.ndarray
@@ -71,6 +73,7 @@ class Cut:
     cos_half: np.ndarray
     sin_half: np.ndarray
     zones: Zones | None = None
+    falls: tuple[np.ndarray, np.ndarray] | None = None
 
 
 # every zone's samples at once: z_len, z_off (seg + 1,), the zones' sample indices z, their

@@ -147,10 +147,13 @@ def cut_samples(
     cuts = list(itertools.accumulate(sizes, initial=0))  # where each piece begins
     # each piece cut into segments as a call of its own would: a segment split between
     # two pieces appears twice, and its parts are added in order at the end
+    q = omega * (1.0 / rate_hz)
+    falls: tuple[np.ndarray, np.ndarray] | None = None
     if compiled:
-        # the same segments and angles from one compiled pass (dsp.kernels.segment_cuts)
-        mu, starts, ends, zone_end, per_piece, delta, half32 = kernels.segment_cuts(
-            phi, np.array(cuts, dtype=np.int64), spacing, half
+        # the same segments and angles from one compiled pass, and the zones' taper made
+        # once for every set (dsp.kernels.segment_cuts)
+        mu, starts, ends, zone_end, per_piece, delta, half32, falls = kernels.segment_cuts(
+            phi, q, np.array(cuts, dtype=np.int64), spacing, half
         )
         c = mu * spacing
         cos_half, sin_half = half_parts(half32)
@@ -166,9 +169,9 @@ def cut_samples(
         # the same sample gets the same carrier whatever the block cut, and the angle stays small
         delta = phi - np.repeat(c, ends - starts)
         cos_half, sin_half = base_parts(delta)
-    q = omega * (1.0 / rate_hz)
     seg = Segments(mu, starts, ends, zone_end, cuts, per_piece, c, half)
-    return Cut(seg, phi, q, delta, cos_half, sin_half, None if compiled else zones(seg, phi, q))
+    zoned = None if compiled else zones(seg, phi, q)
+    return Cut(seg, phi, q, delta, cos_half, sin_half, zoned, falls)
 
 
 def _packed(

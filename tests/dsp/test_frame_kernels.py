@@ -194,6 +194,49 @@ def test_compiled_frame_figures_give_the_numpy_bits(compiled, monkeypatch):
     assert (ms < 0.5 * np.sum(np.abs(x) ** 2, axis=1)).any()
 
 
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize("steps", [1, 3])
+def test_compiled_frame_codes_give_the_numpy_bits(compiled, steps, monkeypatch):
+    """Each frame's angle and flag bits (dsp.frame_figures.frame_codes through dsp.kernels,
+    compiled and as plain loops) against dsp.frame_figures.frame_codes_numpy: the same
+    angles bit for bit, the same codes, with every flag set somewhere and left out
+    somewhere (a NaN variance factor counts as lost samples, an rpm on the range's edge
+    is in it), with and without the leakage correction."""
+    from dsp.frame_figures import frame_codes_numpy
+
+    rng = np.random.default_rng(5)
+    f, n_ch = 60, 4
+    js = np.arange(1_000_003, 1_000_003 + f)
+    parity = rng.integers(0, steps + 1, f)
+    chains = rng.integers(-1, 3, f)
+    ambiguous = rng.random(f) < 0.3
+    rpm = rng.uniform(500.0, 7000.0, f)
+    rpm[:2] = 600.0, 6000.0  # the range's ends
+    rpm[2] = np.nan
+    ok = rng.random((f, n_ch)) < 0.8
+    corrected = rng.random((f, n_ch)) < 0.7
+    variance = np.ones((f, n_ch))
+    variance[[4, 9], [1, 3]] = 1.7, np.nan
+    spacing = 2 * np.pi / 4
+    if not compiled:
+        monkeypatch.setattr(kernels, "_jit", lambda fn: fn)
+    for correcting in (True, False):
+        args = (js, parity, spacing, steps, chains, ambiguous, rpm)
+        more = (ok, corrected, correcting, variance)
+        want_angles, want_codes = frame_codes_numpy(*args, (600.0, 6000.0), *more)
+        angles, codes = np.empty(f), np.empty(f, np.int64)
+        kernels.frame_codes(*args, 600.0, 6000.0, *more, angles, codes)
+        np.testing.assert_array_equal(angles, want_angles)
+        assert angles.tobytes() == want_angles.tobytes()
+        np.testing.assert_array_equal(codes, want_codes)
+        for bit in (16, 8, 4, 2) + ((1,) if correcting else ()):
+            assert 0 < np.count_nonzero(codes & bit) < f
+        assert codes[2] & 2 == 0 and codes[0] & 2 and codes[1] & 2
+        assert codes[4] & 16 and codes[9] & 16
+        if not correcting:
+            assert not (codes & 1).any()
+
+
 def test_compiled_frames_agree_with_numpy_in_any_blocks(monkeypatch):
     """Whole frames, the compiled path (every kernel: sums, lookup, window times, window
     sums, ramps) against the numpy path on the same blocks: times, speeds, flags and
@@ -230,3 +273,41 @@ def test_compiled_frames_agree_with_numpy_in_any_blocks(monkeypatch):
         assert (s.crank_angle_rad, s.flags) == (g.crank_angle_rad, g.flags)
         scale = np.abs(g.amplitudes).max()
         np.testing.assert_allclose(s.amplitudes, g.amplitudes, rtol=0, atol=1e-9 * scale)
+
+
+def test_compiled_frames_fill_lost_samples_as_numpy(monkeypatch):
+    """Samples lost in the tracked channels (NaN, and one infinite), each found by the
+    compiled path from one sum a channel (dsp.segments.accumulate): the same frames as
+    the numpy path, which checks every sum: flags, channel flags and variance factors
+    equal, amplitudes within 1e-12 of the frame's largest."""
+    rng = np.random.default_rng(11)
+    contents = [random_content(rng) for _ in range(3)]
+    bench = SyntheticBench(Ramp(1500.0, 3000.0, 2.0), contents, tdc_after_gap_deg=84.0)
+    config = OrderTrackerConfig(tacho=TachoConfig(tdc_after_gap_deg=84.0), orders=(1.0, 2.0))
+    items = []
+    for item in bench.items(2.5, block_s=0.1):
+        if isinstance(item, SampleBlock) and item.data.shape[0] >= 3:
+            data = np.array(item.data, dtype=float)
+            row = int(rng.integers(0, data.shape[0]))
+            data[row, rng.integers(0, data.shape[1], 3)] = np.nan
+            if item.first_index == 12_800:
+                data[row, 7] = np.inf
+            item = SampleBlock(item.group, item.first_index, data)
+        items.append(item)
+
+    def frames(compiled):
+        monkeypatch.setattr(kernels, "USE", compiled)
+        return [x for x in track_items(bench.layout, items, config) if isinstance(x, OrderFrame)]
+
+    want, got = frames(False), frames(True)
+    assert len(want) > 20 and len(got) == len(want)
+    assert any(w.variance_factor is not None for w in want)
+    for w, g in zip(want, got, strict=True):
+        assert (g.time_s, g.crank_angle_rad, g.flags) == (w.time_s, w.crank_angle_rad, w.flags)
+        np.testing.assert_array_equal(g.channel_ok, w.channel_ok)
+        if w.variance_factor is None:
+            assert g.variance_factor is None
+        else:
+            np.testing.assert_allclose(g.variance_factor, w.variance_factor, rtol=1e-12)
+        scale = np.nanmax(np.abs(w.amplitudes))
+        np.testing.assert_allclose(g.amplitudes, w.amplitudes, rtol=0, atol=1e-12 * scale)
