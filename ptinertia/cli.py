@@ -209,8 +209,9 @@ def imports_uncollected() -> Iterator[None]:
     Loading a command imports numpy, scipy, pydantic, mcap and the project: 0.5 s of CPU
     making some 130 000 objects that live as long as the process, over which the collector
     ran 180 times (38 ms) and, once the compiled kernels load, full collections walked them
-    all again (57 ms). Measured 2026-11-26 (``ptinertia run --duration 5``, CPU, load 3):
-    0.69 -> 0.64 s with the numpy kernels, 1.00 -> 0.91 s compiled. The imports leave
+    all again (57 ms). Measured 2026-11-26 (``ptinertia run --duration 5`` in fresh
+    processes, CPU best of 6, the builds interleaved, load 2.5-5): 0.71-0.77 -> 0.63-0.65 s
+    with the numpy kernels, 1.15-1.30 -> 0.98-1.07 s compiled. The imports leave
     about 1300 objects of cyclic garbage, frozen with the rest (a few hundred kB, once).
     A collector the caller switched off stays off.
     """
