@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from estimator.channel_noise import ChannelNoise
-from estimator.gating import FrameLike, revolution
+from estimator.gating import FrameLike, revolutions
 from estimator.kinematics import KinematicsError, RigidFit
 from estimator.setup import EstimatorSetup
 
@@ -56,14 +56,15 @@ class ChannelFits:
         self.generation = 0  # counts the weight changes (each makes new fit geometries)
 
     def screen(
-        self, frames: list[FrameLike]
+        self, frames: list[FrameLike], revs: list[int | None] | None = None
     ) -> list[tuple[np.ndarray, np.ndarray, Any, int, np.ndarray | None]]:
         """The usable channels of gated frames, their noise tracked: per frame the
         usable setup channels (bool), their columns in the frame, the channel noise
         variance and estimate count as they stand after the frame
         (:meth:`ChannelNoise.add_many`; release that count before the channel
         weights may be refreshed, and everything at the end of the block), and the
-        used channels' variance steps (:meth:`variance_steps`).
+        used channels' variance steps (:meth:`variance_steps`). ``revs``: the frames'
+        :func:`estimator.gating.revolutions`, when at hand.
 
         Frames sharing their channels and orders are masked with one array call."""
         if not frames:  # (a block of overlapping or rejected frames)
@@ -78,23 +79,26 @@ class ChannelFits:
             masks.extend(group)
             used_amps.extend(amps)
             start = end
-        tracked: list[tuple[int, tuple[float, ...], np.ndarray] | None] = []
-        for frame, x in zip(frames, used_amps, strict=True):
-            if (rev := revolution(frame)) is not None:
-                tracked.append((rev, tuple(frame.orders), x))
-            else:
-                tracked.append(None)
+        if revs is None:
+            revs = revolutions(frames)
+        tracked = [
+            (rev, tuple(f.orders), x)
+            for f, x, rev in zip(frames, used_amps, revs, strict=True)
+            if rev is not None
+        ]
         noise = self.channel_noise
         now = (noise.variance(), noise.estimates)  # until the block's first tracked frame
-        variances = iter(noise.add_many([t for t in tracked if t is not None]))
+        variances = iter(noise.add_many(tracked))
         after = []
-        for t in tracked:
-            if t is not None:
+        for rev in revs:
+            if rev is not None:
                 now = next(variances)
             after.append(now)
-        # channels that lost samples (dsp.gap_fit) weigh less: their variance steps
+        # channels that lost samples (dsp.gap_fit) weigh less: their variance steps (None
+        # without variance factors: no call per frame)
+        steps = self.variance_steps
         return [
-            (u, c, v, n, self.variance_steps(f, u, c))
+            (u, c, v, n, None if getattr(f, "variance_factor", None) is None else steps(f, u, c))
             for f, (u, c), (v, n) in zip(frames, masks, after, strict=True)
         ]
 
@@ -117,11 +121,12 @@ class ChannelFits:
                 return "sensor_geometry", None
         return None, fitter
 
-    def again(self, fit: RigidFit) -> None:
-        """:meth:`choose` for a later frame of a run whose first frame it chose ``fit``
-        for (the same channels and variance steps, :func:`estimator.fitted_runs.run_end`):
-        only the count of how long a sensor has been missing moves."""
-        self._unseen_run = 0 if fit.null is None else self._unseen_run + 1
+    def again(self, fit: RigidFit, frames: int = 1) -> None:
+        """:meth:`choose` for ``frames`` later frames of a run whose first frame it chose
+        ``fit`` for (the same channels and variance steps,
+        :func:`estimator.fitted_runs.run_end`): only the count of how long a sensor has
+        been missing moves (nothing reads it before the next :meth:`choose`: once a run)."""
+        self._unseen_run = 0 if fit.null is None else self._unseen_run + frames
 
     def _masks(
         self, frames: list[FrameLike]
@@ -210,4 +215,7 @@ class ChannelFits:
 
 def _same_layout(a: FrameLike, b: FrameLike) -> bool:
     """The two frames' amplitudes have the same channels and orders count."""
-    return a.channels == b.channels and a.amplitudes.shape == b.amplitudes.shape
+    # (a block's frames share their channel tuple: identity first, then its names)
+    return (a.channels is b.channels or a.channels == b.channels) and (
+        a.amplitudes.shape == b.amplitudes.shape
+    )

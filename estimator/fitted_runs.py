@@ -77,11 +77,13 @@ class FittedRun:
     relative: np.ndarray  # (n, k) the relative rigidity residual
     share: np.ndarray  # (n, k) that less the channel noise's mean
     beyond: np.ndarray  # (n, k) that beyond the channel noise's quantile
-    # set in __post_init__ (per run): the orders as Python floats, and more
+    # set in __post_init__ (per run): the orders as Python floats (a list and a tuple,
+    # which the frames' outcomes share), the rows of ``why``, ``relative``, ``share``,
+    # ``beyond`` as the residual gate takes them (:meth:`estimator.gating.OrderGates.judge`)
     order_list: list[float] = field(init=False, repr=False)
-    _gate_lists: tuple[list[Any], ...] = field(init=False, repr=False)
+    order_key: tuple[float, ...] = field(init=False, repr=False)
+    gate_lists: tuple[list[Any], ...] = field(init=False, repr=False)
     _power_sums: list[float] = field(init=False, repr=False)
-    _order_key: tuple[float, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         # per run, not per frame: the rows the residual gate and the queue take as Python
@@ -91,25 +93,19 @@ class FittedRun:
             self.why.tolist(), self.relative.tolist(), self.share.tolist(),
             self.beyond.tolist(),
         )  # fmt: skip
-        object.__setattr__(self, "_gate_lists", lists)
+        object.__setattr__(self, "gate_lists", lists)
         object.__setattr__(self, "order_list", self.orders.tolist())
-        object.__setattr__(self, "_order_key", tuple(self.order_list))
+        object.__setattr__(self, "order_key", tuple(self.order_list))
         # each frame's power summed over its orders: the bits of a frame's own sum (one
         # reduction per row)
         object.__setattr__(self, "_power_sums", np.add.reduce(self.power, axis=1).tolist())
-
-    def gate_inputs(self, j: int) -> tuple[list[int], list[float], list[float], list[float]]:
-        """Frame ``j``'s rows of ``why``, ``relative``, ``share``, ``beyond``, as the
-        residual gate takes them (:meth:`estimator.gating.OrderGates.judge`)."""
-        why, relative, share, beyond = self._gate_lists
-        return why[j], relative[j], share[j], beyond[j]
 
     def queued(self, j: int, cycle_unknown: bool) -> tuple[Any, ...]:
         """Frame ``j``'s half orders of unknown sign (``cycle_unknown``: the run's frames
         have no 720 deg reference), readings, power, force, moment, floor and gas, as
         :meth:`estimator.pending_rows.FrameQueue.add` takes them."""
         return (
-            half_orders(self._order_key, cycle_unknown), self.readings[j],
+            half_orders(self.order_key, cycle_unknown), self.readings[j],
             self._power_sums[j], self.force[j], self.moment[j], self.floor[j], self.gas[j],
         )  # fmt: skip
 
@@ -129,9 +125,11 @@ def fit_run(
     fit: RigidFit,
     frames: Sequence[FrameLike],
     run: list[Screened],
+    revs: list[int | None] | None = None,
 ) -> FittedRun:
     """Fit a run of screened frames with ``fit`` and apply the gates that remember
-    nothing (the curvature gate's history takes the run's motions)."""
+    nothing (the curvature gate's history takes the run's motions); ``revs``: the
+    block's :func:`estimator.gating.revolutions`, when at hand."""
     index = [s.position for s in run]
     run_frames = [frames[i] for i in index]
     orders = np.asarray(run_frames[0].orders, dtype=float)
@@ -149,7 +147,8 @@ def fit_run(
         # np.mean's sum and division without its wrapper's checks (the same bits)
         power = np.add.reduce(readings.real**2 + readings.imag**2, axis=2) / readings.shape[2]
     motions = fit.motions(x, residual_rms, relative, noise_var)
-    bends = gates.curvature(run_frames, orders, motions, fit, (x[:, :, 3:], noise_var))
+    run_revs = None if revs is None else [revs[i] for i in index]
+    bends = gates.curvature(run_frames, orders, motions, fit, (x[:, :, 3:], noise_var), run_revs)
     rpm_list = [f.rpm for f in run_frames]
     rpm = np.array(rpm_list, dtype=float)
     force, moment = run_excitation(setup, rpm_list, orders)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import collections
 import math
+from collections.abc import Sequence
 from typing import Protocol
 
 import numpy as np
@@ -218,11 +219,13 @@ class OrderGates:
         motions: list[RigidMotion],
         fit: RigidFit,
         arrays: tuple[np.ndarray, np.ndarray] | None = None,
+        revs: list[int | None] | None = None,
     ) -> np.ndarray:
         """(n_frames, k): relative second difference of Omega' per order over three frames
         720 deg apart, less what the measurement noise explains (0 where not known).
         ``arrays``: the ``motions``' Omega' (n, k, 3) and noise variances (n, k) as
-        arrays, when at hand (:meth:`RigidFit.fit_arrays`; then the motions are ``fit``'s).
+        arrays, when at hand (:meth:`RigidFit.fit_arrays`; then the motions are ``fit``'s);
+        ``revs``: the frames' :func:`revolutions`, when at hand.
 
         Along the mass line the rigid motion of an order changes slowly and almost
         linearly with rpm; near a rigid-body mode it bends sharply, and there the
@@ -231,7 +234,8 @@ class OrderGates:
         mass-line sweeps up to 150 rpm/s, 0.1-130 % in a 60 rpm/s sweep through the
         modes, where the frame errors reach 0.2-28 %.
         """
-        revs = [revolution(f) for f in frames]
+        if revs is None:
+            revs = revolutions(frames)
         at = [j for j, r in enumerate(revs) if r is not None]
         if not at:
             return np.zeros((len(frames), len(orders)))
@@ -358,6 +362,17 @@ def revolution(frame: FrameLike) -> int | None:
     if angle is None or not math.isfinite(angle):  # (np.isfinite: a ufunc call per frame)
         return None
     return round(float(angle) / (2 * np.pi))
+
+
+def revolutions(frames: Sequence[FrameLike]) -> list[int | None]:
+    """:func:`revolution` of each of ``frames``, in one loop (a block's revolutions are
+    read by the overlap gate, the channel noise and the curvature gate: taken once)."""
+    out: list[int | None] = []
+    append, isfinite = out.append, math.isfinite
+    for frame in frames:
+        angle = getattr(frame, "crank_angle_rad", None)
+        append(None if angle is None or not isfinite(angle) else round(float(angle) / _TWO_PI))
+    return out
 
 
 def overlaps_previous(frame: FrameLike) -> bool:

@@ -33,9 +33,9 @@ from estimator.equations import (
     linearisation_at,
     parameter_scale,
 )
-from estimator.fitted_runs import FittedRun, Screened, fit_run, run_end
+from estimator.fitted_runs import Screened, fit_run, run_end
 from estimator.flush import flush
-from estimator.gating import FrameLike, Judged, OrderGates, frame_gate, overlaps_previous
+from estimator.gating import FrameLike, OrderGates, frame_gate, revolutions
 from estimator.hypotheses import (
     DECIDE_AFTER_FRAMES,
     DECIDE_RATIO,
@@ -146,8 +146,10 @@ class InertiaEstimator:
         gated: list[int] = []
         gates = self.setup.gates
         independent = gates.independent_frames
+        revs = revolutions(frames)  # (once: the overlap gate, channel noise and curvature)
         for i, frame in enumerate(frames):
-            if independent and overlaps_previous(frame):
+            # (overlaps_previous: an odd revolution number)
+            if independent and (rev := revs[i]) is not None and rev % 2 == 1:
                 self.stats.skipped += 1
                 outcomes[i] = FrameOutcome(frame.time_s, frame.rpm, (), {}, "overlapping", {})
                 continue
@@ -155,7 +157,7 @@ class InertiaEstimator:
                 gated.append(i)
             else:
                 outcomes[i] = self._reject(frame, reason)
-        screened = self.channels.screen([frames[i] for i in gated])
+        screened = self.channels.screen([frames[i] for i in gated], [revs[i] for i in gated])
         todo = [Screened(i, *s) for i, s in zip(gated, screened, strict=True)]
         at = 0
         while at < len(todo):
@@ -165,7 +167,7 @@ class InertiaEstimator:
                 at += 1
                 continue
             assert fit is not None
-            at += self._fit_run(frames, todo[at : run_end(frames, todo, at)], fit, outcomes)
+            at += self._fit_run(frames, todo[at : run_end(frames, todo, at)], fit, outcomes, revs)
         self.channels.channel_noise.release(self.channels.channel_noise.estimates)
         if elastic_before is None and self.elastic is not None and frames:
             self._events.append(elastic_mode_event(self.elastic, frames[-1].time_s))
@@ -177,70 +179,71 @@ class InertiaEstimator:
         run: list[Screened],
         fit: RigidFit,
         outcomes: list[FrameOutcome | None],
+        revs: list[int | None] | None = None,
     ) -> int:
         """Fit, gate and queue a run of frames fitted alike with ``fit``; returns how many
         were done: all, or those up to a relinearisation that changed the channel
         weights (the rest are fitted anew)."""
         history = self.gates.motion_history.copy()
-        r = fit_run(self.setup, self.gates, fit, frames, run)
-        order_list = r.order_list
-        channels = self.channels
+        r = fit_run(self.setup, self.gates, fit, frames, run, revs)
+        order_list, order_key, n_orders = r.order_list, r.order_key, len(r.order_list)
+        channels, stats, motions = self.channels, self.stats, r.motions
         generation = channels.generation
         # (per run, not per frame: the bound methods and what every frame reads)
-        release, judge = channels.channel_noise.release, self.gates.judge
-        gas_known, gas = self.setup.gas_moment is not None, r.gas
+        judge, add, queued = self.gates.judge, self.queue.add, r.queued
+        why, relative, share, beyond = r.gate_lists
+        gas_known, gas, orders = self.setup.gas_moment is not None, r.gas, r.orders
+        cycle_unknown = self.cycle_unknown
+        # (the sign hypotheses of the fully measured frames: frames with an unseen
+        # motion decide their own, see estimator.partial_pairs)
+        tested = cycle_unknown and fit.null is None
+        done = len(run)
         for j, i in enumerate(r.index):
-            if j:
-                channels.again(fit)  # counts how long a sensor has been missing
-            release(run[j].estimates)  # weights: frames so far
             frame = frames[i]
             if gas_known and gas[j] is None:
                 outcomes[i] = self._reject(frame, "no_pressure")
                 continue
-            judged = judge(frame.rpm, order_list, *r.gate_inputs(j))
-            outcomes[i] = self._use(frame, fit, r, j, judged)
+            rpm = frame.rpm
+            rejected, residuals, ks = judge(
+                rpm, order_list, why[j], relative[j], share[j], beyond[j]
+            )
+            if rejected:
+                stats.orders_rejected.update(rejected.values())
+            if not ks:
+                counts = Counter(rejected.values())
+                reason = counts.most_common(1)[0][0] if counts else "no_orders"
+                outcomes[i] = self._reject(frame, reason)
+                continue
+            motion = motions[j]
+            add(rpm, fit, motion, ks, orders, *queued(j, cycle_unknown))
+            stats.count_used(rpm, tested, tested and "cycle_ambiguous" not in frame.flags)
+            used_orders = order_key if len(ks) == n_orders else tuple([order_list[k] for k in ks])
+            outcomes[i] = FrameOutcome(
+                frame.time_s, rpm, used_orders, rejected, None, residuals, motion
+            )
+            # Relinearise after the first used frame (the nominal cog may be centimetres
+            # off) and then after every full batch.
+            # (Counted in used frames, not queued ones: an early flush for a published
+            # estimate must not move the relinearisation points.)
+            if not relinearise_due(stats.used):
+                continue
+            channels.channel_noise.release(run[j].estimates)  # weights: frames so far
+            relinearise(self)
             if channels.generation != generation and j + 1 < len(run):
                 # the next frames are fitted with the new weights: the curvature
                 # history must hold this run's motions only up to here
                 self.gates.motion_history = history
-                done = [frames[k] for k in r.index[: j + 1]]
-                self.gates.curvature(done, r.orders, r.motions[: j + 1], fit)
-                return j + 1
-        return len(run)
+                before = [frames[k] for k in r.index[: j + 1]]
+                self.gates.curvature(before, orders, motions[: j + 1], fit)
+                done = j + 1
+                break
+        channels.again(fit, done - 1)  # counts how long a sensor has been missing
+        return done
 
     def take_events(self) -> list[SourceEvent]:
         """What the estimator has to report since the last call (an elastic mode confirmed)."""
         events, self._events = self._events, []
         return events
-
-    def _use(
-        self, frame: FrameLike, fitter: RigidFit, run: FittedRun, j: int, judged: Judged
-    ) -> FrameOutcome:
-        """Queue the usable orders of frame ``j`` of a fitted run (``judged``: the order
-        gates' verdict, :meth:`OrderGates.judge`), and relinearise when due."""
-        rejected, residuals, ks = judged
-        if rejected:
-            self.stats.orders_rejected.update(rejected.values())
-        if not ks:
-            counts = Counter(rejected.values())
-            return self._reject(frame, counts.most_common(1)[0][0] if counts else "no_orders")
-        motion, orders = run.motions[j], run.orders
-        self.queue.add(frame.rpm, fitter, motion, ks, orders, *run.queued(j, self.cycle_unknown))
-        # (the sign hypotheses of the fully measured frames: frames with an unseen
-        # motion decide their own, see estimator.partial_pairs)
-        tested = self.cycle_unknown and fitter.null is None
-        self.stats.count_used(frame.rpm, tested, tested and "cycle_ambiguous" not in frame.flags)
-        # Relinearise after the first used frame (the nominal cog may be centimetres
-        # off) and then after every full batch.
-        # (Counted in used frames, not queued ones: an early flush for a published
-        # estimate must not move the relinearisation points.)
-        if relinearise_due(self.stats.used):
-            relinearise(self)
-        order_list = run.order_list
-        used_orders = tuple(
-            order_list if len(ks) == len(order_list) else [order_list[k] for k in ks]
-        )
-        return FrameOutcome(frame.time_s, frame.rpm, used_orders, rejected, None, residuals, motion)
 
     def _reject(self, frame: FrameLike, reason: str) -> FrameOutcome:
         self.stats.rejected[reason] += 1
