@@ -71,10 +71,17 @@ class ChannelFits:
             return []
         masks: list[tuple[np.ndarray, np.ndarray]] = []
         used_amps: list[np.ndarray] = []  # per frame (k, n_setup), NaN where not used
-        start = 0
-        for end in range(1, len(frames) + 1):
-            if end < len(frames) and _same_layout(frames[end], frames[start]):
-                continue
+        start, n = 0, len(frames)
+        while start < n:  # (groups of frames with the same channels and orders count)
+            first = frames[start]
+            channels, shape = first.channels, first.amplitudes.shape
+            end = start + 1
+            # (a block's frames share their channel tuple: identity first, then its names)
+            while end < n and (
+                ((c := frames[end].channels) is channels or c == channels)
+                and frames[end].amplitudes.shape == shape
+            ):
+                end += 1
             group, amps = self._masks(frames[start:end])
             masks.extend(group)
             used_amps.extend(amps)
@@ -211,11 +218,3 @@ class ChannelFits:
         if not self._measure_weights or self.weights is None:
             return None
         return dict(zip(self.setup.channels, self.weights.tolist(), strict=True))
-
-
-def _same_layout(a: FrameLike, b: FrameLike) -> bool:
-    """The two frames' amplitudes have the same channels and orders count."""
-    # (a block's frames share their channel tuple: identity first, then its names)
-    return (a.channels is b.channels or a.channels == b.channels) and (
-        a.amplitudes.shape == b.amplitudes.shape
-    )

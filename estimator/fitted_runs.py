@@ -59,6 +59,12 @@ def run_end(frames: Sequence[FrameLike], todo: list[Screened], at: int) -> int:
     return end
 
 
+# FittedRun.queued: half, readings, power sum, force, moment, floor, gas of a frame
+Queued = tuple[
+    np.ndarray, np.ndarray, float, np.ndarray, np.ndarray, list[float], np.ndarray | None
+]
+
+
 @dataclass(frozen=True)
 class FittedRun:
     """A run's fits and what the gates that remember nothing make of them; the arrays'
@@ -84,6 +90,7 @@ class FittedRun:
     order_key: tuple[float, ...] = field(init=False, repr=False)
     gate_lists: tuple[list[Any], ...] = field(init=False, repr=False)
     _power_sums: list[float] = field(init=False, repr=False)
+    _floors: list[list[float]] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         # per run, not per frame: the rows the residual gate and the queue take as Python
@@ -99,14 +106,15 @@ class FittedRun:
         # each frame's power summed over its orders: the bits of a frame's own sum (one
         # reduction per row)
         object.__setattr__(self, "_power_sums", np.add.reduce(self.power, axis=1).tolist())
+        object.__setattr__(self, "_floors", self.floor.tolist())  # (the queue's, as lists)
 
-    def queued(self, j: int, cycle_unknown: bool) -> tuple[Any, ...]:
+    def queued(self, j: int, cycle_unknown: bool) -> Queued:
         """Frame ``j``'s half orders of unknown sign (``cycle_unknown``: the run's frames
-        have no 720 deg reference), readings, power, force, moment, floor and gas, as
-        :meth:`estimator.pending_rows.FrameQueue.add` takes them."""
+        have no 720 deg reference), readings, power, force, moment, floor (a list) and gas,
+        as :meth:`estimator.pending_rows.FrameQueue.add` takes them."""
         return (
             half_orders(self.order_key, cycle_unknown), self.readings[j],
-            self._power_sums[j], self.force[j], self.moment[j], self.floor[j], self.gas[j],
+            self._power_sums[j], self.force[j], self.moment[j], self._floors[j], self.gas[j],
         )  # fmt: skip
 
 
@@ -217,7 +225,8 @@ def gas_moments(
         (j, p) for j, f in enumerate(frames) if (p := getattr(f, "spectrum", None)) is not None
     ]
     many = getattr(setup.gas_moment, "many", None)
-    shapes = {np.shape(p) for _, p in given}
+    # (an array's own shape: np.shape's dispatch costs more, once per frame)
+    shapes = {p.shape if isinstance(p, np.ndarray) else np.shape(p) for _, p in given}
     if many is not None and len(shapes) == 1 and len(next(iter(shapes))) == 1:
         stack = np.array([p for _, p in given])  # (m, n_half): a frame's pressure orders
         finite = np.isfinite(stack).all(axis=1)

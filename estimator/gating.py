@@ -72,6 +72,39 @@ def frame_gate(frame: FrameLike, gates: Gates) -> str | None:
     return None
 
 
+def frame_reasons(
+    frames: Sequence[FrameLike], revs: list[int | None], gates: Gates
+) -> list[str | None]:
+    """Why each of a block's ``frames`` is unusable as a whole: "overlapping" for the
+    frames between the 720 deg-spaced ones (odd revolution numbers ``revs``, see
+    :func:`revolutions`) when ``gates.independent_frames``, else :func:`frame_gate`'s
+    reason (None: usable). One loop with the gates' limits at hand (a block's frames
+    pass these tests one after another)."""
+    lo, hi = gates.rpm_range
+    most, independent = gates.max_rpm_change, gates.independent_frames
+    isfinite, tacho = math.isfinite, TACHO_FLAGS
+    out: list[str | None] = []
+    append = out.append
+    for frame, rev in zip(frames, revs, strict=True):
+        if independent and rev is not None and rev % 2 == 1:
+            append("overlapping")
+            continue
+        rpm, flags = frame.rpm, frame.flags
+        if not isfinite(rpm) or rpm <= 0:
+            append("no_rpm")
+        elif flags and not tacho.isdisjoint(flags):  # (most frames: no flags at all)
+            append("tacho")
+        elif flags and "leakage_uncorrected" in flags:
+            append("dsp_settling")
+        elif rpm < lo or rpm > hi:
+            append("rpm_out_of_range")
+        elif abs(frame.rpm_change) > most:
+            append("rpm_unsteady")
+        else:
+            append(None)
+    return out
+
+
 class OrderGates:
     """The gates that remember earlier frames, per tracked order set and per order."""
 

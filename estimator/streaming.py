@@ -35,7 +35,7 @@ from estimator.equations import (
 )
 from estimator.fitted_runs import Screened, fit_run, run_end
 from estimator.flush import flush
-from estimator.gating import FrameLike, OrderGates, frame_gate, revolutions
+from estimator.gating import FrameLike, OrderGates, frame_reasons, revolutions
 from estimator.hypotheses import (
     DECIDE_AFTER_FRAMES,
     DECIDE_RATIO,
@@ -144,19 +144,17 @@ class InertiaEstimator:
         outcomes: list[FrameOutcome | None] = [None] * len(frames)
         elastic_before = self.elastic
         gated: list[int] = []
-        gates = self.setup.gates
-        independent = gates.independent_frames
         revs = revolutions(frames)  # (once: the overlap gate, channel noise and curvature)
-        for i, frame in enumerate(frames):
-            # (overlaps_previous: an odd revolution number)
-            if independent and (rev := revs[i]) is not None and rev % 2 == 1:
-                self.stats.skipped += 1
-                outcomes[i] = FrameOutcome(frame.time_s, frame.rpm, (), {}, "overlapping", {})
-                continue
-            if (reason := frame_gate(frame, gates)) is None:
+        reject = self._reject
+        for i, reason in enumerate(frame_reasons(frames, revs, self.setup.gates)):
+            if reason is None:
                 gated.append(i)
+            elif reason == "overlapping":
+                self.stats.skipped += 1
+                frame = frames[i]
+                outcomes[i] = FrameOutcome(frame.time_s, frame.rpm, (), {}, "overlapping", {})
             else:
-                outcomes[i] = self._reject(frame, reason)
+                outcomes[i] = reject(frames[i], reason)
         screened = self.channels.screen([frames[i] for i in gated], [revs[i] for i in gated])
         todo = [Screened(i, *s) for i, s in zip(gated, screened, strict=True)]
         at = 0
@@ -215,7 +213,7 @@ class InertiaEstimator:
                 outcomes[i] = self._reject(frame, reason)
                 continue
             motion = motions[j]
-            add(rpm, fit, motion, ks, orders, *queued(j, cycle_unknown))
+            add(rpm, fit, motion, ks, orders, *queued(j, cycle_unknown), order_list)
             stats.count_used(rpm, tested, tested and "cycle_ambiguous" not in frame.flags)
             used_orders = order_key if len(ks) == n_orders else tuple([order_list[k] for k in ks])
             outcomes[i] = FrameOutcome(
@@ -263,7 +261,7 @@ class InertiaEstimator:
                 self.decided_sign = best
                 self.decision = {"ratio": ratio, "after_frames": self.stats.ambiguous_frames}
         sol = self.solve(self.best_state().state)
-        if not np.all(sol.observable[:9]):
+        if not sol.observable[:9].all():
             return
         lin = linearisation_at(self.layout, sol.theta, sol.observable, self.lin.mass)
         if np.linalg.eigvalsh(lin.inertia)[0] <= 0:
