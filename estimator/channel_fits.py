@@ -146,7 +146,7 @@ class ChannelFits:
         ok = np.array([f.channel_ok for f in frames], dtype=bool)
         if at is not None:  # (a copy either way: the same values)
             amps, ok = amps[:, :, at], ok[:, at]
-        finite = np.isfinite(amps).all(axis=1)
+        finite = np.logical_and.reduce(np.isfinite(amps), axis=1)  # (.all without its wrapper)
         used = present & ok & finite
         return [(row, cols) for row in used], np.where(used[:, None, :], amps, np.nan)
 

@@ -82,6 +82,14 @@ class ThinnedSample:
         if not self._seen % self._stride:
             self._keep(item)
 
+    def extend(self, items: Any) -> None:
+        """:meth:`add` of each of ``items`` in turn (one call for a block's)."""
+        keep = self._keep
+        for item in items:
+            self._seen += 1
+            if not self._seen % self._stride:
+                keep(item)
+
     def add_made(self, make: Callable[[], Any]) -> None:
         """:meth:`add` of ``make()``, called only when the item is kept."""
         self._seen += 1
@@ -129,9 +137,11 @@ class ChannelNoise:
 
     def release(self, upto: int) -> None:
         """Let the first ``upto`` per-frame estimates count in :meth:`weights`."""
-        while self._released < upto:
-            self._kept.add(self._held.popleft())
-            self._released += 1
+        if self._released >= upto:
+            return
+        held = self._held
+        self._kept.extend([held.popleft() for _ in range(upto - self._released)])
+        self._released = upto
 
     def add_many(
         self, frames: list[tuple[int, tuple[float, ...], np.ndarray]]

@@ -229,14 +229,20 @@ class OrderGates:
         residuals = dict(zip(orders, relative, strict=True))
         used: list[int] = []
         limits, top = self.residual_limit, self.setup.gates.max_relative_residual
-        past_limit = self._past_limit
+        past_limit, recents = self._past_limit, self._non_rigid_recent
         for k, h in enumerate(orders):
             w = why[k]
             if w:
                 reason: str | None = ORDER_REASONS[w]
             elif relative[k] <= top and (limit := limits.get(h)) is not None:
-                # :meth:`residual` once the order's baseline is set (the rule), directly
-                reason = past_limit(h, rpm, beyond[k], limit)
+                # :meth:`residual` once the order's baseline is set (the rule), directly;
+                # within the limit, :meth:`_past_limit`'s one step inline (most orders)
+                excess = beyond[k]
+                if excess > limit or (recent := recents.get(h)) is None:
+                    reason = past_limit(h, rpm, excess, limit)
+                else:
+                    recent.append(False)
+                    reason = None
             else:
                 reason = self.residual(h, rpm, relative[k], share[k], beyond[k])
             if reason:
