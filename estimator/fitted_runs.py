@@ -89,8 +89,8 @@ class FittedRun:
     order_list: list[float] = field(init=False, repr=False)
     order_key: tuple[float, ...] = field(init=False, repr=False)
     gate_lists: tuple[list[Any], ...] = field(init=False, repr=False)
-    _power_sums: list[float] = field(init=False, repr=False)
-    _floors: list[list[float]] = field(init=False, repr=False)
+    # what the queue takes of each frame (:meth:`queued`), as per-frame lists
+    queue_rows: tuple[list[Any], ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         # per run, not per frame: the rows the residual gate and the queue take as Python
@@ -103,18 +103,24 @@ class FittedRun:
         object.__setattr__(self, "gate_lists", lists)
         object.__setattr__(self, "order_list", self.orders.tolist())
         object.__setattr__(self, "order_key", tuple(self.order_list))
-        # each frame's power summed over its orders: the bits of a frame's own sum (one
-        # reduction per row)
-        object.__setattr__(self, "_power_sums", np.add.reduce(self.power, axis=1).tolist())
-        object.__setattr__(self, "_floors", self.floor.tolist())  # (the queue's, as lists)
+        # each frame's readings, power summed over its orders (the bits of a frame's own
+        # sum: one reduction per row), force, moment, floor (a list) and gas: the rows
+        # taken once per run (an array's rows by iterating it: the views indexing makes)
+        rows = (
+            list(self.readings), np.add.reduce(self.power, axis=1).tolist(), list(self.force),
+            list(self.moment), self.floor.tolist(), self.gas,
+        )  # fmt: skip
+        object.__setattr__(self, "queue_rows", rows)
 
     def queued(self, j: int, cycle_unknown: bool) -> Queued:
         """Frame ``j``'s half orders of unknown sign (``cycle_unknown``: the run's frames
         have no 720 deg reference), readings, power, force, moment, floor (a list) and gas,
-        as :meth:`estimator.pending_rows.FrameQueue.add` takes them."""
+        as :meth:`estimator.pending_rows.FrameQueue.add` takes them (the streaming
+        estimator reads them from ``queue_rows`` and :func:`half_orders` directly)."""
+        readings, power, force, moment, floor, gas = self.queue_rows
         return (
-            half_orders(self.order_key, cycle_unknown), self.readings[j],
-            self._power_sums[j], self.force[j], self.moment[j], self._floors[j], self.gas[j],
+            half_orders(self.order_key, cycle_unknown), readings[j], power[j], force[j],
+            moment[j], floor[j], gas[j],
         )  # fmt: skip
 
 
@@ -234,6 +240,8 @@ def gas_moments(
         if not at:
             return gas, [], None
         moments = many(orders, stack if len(at) == len(given) else stack[finite])
+        if len(at) == len(gas):  # (every frame's: its rows as they are)
+            return list(moments), at, moments
         for j, g in zip(at, moments, strict=True):
             gas[j] = g
         return gas, at, moments

@@ -33,7 +33,7 @@ from estimator.equations import (
     linearisation_at,
     parameter_scale,
 )
-from estimator.fitted_runs import Screened, fit_run, run_end
+from estimator.fitted_runs import Screened, fit_run, half_orders, run_end
 from estimator.flush import flush
 from estimator.gating import FrameLike, OrderGates, frame_reasons, revolutions
 from estimator.hypotheses import (
@@ -188,10 +188,12 @@ class InertiaEstimator:
         channels, stats, motions = self.channels, self.stats, r.motions
         generation = channels.generation
         # (per run, not per frame: the bound methods and what every frame reads)
-        judge, add, queued = self.gates.judge, self.queue.add, r.queued
+        judge, add = self.gates.judge, self.queue.add
         why, relative, share, beyond = r.gate_lists
-        gas_known, gas, orders = self.setup.gas_moment is not None, r.gas, r.orders
+        gas_known, orders = self.setup.gas_moment is not None, r.orders
+        readings, power, force, moment, floor, gas = r.queue_rows  # (FittedRun.queued)
         cycle_unknown = self.cycle_unknown
+        half = half_orders(order_key, cycle_unknown)
         # (the sign hypotheses of the fully measured frames: frames with an unseen
         # motion decide their own, see estimator.partial_pairs)
         tested = cycle_unknown and fit.null is None
@@ -213,7 +215,10 @@ class InertiaEstimator:
                 outcomes[i] = self._reject(frame, reason)
                 continue
             motion = motions[j]
-            add(rpm, fit, motion, ks, orders, *queued(j, cycle_unknown), order_list)
+            add(
+                rpm, fit, motion, ks, orders, half, readings[j], power[j], force[j],
+                moment[j], floor[j], gas[j], order_list,
+            )  # fmt: skip
             stats.count_used(rpm, tested, tested and "cycle_ambiguous" not in frame.flags)
             used_orders = order_key if len(ks) == n_orders else tuple([order_list[k] for k in ks])
             outcomes[i] = FrameOutcome(
