@@ -47,14 +47,24 @@ class Screened(NamedTuple):
 def run_end(frames: Sequence[FrameLike], todo: list[Screened], at: int) -> int:
     """The end of the run starting at ``todo[at]``: the frames after it with the same
     usable channels, variance steps (the same fit geometry) and orders."""
-
-    def key(s: Screened) -> tuple[bytes, bytes, tuple[float, ...]]:
-        steps = b"" if s.steps is None else s.steps.tobytes()
-        return s.used.tobytes(), steps, tuple(frames[s.position].orders)
-
-    first = key(todo[at])
-    end = at + 1
-    while end < len(todo) and key(todo[end]) == first:
+    first = todo[at]
+    used, steps = first.used.tobytes(), first.steps
+    orders = frames[first.position].orders
+    steps_bytes = None if steps is None else steps.tobytes()
+    end, n = at + 1, len(todo)
+    # (the first frame's key once, each later frame's compared part by part)
+    while end < n:
+        s = todo[end]
+        if s.used.tobytes() != used:
+            break
+        more = s.steps
+        if (more is None) != (steps_bytes is None) or (
+            more is not None and more.tobytes() != steps_bytes
+        ):
+            break
+        o = frames[s.position].orders
+        if o is not orders and tuple(o) != tuple(orders):
+            break
         end += 1
     return end
 
@@ -235,7 +245,7 @@ def gas_moments(
     shapes = {p.shape if isinstance(p, np.ndarray) else np.shape(p) for _, p in given}
     if many is not None and len(shapes) == 1 and len(next(iter(shapes))) == 1:
         stack = np.array([p for _, p in given])  # (m, n_half): a frame's pressure orders
-        finite = np.isfinite(stack).all(axis=1)
+        finite = np.logical_and.reduce(np.isfinite(stack), axis=1)  # (.all, no wrapper)
         at = [j for (j, _), ok in zip(given, finite.tolist(), strict=True) if ok]
         if not at:
             return gas, [], None

@@ -156,7 +156,8 @@ class InertiaEstimator:
             else:
                 outcomes[i] = reject(frames[i], reason)
         screened = self.channels.screen([frames[i] for i in gated], [revs[i] for i in gated])
-        todo = [Screened(i, *s) for i, s in zip(gated, screened, strict=True)]
+        # (tuple.__new__: what the named tuple's __new__ calls, without its frame)
+        todo = [tuple.__new__(Screened, (i, *s)) for i, s in zip(gated, screened, strict=True)]
         at = 0
         while at < len(todo):
             reason, fit = self.channels.choose(todo[at].used, todo[at].steps)
