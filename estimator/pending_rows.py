@@ -186,7 +186,8 @@ class FrameQueue:
             h, raw, dsp = hs[k], raws[k], dsps[k]
             var = 0.8 * smoothed[h] + 0.2 * raw if h in smoothed else raw
             smoothed[h] = var
-            var = max(var, floor)
+            if floor > var:  # (max(var, floor) without the call: var when either is NaN)
+                var = floor
             # np.maximum on floats: the larger, NaN if either is (max() would drop a NaN dsp)
             out.append(var if var >= dsp or var != var else dsp)
         return out
