@@ -96,18 +96,17 @@ class ChannelFits:
         noise = self.channel_noise
         now = (noise.variance(), noise.estimates)  # until the block's first tracked frame
         variances = iter(noise.add_many(tracked))
-        after = []
-        for rev in revs:
-            if rev is not None:
-                now = next(variances)
-            after.append(now)
         # channels that lost samples (dsp.gap_fit) weigh less: their variance steps (None
         # without variance factors: no call per frame)
         steps = self.variance_steps
-        return [
-            (u, c, v, n, None if getattr(f, "variance_factor", None) is None else steps(f, u, c))
-            for f, (u, c), (v, n) in zip(frames, masks, after, strict=True)
-        ]
+        out: list[tuple[np.ndarray, np.ndarray, Any, int, np.ndarray | None]] = []
+        for f, (u, cols), rev in zip(frames, masks, revs, strict=True):
+            if rev is not None:
+                now = next(variances)
+            v, n_est = now
+            factor = getattr(f, "variance_factor", None)
+            out.append((u, cols, v, n_est, None if factor is None else steps(f, u, cols)))
+        return out
 
     def choose(
         self, used: np.ndarray, steps: np.ndarray | None = None

@@ -145,16 +145,17 @@ class InertiaEstimator:
         elastic_before = self.elastic
         gated: list[int] = []
         revs = revolutions(frames)  # (once: the overlap gate, channel noise and curvature)
-        reject = self._reject
+        reject, skipped = self._reject, 0
         for i, reason in enumerate(frame_reasons(frames, revs, self.setup.gates)):
             if reason is None:
                 gated.append(i)
             elif reason == "overlapping":
-                self.stats.skipped += 1
+                skipped += 1
                 frame = frames[i]
                 outcomes[i] = FrameOutcome(frame.time_s, frame.rpm, (), {}, "overlapping", {})
             else:
                 outcomes[i] = reject(frames[i], reason)
+        self.stats.skipped += skipped
         screened = self.channels.screen([frames[i] for i in gated], [revs[i] for i in gated])
         # (tuple.__new__: what the named tuple's __new__ calls, without its frame)
         todo = [tuple.__new__(Screened, (i, *s)) for i, s in zip(gated, screened, strict=True)]
