@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from estimator.channel_noise import ChannelNoise
-from estimator.gating import FrameLike, revolutions
+from estimator.frame_gates import FrameLike, revolutions
 from estimator.kinematics import KinematicsError, RigidFit
 from estimator.setup import EstimatorSetup
 
@@ -64,7 +64,7 @@ class ChannelFits:
         (:meth:`ChannelNoise.add_many`; release that count before the channel
         weights may be refreshed, and everything at the end of the block), and the
         used channels' variance steps (:meth:`variance_steps`). ``revs``: the frames'
-        :func:`estimator.gating.revolutions`, when at hand.
+        :func:`estimator.frame_gates.revolutions`, when at hand.
 
         Frames sharing their channels and orders are masked with one array call."""
         if not frames:  # (a block of overlapping or rejected frames)

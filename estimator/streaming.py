@@ -35,7 +35,8 @@ from estimator.equations import (
 )
 from estimator.fitted_runs import Screened, fit_run, half_orders, run_end
 from estimator.flush import flush
-from estimator.gating import FrameLike, OrderGates, frame_reasons, revolutions
+from estimator.frame_gates import FrameLike, frame_reasons, revolutions
+from estimator.gating import OrderGates
 from estimator.hypotheses import (
     DECIDE_AFTER_FRAMES,
     DECIDE_RATIO,

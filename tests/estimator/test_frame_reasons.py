@@ -1,4 +1,4 @@
-"""A block's frame gates in one loop (``gating.frame_reasons``, ``gating.revolutions``) give
+"""A block's frame gates in one loop (``frame_gates.frame_reasons``, ``revolutions``) give
 each frame what the per-frame gates give it (``frame_gate``, ``overlaps_previous``,
 ``revolution``): the same reason, in the same precedence, for every kind of frame."""
 
@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from estimator.gating import (
+from estimator.frame_gates import (
     frame_gate,
     frame_reasons,
     overlaps_previous,
