@@ -1,8 +1,8 @@
 """The gates of whole frames: crank speed, tacho, dsp settling, steadiness, overlap.
 
 A block's frames are judged in one loop (:func:`frame_reasons`) with the gates' limits
-at hand, and their revolution numbers taken once (:func:`revolutions`: the overlap
-gate, the channel noise and the curvature gate all read them); :func:`frame_gate`,
+at hand, their revolution numbers taken in it once (the overlap gate, the channel noise
+and the curvature gate all read them; :func:`revolutions` alone); :func:`frame_gate`,
 :func:`revolution` and :func:`overlaps_previous` are the same tests for one frame (a
 test pins the block's loop to them). The gates of orders, which remember earlier
 frames, are in :mod:`estimator.gating`.
@@ -50,22 +50,29 @@ def frame_gate(frame: FrameLike, gates: Gates) -> str | None:
 
 
 def frame_reasons(
-    frames: Sequence[FrameLike], revs: list[int | None], gates: Gates
-) -> list[str | None]:
+    frames: Sequence[FrameLike], gates: Gates
+) -> tuple[list[str | None], list[int | None]]:
     """Why each of a block's ``frames`` is unusable as a whole: "overlapping" for the
-    frames between the 720 deg-spaced ones (odd revolution numbers ``revs``, see
-    :func:`revolutions`) when ``gates.independent_frames``, else :func:`frame_gate`'s
-    reason (None: usable). One loop with the gates' limits at hand (a block's frames
-    pass these tests one after another)."""
+    frames between the 720 deg-spaced ones (odd revolution numbers) when
+    ``gates.independent_frames``, else :func:`frame_gate`'s reason (None: usable); and
+    each frame's :func:`revolution` (the channel noise and the curvature gate read them
+    too). One loop with the gates' limits at hand (a block's frames pass these tests
+    one after another)."""
     lo, hi = gates.rpm_range
     most, independent = gates.max_rpm_change, gates.independent_frames
     isfinite, tacho = math.isfinite, TACHO_FLAGS
     out: list[str | None] = []
-    append = out.append
-    for frame, rev in zip(frames, revs, strict=True):
-        if independent and rev is not None and rev % 2 == 1:
-            append("overlapping")
-            continue
+    revs: list[int | None] = []
+    append, append_rev = out.append, revs.append
+    for frame in frames:
+        angle = getattr(frame, "crank_angle_rad", None)
+        if angle is None or not isfinite(angle):
+            append_rev(None)
+        else:
+            append_rev(rev := round(float(angle) / _TWO_PI))
+            if independent and rev % 2 == 1:
+                append("overlapping")
+                continue
         rpm, flags = frame.rpm, frame.flags
         if not isfinite(rpm) or rpm <= 0:
             append("no_rpm")
@@ -79,7 +86,7 @@ def frame_reasons(
             append("rpm_unsteady")
         else:
             append(None)
-    return out
+    return out, revs
 
 
 def revolution(frame: FrameLike) -> int | None:

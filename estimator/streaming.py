@@ -35,7 +35,7 @@ from estimator.equations import (
 )
 from estimator.fitted_runs import Screened, fit_run, half_orders, run_end
 from estimator.flush import flush
-from estimator.frame_gates import FrameLike, frame_reasons, revolutions
+from estimator.frame_gates import FrameLike, frame_reasons
 from estimator.gating import OrderGates
 from estimator.hypotheses import (
     DECIDE_AFTER_FRAMES,
@@ -50,7 +50,7 @@ from estimator.outcome import FrameOutcome
 from estimator.partial_pairs import PartialPairs
 from estimator.pending_rows import FrameQueue, RowAssembler
 from estimator.redundancy import calibrated_names
-from estimator.relinearise import relinearise, relinearise_due
+from estimator.relinearise import next_relinearisation, relinearise
 from estimator.result import Estimate, EstimatorStats, build_estimate
 from estimator.rls import RlsSolution, RlsState
 from estimator.setup import EstimatorSetup
@@ -145,9 +145,10 @@ class InertiaEstimator:
         outcomes: list[FrameOutcome | None] = [None] * len(frames)
         elastic_before = self.elastic
         gated: list[int] = []
-        revs = revolutions(frames)  # (once: the overlap gate, channel noise and curvature)
+        # (the revolutions once: the overlap gate, channel noise and curvature read them)
+        reasons, revs = frame_reasons(frames, self.setup.gates)
         reject, skipped = self._reject, 0
-        for i, reason in enumerate(frame_reasons(frames, revs, self.setup.gates)):
+        for i, reason in enumerate(reasons):
             if reason is None:
                 gated.append(i)
             elif reason == "overlapping":
@@ -200,7 +201,7 @@ class InertiaEstimator:
         # (the sign hypotheses of the fully measured frames: frames with an unseen
         # motion decide their own, see estimator.partial_pairs)
         tested = cycle_unknown and fit.null is None
-        done = len(run)
+        done, due = len(run), next_relinearisation(stats.used)
         for j, i in enumerate(r.index):
             frame = frames[i]
             if gas_known and gas[j] is None:
@@ -231,10 +232,11 @@ class InertiaEstimator:
             # off) and then after every full batch.
             # (Counted in used frames, not queued ones: an early flush for a published
             # estimate must not move the relinearisation points.)
-            if not relinearise_due(stats.used):
+            if stats.used != due:  # (relinearise_due: one more used frame at a time)
                 continue
             channels.channel_noise.release(run[j].estimates)  # weights: frames so far
             relinearise(self)
+            due = next_relinearisation(stats.used)
             if channels.generation != generation and j + 1 < len(run):
                 # the next frames are fitted with the new weights: the curvature
                 # history must hold this run's motions only up to here

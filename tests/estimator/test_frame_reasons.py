@@ -56,7 +56,8 @@ def test_one_loop_gives_each_frame_its_own_gates_verdict() -> None:
         Gates(rpm_range=(1000.0, 6000.0), max_rpm_change=0.1),
         Gates(independent_frames=False),
     ):
-        got = frame_reasons(frames, revs, gates)
+        got, got_revs = frame_reasons(frames, gates)
+        assert got_revs == revs
         want = [
             "overlapping"
             if gates.independent_frames and overlaps_previous(f)
