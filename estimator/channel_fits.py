@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from estimator.channel_noise import ChannelNoise
-from estimator.gating import FrameLike, revolution
+from estimator.frame_gates import FrameLike, revolutions
 from estimator.kinematics import KinematicsError, RigidFit
 from estimator.setup import EstimatorSetup
 
@@ -56,47 +56,57 @@ class ChannelFits:
         self.generation = 0  # counts the weight changes (each makes new fit geometries)
 
     def screen(
-        self, frames: list[FrameLike]
+        self, frames: list[FrameLike], revs: list[int | None] | None = None
     ) -> list[tuple[np.ndarray, np.ndarray, Any, int, np.ndarray | None]]:
         """The usable channels of gated frames, their noise tracked: per frame the
         usable setup channels (bool), their columns in the frame, the channel noise
         variance and estimate count as they stand after the frame
         (:meth:`ChannelNoise.add_many`; release that count before the channel
         weights may be refreshed, and everything at the end of the block), and the
-        used channels' variance steps (:meth:`variance_steps`).
+        used channels' variance steps (:meth:`variance_steps`). ``revs``: the frames'
+        :func:`estimator.frame_gates.revolutions`, when at hand.
 
         Frames sharing their channels and orders are masked with one array call."""
         if not frames:  # (a block of overlapping or rejected frames)
             return []
         masks: list[tuple[np.ndarray, np.ndarray]] = []
         used_amps: list[np.ndarray] = []  # per frame (k, n_setup), NaN where not used
-        start = 0
-        for end in range(1, len(frames) + 1):
-            if end < len(frames) and _same_layout(frames[end], frames[start]):
-                continue
+        start, n = 0, len(frames)
+        while start < n:  # (groups of frames with the same channels and orders count)
+            first = frames[start]
+            channels, shape = first.channels, first.amplitudes.shape
+            end = start + 1
+            # (a block's frames share their channel tuple: identity first, then its names)
+            while end < n and (
+                ((c := frames[end].channels) is channels or c == channels)
+                and frames[end].amplitudes.shape == shape
+            ):
+                end += 1
             group, amps = self._masks(frames[start:end])
             masks.extend(group)
             used_amps.extend(amps)
             start = end
-        tracked: list[tuple[int, tuple[float, ...], np.ndarray] | None] = []
-        for frame, x in zip(frames, used_amps, strict=True):
-            if (rev := revolution(frame)) is not None:
-                tracked.append((rev, tuple(frame.orders), x))
-            else:
-                tracked.append(None)
+        if revs is None:
+            revs = revolutions(frames)
+        tracked = [
+            (rev, tuple(f.orders), x)
+            for f, x, rev in zip(frames, used_amps, revs, strict=True)
+            if rev is not None
+        ]
         noise = self.channel_noise
         now = (noise.variance(), noise.estimates)  # until the block's first tracked frame
-        variances = iter(noise.add_many([t for t in tracked if t is not None]))
-        after = []
-        for t in tracked:
-            if t is not None:
+        variances = iter(noise.add_many(tracked))
+        # channels that lost samples (dsp.gap_fit) weigh less: their variance steps (None
+        # without variance factors: no call per frame)
+        steps = self.variance_steps
+        out: list[tuple[np.ndarray, np.ndarray, Any, int, np.ndarray | None]] = []
+        for f, (u, cols), rev in zip(frames, masks, revs, strict=True):
+            if rev is not None:
                 now = next(variances)
-            after.append(now)
-        # channels that lost samples (dsp.gap_fit) weigh less: their variance steps
-        return [
-            (u, c, v, n, self.variance_steps(f, u, c))
-            for f, (u, c), (v, n) in zip(frames, masks, after, strict=True)
-        ]
+            v, n_est = now
+            factor = getattr(f, "variance_factor", None)
+            out.append((u, cols, v, n_est, None if factor is None else steps(f, u, cols)))
+        return out
 
     def choose(
         self, used: np.ndarray, steps: np.ndarray | None = None
@@ -117,11 +127,12 @@ class ChannelFits:
                 return "sensor_geometry", None
         return None, fitter
 
-    def again(self, fit: RigidFit) -> None:
-        """:meth:`choose` for a later frame of a run whose first frame it chose ``fit``
-        for (the same channels and variance steps, :func:`estimator.fitted_runs.run_end`):
-        only the count of how long a sensor has been missing moves."""
-        self._unseen_run = 0 if fit.null is None else self._unseen_run + 1
+    def again(self, fit: RigidFit, frames: int = 1) -> None:
+        """:meth:`choose` for ``frames`` later frames of a run whose first frame it chose
+        ``fit`` for (the same channels and variance steps,
+        :func:`estimator.fitted_runs.run_end`): only the count of how long a sensor has
+        been missing moves (nothing reads it before the next :meth:`choose`: once a run)."""
+        self._unseen_run = 0 if fit.null is None else self._unseen_run + frames
 
     def _masks(
         self, frames: list[FrameLike]
@@ -134,7 +145,7 @@ class ChannelFits:
         ok = np.array([f.channel_ok for f in frames], dtype=bool)
         if at is not None:  # (a copy either way: the same values)
             amps, ok = amps[:, :, at], ok[:, at]
-        finite = np.isfinite(amps).all(axis=1)
+        finite = np.logical_and.reduce(np.isfinite(amps), axis=1)  # (.all without its wrapper)
         used = present & ok & finite
         return [(row, cols) for row in used], np.where(used[:, None, :], amps, np.nan)
 
@@ -206,8 +217,3 @@ class ChannelFits:
         if not self._measure_weights or self.weights is None:
             return None
         return dict(zip(self.setup.channels, self.weights.tolist(), strict=True))
-
-
-def _same_layout(a: FrameLike, b: FrameLike) -> bool:
-    """The two frames' amplitudes have the same channels and orders count."""
-    return a.channels == b.channels and a.amplitudes.shape == b.amplitudes.shape

@@ -82,6 +82,14 @@ class ThinnedSample:
         if not self._seen % self._stride:
             self._keep(item)
 
+    def extend(self, items: Any) -> None:
+        """:meth:`add` of each of ``items`` in turn (one call for a block's)."""
+        keep = self._keep
+        for item in items:
+            self._seen += 1
+            if not self._seen % self._stride:
+                keep(item)
+
     def add_made(self, make: Callable[[], Any]) -> None:
         """:meth:`add` of ``make()``, called only when the item is kept."""
         self._seen += 1
@@ -129,9 +137,11 @@ class ChannelNoise:
 
     def release(self, upto: int) -> None:
         """Let the first ``upto`` per-frame estimates count in :meth:`weights`."""
-        while self._released < upto:
-            self._kept.add(self._held.popleft())
-            self._released += 1
+        if self._released >= upto:
+            return
+        held = self._held
+        self._kept.extend([held.popleft() for _ in range(upto - self._released)])
+        self._released = upto
 
     def add_many(
         self, frames: list[tuple[int, tuple[float, ...], np.ndarray]]
@@ -165,8 +175,11 @@ class ChannelNoise:
         medians: list[np.ndarray] = [np.empty(0)] * len(triples)
         recent: list[np.ndarray] = [np.empty(0)] * len(triples)
         by_k: dict[int, list[int]] = {}
-        for i, (x, _, _) in enumerate(triples):
-            by_k.setdefault(len(x), []).append(i)
+        if len({len(t[0]) for t in triples}) == 1:  # (most blocks: one order count)
+            by_k[len(triples[0][0])] = list(range(len(triples)))
+        else:
+            for i, (x, _, _) in enumerate(triples):
+                by_k.setdefault(len(x), []).append(i)
         for k, at in by_k.items():
             # (one stack of the triples: copies, the same values as three; from a flat
             # list of their arrays, which numpy reads in half the time of the tuples)
@@ -180,6 +193,9 @@ class ChannelNoise:
                 d = x - 2 * x1 + x0
                 per_order = (d.real**2 + d.imag**2) / 12.0  # 6 Var per part, two parts
                 m = median_of_orders(per_order)
+            if len(at) == len(triples):  # (every frame's: the rows as they come)
+                medians, recent = list(m), list(m / median_bias(k))
+                continue
             for i, row, unbiased in zip(at, m, m / median_bias(k), strict=True):
                 medians[i], recent[i] = row, unbiased
         before = len(self._recent)

@@ -1,4 +1,5 @@
-"""Frame and order gates of the streaming estimator (see :mod:`estimator.streaming`).
+"""Order gates of the streaming estimator (see :mod:`estimator.streaming`; the gates of
+whole frames: :mod:`estimator.frame_gates`).
 
 A frame is used only where the motion is rigid and on the mass line: the rpm
 steady and in range, the tacho sound, the orders away from the rigid-body
@@ -13,18 +14,15 @@ noise grows along a sweep and must never confirm a mode.
 from __future__ import annotations
 
 import collections
-import math
-from typing import Protocol
 
 import numpy as np
 
 from estimator import row_kernels
 from estimator.compiled_runs import bend_excess, order_screen
+from estimator.frame_gates import FrameLike, revolutions
 from estimator.kinematics import RigidFit, RigidMotion
 from estimator.order_evidence import UNLOADED_MODE_RATIO, leak_matrix, neighbour_leakage, responds
-from estimator.setup import EstimatorSetup, Gates
-
-TACHO_FLAGS = frozenset({"no_tacho", "tacho_resync", "angle_ambiguous", "angle_rebased"})
+from estimator.setup import EstimatorSetup
 
 # An elastic mode is confirmed when ELASTIC_CONFIRM of the last ELASTIC_WINDOW gated
 # frames of one order were non-rigid (what the estimator then does: see
@@ -41,34 +39,6 @@ Judged = tuple[dict[float, str], dict[float, float], list[int]]
 
 # why an order is rejected by the gates that remember nothing (OrderGates.screen_orders)
 ORDER_REASONS = ("", "no_excitation", "near_rigid_modes", "off_mass_line", "neighbour_leakage")
-
-
-class FrameLike(Protocol):
-    """The fields of ``dsp.frames.OrderFrame`` the estimator reads."""
-
-    time_s: float
-    rpm: float
-    orders: tuple[float, ...]
-    channels: tuple[str, ...]
-    amplitudes: np.ndarray
-    channel_ok: np.ndarray
-    rpm_change: float
-    flags: frozenset[str]
-
-
-def frame_gate(frame: FrameLike, gates: Gates) -> str | None:
-    """Why the whole frame is unusable (rpm, tacho, dsp settling, steadiness), None if not."""
-    if not math.isfinite(frame.rpm) or frame.rpm <= 0:  # (np.isfinite: a ufunc call)
-        return "no_rpm"
-    if not TACHO_FLAGS.isdisjoint(frame.flags):
-        return "tacho"
-    if "leakage_uncorrected" in frame.flags:
-        return "dsp_settling"
-    if frame.rpm < gates.rpm_range[0] or frame.rpm > gates.rpm_range[1]:
-        return "rpm_out_of_range"
-    if abs(frame.rpm_change) > gates.max_rpm_change:
-        return "rpm_unsteady"
-    return None
 
 
 class OrderGates:
@@ -195,14 +165,20 @@ class OrderGates:
         residuals = dict(zip(orders, relative, strict=True))
         used: list[int] = []
         limits, top = self.residual_limit, self.setup.gates.max_relative_residual
-        past_limit = self._past_limit
+        past_limit, recents = self._past_limit, self._non_rigid_recent
         for k, h in enumerate(orders):
             w = why[k]
             if w:
                 reason: str | None = ORDER_REASONS[w]
             elif relative[k] <= top and (limit := limits.get(h)) is not None:
-                # :meth:`residual` once the order's baseline is set (the rule), directly
-                reason = past_limit(h, rpm, beyond[k], limit)
+                # :meth:`residual` once the order's baseline is set (the rule), directly;
+                # within the limit, :meth:`_past_limit`'s one step inline (most orders)
+                excess = beyond[k]
+                if excess > limit or (recent := recents.get(h)) is None:
+                    reason = past_limit(h, rpm, excess, limit)
+                else:
+                    recent.append(False)
+                    reason = None
             else:
                 reason = self.residual(h, rpm, relative[k], share[k], beyond[k])
             if reason:
@@ -218,11 +194,13 @@ class OrderGates:
         motions: list[RigidMotion],
         fit: RigidFit,
         arrays: tuple[np.ndarray, np.ndarray] | None = None,
+        revs: list[int | None] | None = None,
     ) -> np.ndarray:
         """(n_frames, k): relative second difference of Omega' per order over three frames
         720 deg apart, less what the measurement noise explains (0 where not known).
         ``arrays``: the ``motions``' Omega' (n, k, 3) and noise variances (n, k) as
-        arrays, when at hand (:meth:`RigidFit.fit_arrays`; then the motions are ``fit``'s).
+        arrays, when at hand (:meth:`RigidFit.fit_arrays`; then the motions are ``fit``'s);
+        ``revs``: the frames' :func:`revolutions`, when at hand.
 
         Along the mass line the rigid motion of an order changes slowly and almost
         linearly with rpm; near a rigid-body mode it bends sharply, and there the
@@ -231,7 +209,8 @@ class OrderGates:
         mass-line sweeps up to 150 rpm/s, 0.1-130 % in a 60 rpm/s sweep through the
         modes, where the frame errors reach 0.2-28 %.
         """
-        revs = [revolution(f) for f in frames]
+        if revs is None:
+            revs = revolutions(frames)
         at = [j for j, r in enumerate(revs) if r is not None]
         if not at:
             return np.zeros((len(frames), len(orders)))
@@ -350,22 +329,3 @@ class OrderGates:
         if self.elastic is None and sum(recent) >= ELASTIC_CONFIRM:
             self.elastic = {"order": h, "frequency_hz": h * rpm / 60.0}
         return "non_rigid"
-
-
-def revolution(frame: FrameLike) -> int | None:
-    """The frame's crank revolution number (None without a crank angle)."""
-    angle = getattr(frame, "crank_angle_rad", None)
-    if angle is None or not math.isfinite(angle):  # (np.isfinite: a ufunc call per frame)
-        return None
-    return round(float(angle) / (2 * np.pi))
-
-
-def overlaps_previous(frame: FrameLike) -> bool:
-    """True for the frames between the 720 deg-spaced ones (odd revolution numbers)."""
-    angle = getattr(frame, "crank_angle_rad", None)
-    if angle is None or not math.isfinite(angle):
-        return False
-    return round(float(angle) / _TWO_PI) % 2 == 1
-
-
-_TWO_PI = 2 * np.pi  # (revolution's divisor, the same float, not made again per frame)

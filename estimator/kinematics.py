@@ -234,10 +234,11 @@ class RigidFit:
         self, x: np.ndarray, residual_rms: np.ndarray, relative: np.ndarray, noise_var: np.ndarray
     ) -> list[RigidMotion]:
         """The :class:`RigidMotion` of each frame from :meth:`fit_arrays`."""
-        # (positional fields, rows taken by iterating: a few hundred ns less per frame)
-        o, cov, gain = self.origin, self.cov_unit, self.gain
+        # (positional fields, rows taken by iterating: a few hundred ns less per frame;
+        # tuple.__new__ is what the named tuple's __new__ calls, without its frame)
+        o, cov, gain, new = self.origin, self.cov_unit, self.gain, tuple.__new__
         return [
-            RigidMotion(o, g, w, cov, r, rel, nv, gain)
+            new(RigidMotion, (o, g, w, cov, r, rel, nv, gain))
             for g, w, r, rel, nv in zip(
                 x[:, :, :3], x[:, :, 3:], residual_rms, relative, noise_var, strict=True
             )

@@ -83,8 +83,9 @@ class FrameQueue:
         power_sum: float,
         force: np.ndarray,
         moment: np.ndarray,
-        dsp_var: np.ndarray,
+        dsp_var: np.ndarray | list[float],
         gas: np.ndarray | None,
+        order_list: list[float] | None = None,
     ) -> None:
         """Queue the used orders ``ks`` of a frame; their rows are assembled a batch at a time.
 
@@ -92,7 +93,8 @@ class FrameQueue:
         reference; never changed: frames share it). ``readings`` (k, u) are the fitted
         channels' amplitudes, ``power_sum`` their mean square summed over the orders,
         ``dsp_var`` (k,) a floor for the channel noise variance (what the dsp errs by
-        near modes), ``gas`` the measured gas moment in ``moment``.
+        near modes; a list: its values, as a run makes them once), ``gas`` the measured
+        gas moment in ``moment``; ``order_list``: ``orders`` as a list, when at hand.
         """
         if fit.null is not None:
             self.flush_timing_matters = True
@@ -102,7 +104,7 @@ class FrameQueue:
             raw = self._raw_noise_var(motion, ks, redundancy)
         else:  # (without self-calibration: what the rigid fit leaves)
             redundancy, raw = None, motion.noise_var
-        var = self._noise_var(raw, ks, orders, floor, dsp_var)
+        var = self._noise_var(raw, ks, orders if order_list is None else order_list, floor, dsp_var)
         gamma_o, omega_dot, h = motion.gamma_o, motion.omega_dot, orders
         if len(ks) < len(orders):  # (every order used, the common case: the arrays as they are)
             at = np.array(ks)
@@ -110,21 +112,26 @@ class FrameQueue:
             force, moment, readings = force[at], moment[at], readings[at]
             gas = None if gas is None else gas[at]
         self.frames.append(
-            PendingFrame(  # (by position, in field order: 0.4 us a frame less than by name)
-                gamma_o,
-                omega_dot,
-                motion.origin,
-                motion.cov_unit,
-                h,  # orders
-                float(rpm),
-                force,
-                moment,
-                np.array(var),
-                fit,
-                readings,  # amplitudes
-                half,
-                gas,  # measured_moment
-                redundancy,
+            # (by position, in field order, and with tuple.__new__, which the named
+            # tuple's __new__ calls: 0.4 us a frame less than by name, and its frame less)
+            tuple.__new__(
+                PendingFrame,
+                (
+                    gamma_o,
+                    omega_dot,
+                    motion.origin,
+                    motion.cov_unit,
+                    h,  # orders
+                    float(rpm),
+                    force,
+                    moment,
+                    np.array(var),
+                    fit,
+                    readings,  # amplitudes
+                    half,
+                    gas,  # measured_moment
+                    redundancy,
+                ),
             )
         )
 
@@ -162,21 +169,25 @@ class FrameQueue:
         self,
         raw_var: np.ndarray,
         ks: list[int],
-        orders: np.ndarray,
+        orders: np.ndarray | list[float],
         floor: float,
-        dsp_var: np.ndarray,
+        dsp_var: np.ndarray | list[float],
     ) -> list[float]:
         """Per-order channel noise variance of the orders ``ks``, smoothed over frames (3
         dof per frame is noisy), floored so noise-free data keep finite weights, and at
-        least what the dsp errs by (``dsp_var``, per order)."""
+        least what the dsp errs by (``dsp_var``, per order). (``orders`` and ``dsp_var``
+        may come as lists: a run makes them once for all its frames.)"""
         out = []
         smoothed = self.noise_var
-        hs, raws, dsps = orders.tolist(), raw_var.tolist(), dsp_var.tolist()
+        hs = orders if isinstance(orders, list) else orders.tolist()
+        dsps = dsp_var if isinstance(dsp_var, list) else dsp_var.tolist()
+        raws = raw_var.tolist()
         for k in ks:
             h, raw, dsp = hs[k], raws[k], dsps[k]
             var = 0.8 * smoothed[h] + 0.2 * raw if h in smoothed else raw
             smoothed[h] = var
-            var = max(var, floor)
+            if floor > var:  # (max(var, floor) without the call: var when either is NaN)
+                var = floor
             # np.maximum on floats: the larger, NaN if either is (max() would drop a NaN dsp)
             out.append(var if var >= dsp or var != var else dsp)
         return out

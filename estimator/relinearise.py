@@ -54,6 +54,16 @@ def relinearise_due(used: int) -> bool:
     return used % every == 1
 
 
+def next_relinearisation(used: int) -> int:
+    """The first count of used frames above ``used`` at which :func:`relinearise_due`
+    holds (a run's loop compares its count with it: no call per frame)."""
+    due = used + 1 + (-used) % RELINEARISE_EVERY
+    if due > RELINEARISE_LATER_AFTER:  # (then every RELINEARISE_EVERY_LATER frames)
+        after = max(used, RELINEARISE_LATER_AFTER)
+        due = after + 1 + (-after) % RELINEARISE_EVERY_LATER
+    return due
+
+
 # Gauss-Newton steps on the first used frame before its rows are kept: with the
 # harness's 1 cm nominal cog error the inertia is 2e-9 off after two, round-off after three.
 FIRST_FRAME_ITERATIONS = 3

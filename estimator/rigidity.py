@@ -34,6 +34,8 @@ confirmed a mode at 67 Hz on a rigid body).
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 from scipy.special import gammainccinv
 
@@ -123,20 +125,24 @@ def noise_levels_many(
     rows: dict[int, int] = {}  # id of a variance -> its row in ``var``
     var_list: list[np.ndarray] = []
     at: list[int] = []
-    for j, v in enumerate(variances):
-        if v is None:
-            continue
-        if id(v) not in rows:
-            rows[id(v)] = len(var_list)
-            var_list.append(v)
-        at.append(j)
+    ids = {id(v) for v in variances}
+    if len(ids) == len(variances) and id(None) not in ids:  # (each frame its own: as is)
+        var_list = cast(list[np.ndarray], variances)
+    else:
+        for j, v in enumerate(variances):
+            if v is None:
+                continue
+            if id(v) not in rows:
+                rows[id(v)] = len(var_list)
+                var_list.append(v)
+            at.append(j)
     if not var_list:
         return np.full(len(variances), np.nan), np.full(len(variances), np.nan)
     var = np.array(var_list, dtype=float)  # (m, n_setup): one gather for all of them
     if fit.channels is not None and var.ndim == 2:
         # (np.take: C-ordered as the rows were; var[:, channels] is laid out by column,
         # and the sums below would take another order)
-        var = np.take(var, fit.channels, axis=1)
+        var = var.take(fit.channels, axis=1)  # (the method: np.take's wrapper costs more)
     if var.shape[1:] != fit.sw.shape:
         return np.full(len(variances), np.nan), np.full(len(variances), np.nan)
     if row_kernels.USE:  # PTINERTIA_NUMBA=1: the sums in one loop

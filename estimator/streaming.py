@@ -33,9 +33,10 @@ from estimator.equations import (
     linearisation_at,
     parameter_scale,
 )
-from estimator.fitted_runs import FittedRun, Screened, fit_run, run_end
+from estimator.fitted_runs import Screened, fit_run, half_orders, run_end
 from estimator.flush import flush
-from estimator.gating import FrameLike, Judged, OrderGates, frame_gate, overlaps_previous
+from estimator.frame_gates import FrameLike, frame_reasons
+from estimator.gating import OrderGates
 from estimator.hypotheses import (
     DECIDE_AFTER_FRAMES,
     DECIDE_RATIO,
@@ -49,7 +50,7 @@ from estimator.outcome import FrameOutcome
 from estimator.partial_pairs import PartialPairs
 from estimator.pending_rows import FrameQueue, RowAssembler
 from estimator.redundancy import calibrated_names
-from estimator.relinearise import relinearise, relinearise_due
+from estimator.relinearise import next_relinearisation, relinearise
 from estimator.result import Estimate, EstimatorStats, build_estimate
 from estimator.rls import RlsSolution, RlsState
 from estimator.setup import EstimatorSetup
@@ -144,19 +145,22 @@ class InertiaEstimator:
         outcomes: list[FrameOutcome | None] = [None] * len(frames)
         elastic_before = self.elastic
         gated: list[int] = []
-        gates = self.setup.gates
-        independent = gates.independent_frames
-        for i, frame in enumerate(frames):
-            if independent and overlaps_previous(frame):
-                self.stats.skipped += 1
-                outcomes[i] = FrameOutcome(frame.time_s, frame.rpm, (), {}, "overlapping", {})
-                continue
-            if (reason := frame_gate(frame, gates)) is None:
+        # (the revolutions once: the overlap gate, channel noise and curvature read them)
+        reasons, revs = frame_reasons(frames, self.setup.gates)
+        reject, skipped = self._reject, 0
+        for i, reason in enumerate(reasons):
+            if reason is None:
                 gated.append(i)
+            elif reason == "overlapping":
+                skipped += 1
+                frame = frames[i]
+                outcomes[i] = FrameOutcome(frame.time_s, frame.rpm, (), {}, "overlapping", {})
             else:
-                outcomes[i] = self._reject(frame, reason)
-        screened = self.channels.screen([frames[i] for i in gated])
-        todo = [Screened(i, *s) for i, s in zip(gated, screened, strict=True)]
+                outcomes[i] = reject(frames[i], reason)
+        self.stats.skipped += skipped
+        screened = self.channels.screen([frames[i] for i in gated], [revs[i] for i in gated])
+        # (tuple.__new__: what the named tuple's __new__ calls, without its frame)
+        todo = [tuple.__new__(Screened, (i, *s)) for i, s in zip(gated, screened, strict=True)]
         at = 0
         while at < len(todo):
             reason, fit = self.channels.choose(todo[at].used, todo[at].steps)
@@ -165,7 +169,7 @@ class InertiaEstimator:
                 at += 1
                 continue
             assert fit is not None
-            at += self._fit_run(frames, todo[at : run_end(frames, todo, at)], fit, outcomes)
+            at += self._fit_run(frames, todo[at : run_end(frames, todo, at)], fit, outcomes, revs)
         self.channels.channel_noise.release(self.channels.channel_noise.estimates)
         if elastic_before is None and self.elastic is not None and frames:
             self._events.append(elastic_mode_event(self.elastic, frames[-1].time_s))
@@ -177,70 +181,77 @@ class InertiaEstimator:
         run: list[Screened],
         fit: RigidFit,
         outcomes: list[FrameOutcome | None],
+        revs: list[int | None] | None = None,
     ) -> int:
         """Fit, gate and queue a run of frames fitted alike with ``fit``; returns how many
         were done: all, or those up to a relinearisation that changed the channel
         weights (the rest are fitted anew)."""
         history = self.gates.motion_history.copy()
-        r = fit_run(self.setup, self.gates, fit, frames, run)
-        order_list = r.order_list
-        channels = self.channels
+        r = fit_run(self.setup, self.gates, fit, frames, run, revs)
+        order_list, order_key, n_orders = r.order_list, r.order_key, len(r.order_list)
+        channels, stats, motions = self.channels, self.stats, r.motions
         generation = channels.generation
         # (per run, not per frame: the bound methods and what every frame reads)
-        release, judge = channels.channel_noise.release, self.gates.judge
-        gas_known, gas = self.setup.gas_moment is not None, r.gas
+        judge, add = self.gates.judge, self.queue.add
+        why, relative, share, beyond = r.gate_lists
+        gas_known, orders = self.setup.gas_moment is not None, r.orders
+        readings, power, force, moment, floor, gas = r.queue_rows  # (FittedRun.queued)
+        cycle_unknown = self.cycle_unknown
+        half = half_orders(order_key, cycle_unknown)
+        # (the sign hypotheses of the fully measured frames: frames with an unseen
+        # motion decide their own, see estimator.partial_pairs)
+        tested = cycle_unknown and fit.null is None
+        done, due = len(run), next_relinearisation(stats.used)
         for j, i in enumerate(r.index):
-            if j:
-                channels.again(fit)  # counts how long a sensor has been missing
-            release(run[j].estimates)  # weights: frames so far
             frame = frames[i]
             if gas_known and gas[j] is None:
                 outcomes[i] = self._reject(frame, "no_pressure")
                 continue
-            judged = judge(frame.rpm, order_list, *r.gate_inputs(j))
-            outcomes[i] = self._use(frame, fit, r, j, judged)
+            rpm = frame.rpm
+            rejected, residuals, ks = judge(
+                rpm, order_list, why[j], relative[j], share[j], beyond[j]
+            )
+            if rejected:
+                stats.orders_rejected.update(rejected.values())
+            if not ks:
+                counts = Counter(rejected.values())
+                reason = counts.most_common(1)[0][0] if counts else "no_orders"
+                outcomes[i] = self._reject(frame, reason)
+                continue
+            motion = motions[j]
+            add(
+                rpm, fit, motion, ks, orders, half, readings[j], power[j], force[j],
+                moment[j], floor[j], gas[j], order_list,
+            )  # fmt: skip
+            stats.count_used(rpm, tested, tested and "cycle_ambiguous" not in frame.flags)
+            used_orders = order_key if len(ks) == n_orders else tuple([order_list[k] for k in ks])
+            outcomes[i] = FrameOutcome(
+                frame.time_s, rpm, used_orders, rejected, None, residuals, motion
+            )
+            # Relinearise after the first used frame (the nominal cog may be centimetres
+            # off) and then after every full batch.
+            # (Counted in used frames, not queued ones: an early flush for a published
+            # estimate must not move the relinearisation points.)
+            if stats.used != due:  # (relinearise_due: one more used frame at a time)
+                continue
+            channels.channel_noise.release(run[j].estimates)  # weights: frames so far
+            relinearise(self)
+            due = next_relinearisation(stats.used)
             if channels.generation != generation and j + 1 < len(run):
                 # the next frames are fitted with the new weights: the curvature
                 # history must hold this run's motions only up to here
                 self.gates.motion_history = history
-                done = [frames[k] for k in r.index[: j + 1]]
-                self.gates.curvature(done, r.orders, r.motions[: j + 1], fit)
-                return j + 1
-        return len(run)
+                before = [frames[k] for k in r.index[: j + 1]]
+                self.gates.curvature(before, orders, motions[: j + 1], fit)
+                done = j + 1
+                break
+        channels.again(fit, done - 1)  # counts how long a sensor has been missing
+        return done
 
     def take_events(self) -> list[SourceEvent]:
         """What the estimator has to report since the last call (an elastic mode confirmed)."""
         events, self._events = self._events, []
         return events
-
-    def _use(
-        self, frame: FrameLike, fitter: RigidFit, run: FittedRun, j: int, judged: Judged
-    ) -> FrameOutcome:
-        """Queue the usable orders of frame ``j`` of a fitted run (``judged``: the order
-        gates' verdict, :meth:`OrderGates.judge`), and relinearise when due."""
-        rejected, residuals, ks = judged
-        if rejected:
-            self.stats.orders_rejected.update(rejected.values())
-        if not ks:
-            counts = Counter(rejected.values())
-            return self._reject(frame, counts.most_common(1)[0][0] if counts else "no_orders")
-        motion, orders = run.motions[j], run.orders
-        self.queue.add(frame.rpm, fitter, motion, ks, orders, *run.queued(j, self.cycle_unknown))
-        # (the sign hypotheses of the fully measured frames: frames with an unseen
-        # motion decide their own, see estimator.partial_pairs)
-        tested = self.cycle_unknown and fitter.null is None
-        self.stats.count_used(frame.rpm, tested, tested and "cycle_ambiguous" not in frame.flags)
-        # Relinearise after the first used frame (the nominal cog may be centimetres
-        # off) and then after every full batch.
-        # (Counted in used frames, not queued ones: an early flush for a published
-        # estimate must not move the relinearisation points.)
-        if relinearise_due(self.stats.used):
-            relinearise(self)
-        order_list = run.order_list
-        used_orders = tuple(
-            order_list if len(ks) == len(order_list) else [order_list[k] for k in ks]
-        )
-        return FrameOutcome(frame.time_s, frame.rpm, used_orders, rejected, None, residuals, motion)
 
     def _reject(self, frame: FrameLike, reason: str) -> FrameOutcome:
         self.stats.rejected[reason] += 1
@@ -260,7 +271,7 @@ class InertiaEstimator:
                 self.decided_sign = best
                 self.decision = {"ratio": ratio, "after_frames": self.stats.ambiguous_frames}
         sol = self.solve(self.best_state().state)
-        if not np.all(sol.observable[:9]):
+        if not sol.observable[:9].all():
             return
         lin = linearisation_at(self.layout, sol.theta, sol.observable, self.lin.mass)
         if np.linalg.eigvalsh(lin.inertia)[0] <= 0:

@@ -119,3 +119,51 @@ def test_a_runs_readings_are_laid_out_as_its_frames_gathered_alone() -> None:
             got = run_readings([data[s.position] for s in part], part)
             want = np.stack([data[s.position].amplitudes[:, s.cols[s.used]] for s in part])
             assert np.array_equal(got, want) and got.strides == want.strides
+
+
+def test_a_run_ends_where_the_channels_steps_or_orders_change() -> None:
+    # run_end compares each frame's usable channels, variance steps and orders with the
+    # run's first frame part by part: the runs of comparing the three as one key
+    class _F:
+        def __init__(self, orders: tuple[float, ...]) -> None:
+            self.orders = orders
+
+    used = np.ones(9, bool)
+    fewer = used.copy()
+    fewer[4] = False
+    steps = np.zeros(9, np.int64)
+    steps[2] = 3
+    other_steps = steps.copy()
+    other_steps[2] = 4
+    kinds = [
+        (used, None, (1.0, 1.5, 2.0)),
+        (used.copy(), None, (1.0, 1.5, 2.0)),  # (equal, not the same arrays and tuples)
+        (fewer, None, (1.0, 1.5, 2.0)),
+        (used, steps, (1.0, 1.5, 2.0)),
+        (used, steps.copy(), (1.0, 1.5, 2.0)),
+        (used, other_steps, (1.0, 1.5, 2.0)),
+        (used, None, (1.0, 2.0, 3.0)),
+    ]
+    rng = np.random.default_rng(7)
+    picks = rng.integers(0, len(kinds), 60)
+    picks[10:14] = 0  # (runs of several frames)
+    data = [_F(tuple(kinds[p][2])) for p in picks]
+    todo = [
+        Screened(j, kinds[p][0], np.arange(9), None, 0, kinds[p][1]) for j, p in enumerate(picks)
+    ]
+
+    def key(s: Screened) -> tuple[bytes, bytes, tuple[float, ...]]:
+        return (
+            s.used.tobytes(),
+            b"" if s.steps is None else s.steps.tobytes(),
+            tuple(data[s.position].orders),
+        )
+
+    ends = []
+    for at in range(len(todo)):
+        want = at + 1
+        while want < len(todo) and key(todo[want]) == key(todo[at]):
+            want += 1
+        assert run_end(data, todo, at) == want
+        ends.append(want - at)
+    assert max(ends) >= 4 and min(ends) == 1
