@@ -49,6 +49,7 @@ from estimator.equations import Linearisation, ParameterLayout
 from estimator.row_kernels import jit, pair_rows
 from estimator.setup import EstimatorSetup
 from estimator.systematic import SensorBlocks
+from estimator.whitened_rows import whiten_pairs
 
 
 def row_constants(
@@ -147,6 +148,7 @@ def kernel_rows(
     lin_c, inertia, mount_pos, mount_stiff, consts, c_it, cols = constants
     H = np.empty((n_p, 12, layout.size))
     y = np.empty((n_p, 12))
+    d_meas = np.empty((n_p, 12, 12))
     dr = np.empty((n_p, 12, sens.shape[2]))
     (jit(pair_rows) if compiled else pair_rows)(
         np.asarray(orders, float),
@@ -159,8 +161,6 @@ def kernel_rows(
         np.zeros((n_p, 3), complex)
         if measured_moment is None
         else np.ascontiguousarray(measured_moment, complex),
-        np.asarray(noise_var, float),
-        _per_pair(cov_unit, (n_p, 6, 6), float),
         lin_c,
         inertia,
         mount_pos,
@@ -168,13 +168,19 @@ def kernel_rows(
         consts,
         c_it,
         cols,
-        np.ascontiguousarray(sens, float),
+        H,
+        y,
+        d_meas,
+    )
+    (jit(whiten_pairs) if compiled else whiten_pairs)(
+        np.asarray(noise_var, float),
+        _per_pair(cov_unit, (n_p, 6, 6), float),
         np.asarray(sign, float),
+        np.ascontiguousarray(sens, float),
         np.ascontiguousarray(model, float),
         H,
         y,
-        np.empty((n_p, 12, 12)),
-        np.empty((n_p, 12, 12)),
+        d_meas,
         dr,
     )
     return H, y, dr

@@ -1,0 +1,188 @@
+"""Compiled whitening of the (frame, order) pairs' rows: :func:`whiten_pairs`, the second
+half of :func:`estimator.compiled_rows.kernel_rows` (the raw rows come from
+:func:`estimator.row_kernels.pair_rows`).
+
+Per pair: the row covariance ``D diag(C, C) D^T``, its Cholesky factor ``L`` and
+``W = L^-1``, then ``W`` applied to the raw rows, the residual, ``D`` and the model
+inputs' rows at once, and the whitened sensitivities ``W D dm``. What numpy does with
+``cholesky``, ``inv`` and batched matmuls (:func:`estimator.equations.frame_rows`),
+the same arithmetic as the loops that were in :func:`pair_rows` before (issue 24: the
+same bits, tested against the interpreter's run of this module).
+
+Why it is laid out so (issue 24): numba's loops over two indices (``hp[a, j] += c *
+raw[k, j]``) stayed scalar (the machine code had no packed multiply), and numba's own
+vectorised loops over row views, short as these are (12 terms, 12-34 columns), spend
+their time on overlap and remainder tests and on storing the sums at every term. So
+every sum of products here is one call of :func:`add_products`, which the compiled
+kernel takes from :mod:`estimator.whiten_lanes` (eight columns a vector, the sums kept in
+registers; the same products added in the same order: the same bits, tested): ``W``
+times the right-hand sides gathered in one (12, n + 12 + n_model + 1) block (raw rows,
+``D``, model rows, residual), ``W D`` times ``sens``, the Cholesky factor column by column
+on its transpose and ``W`` row by row. Every entry is the sum of the same products in the
+same order as the scalar loops that were in :func:`estimator.row_kernels.pair_rows`:
+the compiled rows are the same bits as before (the 60 s log's 4494 pairs, checked).
+Measured on those pairs (54 calls captured from ``/tmp/prof/stage_prof.py est``; CPU
+best of 30, load 3.6 on the 2 cores): the rows 18.1 -> 13.3 ms a minute (the whitening
+15.2 -> 10.4, the raw rows 2.9).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+# the helpers estimator.row_kernels.jit replaces by their compiled eight-lane versions
+# (this file's own ones stay the reference the interpreter runs)
+LANES_MODULE = "estimator.whiten_lanes"
+LANE_HELPERS = ("add_products",)
+# numba's cache watches this file only: the sha256 of the files the compiled helpers come
+# from (tests/estimator/test_whitened_rows.py recomputes it and prints the new value), so
+# an edit of theirs changes this file too and a stale cache is never loaded
+HELPERS = ("estimator/whiten_lanes.py", "dsp/vec8.py")
+HELPERS_SHA256 = "1460cf5cb64a3683a2d89ee1c22488225af4590daea15405dc4afb90213c9519"
+
+
+def whiten_pairs(
+    var: np.ndarray,
+    cov_unit: np.ndarray,
+    sign: np.ndarray,
+    sens: np.ndarray,
+    model: np.ndarray,
+    H: np.ndarray,
+    y: np.ndarray,
+    d_meas: np.ndarray,
+    dr: np.ndarray,
+) -> None:
+    """Whiten P pairs' raw rows in place: ``H`` (P, 12, n) and ``y`` (P, 12) on entry the
+    raw rows and residuals, ``d_meas`` (P, 12, 12) d residual / d measurement (real form),
+    on return ``H`` and ``y`` whitened and ``dr`` (P, 12, n_sys) the whitened
+    sensitivities ``W D sign sens`` with ``W model`` added on its last n_model columns.
+    ``var`` (P,) the channel noise, ``cov_unit`` (P, 6, 6) the motion's unit covariance,
+    ``sign`` (P,), ``sens`` (P, 12, n_sys) d motion / d systematic parameters (its model
+    columns unused), ``model`` (P, 12, n_model) the model inputs' raw rows."""
+    n_p, _, n = H.shape
+    n_sys = sens.shape[2]
+    n_model = model.shape[2]
+    n_s = n_sys - n_model
+    m = n + 12 + n_model + 1  # raw rows | D | model rows | residual
+    rhs = np.empty((12, m))
+    rhs_f = rhs.reshape(12 * m)
+    out = np.empty(12 * m)
+    cu = np.empty((6, 6))
+    dcu = np.empty((12, 6))  # D[:, :6] C
+    cov_t = np.empty((12, 12))  # the row covariance's lower triangle, transposed
+    low_f = np.empty(144)  # L^T, row by row
+    col = np.empty(12)
+    coef = np.empty(12)
+    inv = np.empty(144)  # W = L^-1, row by row
+    sens_f = sens.reshape(sens.size)
+    dr_f = dr.reshape(dr.size)
+    for p in range(n_p):
+        dm = d_meas[p]
+        # row covariance D diag(C, C) D^T, C = var cov_unit, D = [[R, -I], [I, R]]: D[:, 6:]
+        # C is D[:, :6] C with its row blocks swapped, the upper one negated (exact), and
+        # the lower right block the upper left one (R C R^T + I C I^T, its two sums added
+        # in the other order: exact). The same bits as both halves in full, 2/3 of the
+        # products (pair_rows 16.7-18.2 -> 16.0-17.4 ms a minute on the 60 s log, 4-6 %).
+        for a in range(6):
+            for b in range(6):
+                cu[a, b] = cov_unit[p, a, b] * var[p]
+        dcu[:, :] = 0.0
+        for a in range(12):
+            for k in range(6):
+                c = dm[a, k]
+                for b in range(6):
+                    dcu[a, b] += c * cu[k, b]
+        for a in range(12):  # (the lower triangle: all the Cholesky factor reads)
+            for b in range(a + 1 if a < 6 else 6):
+                acc_r = 0.0
+                for k in range(6):
+                    acc_r += dcu[a, k] * dm[b, k]
+                acc_i = 0.0
+                for k in range(6):
+                    acc_i += (-dcu[6 + a, k] if a < 6 else dcu[a - 6, k]) * dm[b, 6 + k]
+                cov_t[b, a] = (0.0 + acc_r) + acc_i  # (the halves added as they were)
+        for a in range(6, 12):
+            for b in range(6, a + 1):
+                cov_t[b, a] = cov_t[b - 6, a - 6]
+        trace = 0.0
+        for a in range(12):
+            trace += cov_t[a, a]
+        jitter = 1e-12 * trace / 12 + 1e-300
+        for a in range(12):
+            cov_t[a, a] += jitter
+        # Cholesky, column j of L at once: cov[i, j] - sum_k<j L[i, k] L[j, k], k in order
+        for j in range(12):
+            for i in range(j, 12):
+                col[i] = cov_t[j, i]
+            for k in range(j):
+                coef[k] = -low_f[12 * k + j]
+            add_products(coef, j, low_f, j, 12, 12 - j, col, j)
+            d = np.sqrt(col[j])
+            low_f[13 * j] = d
+            for i in range(j + 1, 12):
+                low_f[12 * j + i] = col[i] / d
+        # W = L^-1 row by row: W[i, j] = -sum_{j<=k<i} L[i, k] W[k, j] / L[i, i], k in order
+        # (the products of the zeros above W's diagonal add nothing: every sum starts at +0)
+        inv[:] = 0.0
+        for i in range(12):
+            for k in range(i):
+                coef[k] = -low_f[12 * k + i]
+            add_products(coef, i, inv, 0, 12, i, inv, 12 * i)
+            lii = low_f[13 * i]
+            for j in range(i):
+                inv[12 * i + j] = inv[12 * i + j] / lii
+            inv[13 * i] = 1.0 / lii
+        for k in range(12):  # (copies by loops: numba's slice assignment is slower)
+            r = rhs[k]
+            h_k = H[p, k]
+            for j in range(n):
+                r[j] = h_k[j]
+            dm_k = dm[k]
+            for j in range(12):
+                r[n + j] = dm_k[j]
+            model_k = model[p, k]
+            for j in range(n_model):
+                r[n + 12 + j] = model_k[j]
+            r[m - 1] = y[p, k]
+        # W times every right-hand side: row a sums W[a, k] rhs[k] for k <= a, in order
+        out[:] = 0.0
+        for a in range(12):
+            add_products(inv[12 * a : 12 * a + 12], a + 1, rhs_f, 0, m, m, out, m * a)
+            h_a = H[p, a]
+            for j in range(n):
+                h_a[j] = out[m * a + j]
+            y[p, a] = out[m * a + m - 1]
+        # dr = (W D) sign sens (sens's model columns skipped: zero), then W model
+        for a in range(12):
+            at = (p * 12 + a) * n_sys
+            for j in range(n_sys):
+                dr_f[at + j] = 0.0
+            for k in range(12):
+                coef[k] = out[m * a + n + k] * sign[p]
+            add_products(coef, 12, sens_f, p * 12 * n_sys, n_sys, n_s, dr_f, at)
+            for j in range(n_model):
+                dr_f[at + n_s + j] += out[m * a + n + 12 + j]
+
+
+def add_products(
+    c: np.ndarray,
+    n_terms: int,
+    src: np.ndarray,
+    s_off: int,
+    s_stride: int,
+    width: int,
+    dst: np.ndarray,
+    d_off: int,
+) -> None:
+    """``dst[d_off + j] += c[k] src[s_off + k s_stride + j]`` for k = 0 .. n_terms - 1, each
+    product added to the running sum in k order, j = 0 .. width - 1 (1-d arrays). Compiled,
+    :func:`estimator.whiten_lanes.add_products` (eight columns a vector) runs in its place:
+    the same operations in the same order."""
+    for j in range(width):
+        acc = dst[d_off + j]
+        for k in range(n_terms):
+            acc += c[k] * src[s_off + k * s_stride + j]
+        dst[d_off + j] = acc
+
+
+add_products_loops = add_products  # (the reference the compiled lanes are tested against)
