@@ -33,12 +33,12 @@ import numpy as np
 # the helpers estimator.row_kernels.jit replaces by their compiled eight-lane versions
 # (this file's own ones stay the reference the interpreter runs)
 LANES_MODULE = "estimator.whiten_lanes"
-LANE_HELPERS = ("add_products",)
+LANE_HELPERS = ("add_products", "covariance_lanes", "factor_lanes")
 # numba's cache watches this file only: the sha256 of the files the compiled helpers come
 # from (tests/estimator/test_whitened_rows.py recomputes it and prints the new value), so
 # an edit of theirs changes this file too and a stale cache is never loaded
 HELPERS = ("estimator/whiten_lanes.py", "dsp/vec8.py")
-HELPERS_SHA256 = "1460cf5cb64a3683a2d89ee1c22488225af4590daea15405dc4afb90213c9519"
+HELPERS_SHA256 = "49a8228c99391510c00503764226158e463957fe36188709e53066479014fc5d"
 
 
 def whiten_pairs(
@@ -67,101 +67,139 @@ def whiten_pairs(
     rhs = np.empty((12, m))
     rhs_f = rhs.reshape(12 * m)
     out = np.empty(12 * m)
-    cu = np.empty((6, 6))
-    dcu = np.empty((12, 6))  # D[:, :6] C
-    cov_t = np.empty((12, 12))  # the row covariance's lower triangle, transposed
-    low_f = np.empty(144)  # L^T, row by row
-    col = np.empty(12)
+    # eight pairs' D, C = var cov_unit, D[:, :6] C, row covariances, Cholesky factors and
+    # their inverses W (lower triangles), entry (i, j) of the pair in lane l at
+    # (columns i + j) 8 + l
+    dm_l = np.empty(144 * 8)
+    cu_l = np.empty(36 * 8)
+    dcu_l = np.empty(72 * 8)
+    cov = np.zeros(144 * 8)
+    low = np.empty(144 * 8)
+    inv = np.empty(144 * 8)
     coef = np.empty(12)
-    inv = np.empty(144)  # W = L^-1, row by row
     sens_f = sens.reshape(sens.size)
     dr_f = dr.reshape(dr.size)
-    for p in range(n_p):
-        dm = d_meas[p]
-        # row covariance D diag(C, C) D^T, C = var cov_unit, D = [[R, -I], [I, R]]: D[:, 6:]
-        # C is D[:, :6] C with its row blocks swapped, the upper one negated (exact), and
-        # the lower right block the upper left one (R C R^T + I C I^T, its two sums added
-        # in the other order: exact). The same bits as both halves in full, 2/3 of the
-        # products (pair_rows 16.7-18.2 -> 16.0-17.4 ms a minute on the 60 s log, 4-6 %).
-        for a in range(6):
-            for b in range(6):
-                cu[a, b] = cov_unit[p, a, b] * var[p]
-        dcu[:, :] = 0.0
-        for a in range(12):
-            for k in range(6):
-                c = dm[a, k]
+    for first in range(0, n_p, 8):
+        lanes = min(8, n_p - first)
+        for lane in range(lanes, 8):  # (lanes without a pair: D and C the identity)
+            for a in range(144):
+                dm_l[8 * a + lane] = 1.0 if a % 13 == 0 else 0.0
+            for a in range(36):
+                cu_l[8 * a + lane] = 1.0 if a % 7 == 0 else 0.0
+        for lane in range(lanes):
+            p = first + lane
+            dm = d_meas[p]
+            for a in range(12):
+                for b in range(12):
+                    dm_l[(12 * a + b) * 8 + lane] = dm[a, b]
+            for a in range(6):
                 for b in range(6):
-                    dcu[a, b] += c * cu[k, b]
+                    cu_l[(6 * a + b) * 8 + lane] = cov_unit[p, a, b] * var[p]
+        covariance_lanes(dm_l, cu_l, dcu_l, cov)
+        factor_lanes(cov, low, inv)
+        for lane in range(lanes):
+            p = first + lane
+            dm = d_meas[p]
+            for k in range(12):  # (copies by loops: numba's slice assignment is slower)
+                r = rhs[k]
+                h_k = H[p, k]
+                for j in range(n):
+                    r[j] = h_k[j]
+                dm_k = dm[k]
+                for j in range(12):
+                    r[n + j] = dm_k[j]
+                model_k = model[p, k]
+                for j in range(n_model):
+                    r[n + 12 + j] = model_k[j]
+                r[m - 1] = y[p, k]
+            # W times every right-hand side: row a sums W[a, k] rhs[k] for k <= a, in order
+            out[:] = 0.0
+            for a in range(12):
+                for k in range(a + 1):
+                    coef[k] = inv[(12 * a + k) * 8 + lane]
+                add_products(coef, a + 1, rhs_f, 0, m, m, out, m * a)
+                h_a = H[p, a]
+                for j in range(n):
+                    h_a[j] = out[m * a + j]
+                y[p, a] = out[m * a + m - 1]
+            # dr = (W D) sign sens (sens's model columns skipped: zero), then W model
+            for a in range(12):
+                at = (p * 12 + a) * n_sys
+                for j in range(n_sys):
+                    dr_f[at + j] = 0.0
+                for k in range(12):
+                    coef[k] = out[m * a + n + k] * sign[p]
+                add_products(coef, 12, sens_f, p * 12 * n_sys, n_sys, n_s, dr_f, at)
+                for j in range(n_model):
+                    dr_f[at + n_s + j] += out[m * a + n + 12 + j]
+
+
+def covariance_lanes(dm: np.ndarray, cu: np.ndarray, dcu: np.ndarray, cov: np.ndarray) -> None:
+    """Eight pairs' row covariances ``D diag(C, C) D^T`` (C = var cov_unit), each in its
+    lane (``dm`` (12, 12), ``cu`` (6, 6), ``dcu`` work space (12, 6), ``cov`` (12, 12),
+    lower triangle, entry (i, j) of lane l at (columns i + j) 8 + l), with the jitter on
+    the diagonal. D = [[R, -I], [I, R]]: D[:, 6:] C is D[:, :6] C with its row blocks
+    swapped, the upper one negated (exact), and the lower right block the upper left one
+    (R C R^T + I C I^T, its two sums added in the other order: exact): the same bits as
+    both halves in full, 2/3 of the products. Compiled,
+    :func:`estimator.whiten_lanes.covariance_lanes` runs in its place (the same operations
+    lane by lane)."""
+    for lane in range(8):
+        for a in range(12):
+            for b in range(6):
+                acc = 0.0
+                for k in range(6):
+                    acc += dm[(12 * a + k) * 8 + lane] * cu[(6 * k + b) * 8 + lane]
+                dcu[(6 * a + b) * 8 + lane] = acc
         for a in range(12):  # (the lower triangle: all the Cholesky factor reads)
             for b in range(a + 1 if a < 6 else 6):
                 acc_r = 0.0
                 for k in range(6):
-                    acc_r += dcu[a, k] * dm[b, k]
+                    acc_r += dcu[(6 * a + k) * 8 + lane] * dm[(12 * b + k) * 8 + lane]
                 acc_i = 0.0
                 for k in range(6):
-                    acc_i += (-dcu[6 + a, k] if a < 6 else dcu[a - 6, k]) * dm[b, 6 + k]
-                cov_t[b, a] = (0.0 + acc_r) + acc_i  # (the halves added as they were)
+                    if a < 6:  # (- dcu[6 + a, k] dm[b, 6 + k], as a difference: exact)
+                        acc_i -= dcu[(6 * a + 36 + k) * 8 + lane] * dm[(12 * b + 6 + k) * 8 + lane]
+                    else:
+                        acc_i += dcu[(6 * a - 36 + k) * 8 + lane] * dm[(12 * b + 6 + k) * 8 + lane]
+                # (the halves added as they were)
+                cov[(12 * a + b) * 8 + lane] = (0.0 + acc_r) + acc_i
         for a in range(6, 12):
             for b in range(6, a + 1):
-                cov_t[b, a] = cov_t[b - 6, a - 6]
+                cov[(12 * a + b) * 8 + lane] = cov[(12 * a + b - 78) * 8 + lane]
         trace = 0.0
         for a in range(12):
-            trace += cov_t[a, a]
+            trace += cov[104 * a + lane]
         jitter = 1e-12 * trace / 12 + 1e-300
         for a in range(12):
-            cov_t[a, a] += jitter
-        # Cholesky, column j of L at once: cov[i, j] - sum_k<j L[i, k] L[j, k], k in order
+            cov[104 * a + lane] += jitter
+
+
+def factor_lanes(cov: np.ndarray, low: np.ndarray, inv: np.ndarray) -> None:
+    """The Cholesky factors ``L`` (``L L^T = cov``) and their inverses ``W`` of eight
+    (12, 12) matrices at once, each in its lane (entry (i, j) of lane l at (12 i + j) 8 +
+    l; lower triangles read and written). Compiled,
+    :func:`estimator.whiten_lanes.factor_lanes` (the eight lanes a vector) runs in its
+    place: the same operations in the same order."""
+    for lane in range(8):
         for j in range(12):
-            for i in range(j, 12):
-                col[i] = cov_t[j, i]
+            acc = cov[104 * j + lane]
             for k in range(j):
-                coef[k] = -low_f[12 * k + j]
-            add_products(coef, j, low_f, j, 12, 12 - j, col, j)
-            d = np.sqrt(col[j])
-            low_f[13 * j] = d
+                acc -= low[(12 * j + k) * 8 + lane] * low[(12 * j + k) * 8 + lane]
+            d = np.sqrt(acc)
+            low[104 * j + lane] = d
             for i in range(j + 1, 12):
-                low_f[12 * j + i] = col[i] / d
-        # W = L^-1 row by row: W[i, j] = -sum_{j<=k<i} L[i, k] W[k, j] / L[i, i], k in order
-        # (the products of the zeros above W's diagonal add nothing: every sum starts at +0)
-        inv[:] = 0.0
-        for i in range(12):
-            for k in range(i):
-                coef[k] = -low_f[12 * k + i]
-            add_products(coef, i, inv, 0, 12, i, inv, 12 * i)
-            lii = low_f[13 * i]
-            for j in range(i):
-                inv[12 * i + j] = inv[12 * i + j] / lii
-            inv[13 * i] = 1.0 / lii
-        for k in range(12):  # (copies by loops: numba's slice assignment is slower)
-            r = rhs[k]
-            h_k = H[p, k]
-            for j in range(n):
-                r[j] = h_k[j]
-            dm_k = dm[k]
-            for j in range(12):
-                r[n + j] = dm_k[j]
-            model_k = model[p, k]
-            for j in range(n_model):
-                r[n + 12 + j] = model_k[j]
-            r[m - 1] = y[p, k]
-        # W times every right-hand side: row a sums W[a, k] rhs[k] for k <= a, in order
-        out[:] = 0.0
-        for a in range(12):
-            add_products(inv[12 * a : 12 * a + 12], a + 1, rhs_f, 0, m, m, out, m * a)
-            h_a = H[p, a]
-            for j in range(n):
-                h_a[j] = out[m * a + j]
-            y[p, a] = out[m * a + m - 1]
-        # dr = (W D) sign sens (sens's model columns skipped: zero), then W model
-        for a in range(12):
-            at = (p * 12 + a) * n_sys
-            for j in range(n_sys):
-                dr_f[at + j] = 0.0
-            for k in range(12):
-                coef[k] = out[m * a + n + k] * sign[p]
-            add_products(coef, 12, sens_f, p * 12 * n_sys, n_sys, n_s, dr_f, at)
-            for j in range(n_model):
-                dr_f[at + n_s + j] += out[m * a + n + 12 + j]
+                acc = cov[(12 * i + j) * 8 + lane]
+                for k in range(j):
+                    acc -= low[(12 * i + k) * 8 + lane] * low[(12 * j + k) * 8 + lane]
+                low[(12 * i + j) * 8 + lane] = acc / d
+        for j in range(12):
+            inv[104 * j + lane] = 1.0 / low[104 * j + lane]
+            for i in range(j + 1, 12):
+                acc = 0.0
+                for k in range(j, i):
+                    acc -= low[(12 * i + k) * 8 + lane] * inv[(12 * k + j) * 8 + lane]
+                inv[(12 * i + j) * 8 + lane] = acc / low[104 * i + lane]
 
 
 def add_products(
@@ -185,4 +223,7 @@ def add_products(
         dst[d_off + j] = acc
 
 
-add_products_loops = add_products  # (the reference the compiled lanes are tested against)
+# (the references the compiled lanes are tested against)
+add_products_loops = add_products
+covariance_lanes_loops = covariance_lanes
+factor_lanes_loops = factor_lanes

@@ -67,7 +67,7 @@ def _pairs(n_p: int, n: int, n_sys: int, n_model: int) -> list[np.ndarray]:
 
 
 @NUMBA
-@pytest.mark.parametrize("shape", [(5, 12, 34, 7), (3, 9, 20, 0), (4, 13, 8, 2)])
+@pytest.mark.parametrize("shape", [(11, 12, 34, 7), (3, 9, 20, 0), (17, 13, 8, 2)])
 def test_compiled_whitening_is_the_interpreted_loops_bits(shape) -> None:
     want, got = _pairs(*shape), _pairs(*shape)
     whitened_rows.whiten_pairs(*want)
