@@ -1,14 +1,17 @@
-"""The eight-lane sums of :func:`estimator.whitened_rows.whiten_pairs`, compiled only.
+"""The eight-lane code of :func:`estimator.whitened_rows.whiten_pairs`, compiled only.
 
 Imported only where the compiled path runs (:func:`estimator.row_kernels.jit`, for the
-kernels that name it): it imports numba and :mod:`dsp.vec8`. :func:`add_products` does
-what :func:`estimator.whitened_rows.add_products` (the loops, the reference) does, with
-eight columns a vector (LLVM's ``<8 x double>``, :mod:`dsp.vec8`) and four vectors kept
-in registers while the terms are added: each lane is one column's running sum, the
-products added in the same order with the same roundings (no fused multiply-add), so the
-same bits (tested). Why not numba's own loops: vectorised, they reload and store the
-sums at every term and test for overlap and remainders at every call, and the calls are
-short (12 terms, 12-34 columns): most of their time went there (measured in
+kernels that name it): it imports numba and :mod:`dsp.vec8`. Each function does what
+its namesake in :mod:`estimator.whitened_rows` (the loops, the reference) does, with
+LLVM's ``<8 x double>`` (:mod:`dsp.vec8`, plus a division and a square root here, both
+correctly rounded): the same operations in the same order lane by lane, no fused
+multiply-add, so the same bits (tested). :func:`covariance_lanes` and
+:func:`factor_lanes` hold eight pairs, a pair a lane (the factorisation is a chain of
+square roots and divisions: one pair at a time it waited on their latency);
+:func:`rows_products` eight columns a vector, four vectors kept in registers while the
+terms are added. Why not numba's own loops: the two-index ones stayed scalar, and the
+vectorised ones over row views reload and store the sums at every term and test for
+overlap and remainders at every call, on rows of 12-34 columns (measured in
 :mod:`estimator.whitened_rows`).
 """
 
@@ -112,72 +115,75 @@ def factor_lanes(cov: np.ndarray, low: np.ndarray, inv: np.ndarray) -> None:
 
 
 @njit(cache=True, nogil=True)
-def add_products(
+def rows_products(
     c: np.ndarray,
+    c_off: int,
+    c_row: int,
+    c_col: int,
+    n_rows: int,
     n_terms: int,
+    lower: bool,
     src: np.ndarray,
     s_off: int,
+    s_row: int,
     s_stride: int,
     width: int,
     dst: np.ndarray,
     d_off: int,
+    d_stride: int,
 ) -> None:
-    """:func:`estimator.whitened_rows.add_products`: ``dst[d_off + j] += c[k] src[s_off +
-    k s_stride + j]``, k in order. Below eight columns one by one; otherwise in blocks of
-    two or four vectors, the last vector of the last block starting early enough to end
-    at ``width`` (its lanes overlap the block's previous vector: both computed from the
-    same loaded sums, the same bits, stored after)."""
-    if width < 8:
-        for j in range(width):
-            acc = dst[d_off + j]
-            for k in range(n_terms):
-                acc += c[k] * src[s_off + k * s_stride + j]
-            dst[d_off + j] = acc
-        return
-    j = 0
-    while width - j > 32:
-        if width - j >= 40:
-            _block4(c, n_terms, src, s_off + j, s_stride, dst, d_off + j, 8, 16, 24)
-            j += 32
-        else:  # (32 < rest < 40: two vectors, leaving 17-23 columns for four)
-            _block2(c, n_terms, src, s_off + j, s_stride, dst, d_off + j, 8)
-            j += 16
-    rest = width - j
-    if rest <= 16:
-        _block2(c, n_terms, src, s_off + j, s_stride, dst, d_off + j, rest - 8)
-    else:
-        _block4(c, n_terms, src, s_off + j, s_stride, dst, d_off + j, 8, rest - 16, rest - 8)
-
-
-@njit(cache=True, nogil=True)
-def _block2(c, n_terms, src, s_off, s_stride, dst, d_off, o1):
-    """Columns 0-7 and o1 .. o1 + 7 (o1 <= 8) of :func:`add_products`, from ``d_off``."""
-    a0 = vload(dst, d_off)
-    a1 = vload(dst, d_off + o1)
-    for k in range(n_terms):
-        ck = vsplat(c[k])
-        at = s_off + k * s_stride
-        a0 = vadd(a0, vmul(ck, vload(src, at)))
-        a1 = vadd(a1, vmul(ck, vload(src, at + o1)))
-    vstore(dst, d_off, a0)
-    vstore(dst, d_off + o1, a1)
-
-
-@njit(cache=True, nogil=True)
-def _block4(c, n_terms, src, s_off, s_stride, dst, d_off, o1, o2, o3):
-    """Columns 0-7, o1.., o2.., o3 .. o3 + 7 of :func:`add_products`, from ``d_off``."""
-    a0 = vload(dst, d_off)
-    a1 = vload(dst, d_off + o1)
-    a2 = vload(dst, d_off + o2)
-    a3 = vload(dst, d_off + o3)
-    for k in range(n_terms):
-        ck = vsplat(c[k])
-        at = s_off + k * s_stride
-        a0 = vadd(a0, vmul(ck, vload(src, at)))
-        a1 = vadd(a1, vmul(ck, vload(src, at + o1)))
-        a2 = vadd(a2, vmul(ck, vload(src, at + o2)))
-        a3 = vadd(a3, vmul(ck, vload(src, at + o3)))
-    vstore(dst, d_off, a0)
-    vstore(dst, d_off + o1, a1)
-    vstore(dst, d_off + o2, a2)
-    vstore(dst, d_off + o3, a3)
+    """:func:`estimator.whitened_rows.rows_products`, each row's products rounded and
+    added in order (the loops' bits), eight columns a vector: below eight columns one by
+    one; otherwise blocks of four vectors (two for 16 columns or fewer), the last vector of
+    the last block starting early enough to end at ``width`` (its lanes overlap the
+    block's previous vector: both computed from the same loaded sums, the same bits,
+    stored after). All in one function: a call of a compiled helper with three arrays
+    costs ~20 ns, as much as a block's arithmetic."""
+    for a in range(n_rows):
+        nt = a + 1 if lower else n_terms
+        ca = c_off + a * c_row
+        sa = s_off + a * s_row
+        da = d_off + a * d_stride
+        if width < 8:
+            for j in range(width):
+                acc = dst[da + j]
+                for k in range(nt):
+                    acc += c[ca + k * c_col] * src[sa + k * s_stride + j]
+                dst[da + j] = acc
+            continue
+        j = 0
+        while j < width:
+            rest = width - j
+            if rest > 32 and rest < 40:  # (two vectors, leaving 17-23 columns for four)
+                o1, o2, o3, two = 8, 8, 8, True
+            elif rest >= 32:
+                o1, o2, o3, two = 8, 16, 24, False
+            elif rest > 16:
+                o1, o2, o3, two = 8, rest - 16, rest - 8, False
+            else:
+                o1, o2, o3, two = rest - 8, rest - 8, rest - 8, True
+            d0 = da + j
+            a0 = vload(dst, d0)
+            a1 = vload(dst, d0 + o1)
+            if two:
+                for k in range(nt):
+                    ck = vsplat(c[ca + k * c_col])
+                    at = sa + k * s_stride + j
+                    a0 = vadd(a0, vmul(ck, vload(src, at)))
+                    a1 = vadd(a1, vmul(ck, vload(src, at + o1)))
+                j += 16 if rest > 16 else rest
+            else:
+                a2 = vload(dst, d0 + o2)
+                a3 = vload(dst, d0 + o3)
+                for k in range(nt):
+                    ck = vsplat(c[ca + k * c_col])
+                    at = sa + k * s_stride + j
+                    a0 = vadd(a0, vmul(ck, vload(src, at)))
+                    a1 = vadd(a1, vmul(ck, vload(src, at + o1)))
+                    a2 = vadd(a2, vmul(ck, vload(src, at + o2)))
+                    a3 = vadd(a3, vmul(ck, vload(src, at + o3)))
+                vstore(dst, d0 + o2, a2)
+                vstore(dst, d0 + o3, a3)
+                j += 32 if rest >= 32 else rest
+            vstore(dst, d0, a0)
+            vstore(dst, d0 + o1, a1)

@@ -10,20 +10,27 @@ the same arithmetic as the loops that were in :func:`pair_rows` before (issue 24
 same bits, tested against the interpreter's run of this module).
 
 Why it is laid out so (issue 24): numba's loops over two indices (``hp[a, j] += c *
-raw[k, j]``) stayed scalar (the machine code had no packed multiply), and numba's own
+raw[k, j]``) stayed scalar (the machine code had no packed multiply); numba's own
 vectorised loops over row views, short as these are (12 terms, 12-34 columns), spend
-their time on overlap and remainder tests and on storing the sums at every term. So
-every sum of products here is one call of :func:`add_products`, which the compiled
-kernel takes from :mod:`estimator.whiten_lanes` (eight columns a vector, the sums kept in
-registers; the same products added in the same order: the same bits, tested): ``W``
-times the right-hand sides gathered in one (12, n + 12 + n_model + 1) block (raw rows,
-``D``, model rows, residual), ``W D`` times ``sens``, the Cholesky factor column by column
-on its transpose and ``W`` row by row. Every entry is the sum of the same products in the
-same order as the scalar loops that were in :func:`estimator.row_kernels.pair_rows`:
-the compiled rows are the same bits as before (the 60 s log's 4494 pairs, checked).
+their time on overlap and remainder tests and on storing the sums at every term; the
+Cholesky factorisation and inverse of one pair is a chain of square roots and divisions
+that waits on their latency; and a call of a compiled helper with three arrays costs
+~20 ns. So the compiled kernel takes three helpers from :mod:`estimator.whiten_lanes`
+(``LANE_HELPERS``; this module's own loops are the reference the interpreter runs):
+:func:`covariance_lanes` and :func:`factor_lanes` form and factor eight pairs'
+covariances at once, a pair a vector lane, and :func:`rows_products` multiplies eight
+columns a vector, the sums kept in registers: ``W`` times the right-hand sides gathered
+in one (12, n + 12 + n_model + 1) block (raw rows, ``D``, model rows, residual) in one
+call, ``(W D sign)`` times ``sens`` in another. Every entry is the sum of the same
+products in the same order as the scalar loops that were in
+:func:`estimator.row_kernels.pair_rows`: the compiled rows are the same bits as before
+(the 60 s log's 4494 pairs, and the compiled default run, checked).
+
 Measured on those pairs (54 calls captured from ``/tmp/prof/stage_prof.py est``; CPU
-best of 30, load 3.6 on the 2 cores): the rows 18.1 -> 13.3 ms a minute (the whitening
-15.2 -> 10.4, the raw rows 2.9).
+best of 30, load 2.1-2.3 on the 2 cores): the rows (raw and whitened) 17.4-18.0 -> 10.2-10.5
+ms a minute (the whitening 14.5-15 -> 7.3, the raw rows 3.0); step by step: the
+whitening's sums a vector at a time 18.1 -> 13.3, eight pairs' covariances and factors
+a lane each -> 10.9-11.8, one call for each matrix product -> 10.2-10.5.
 """
 
 from __future__ import annotations
@@ -33,12 +40,12 @@ import numpy as np
 # the helpers estimator.row_kernels.jit replaces by their compiled eight-lane versions
 # (this file's own ones stay the reference the interpreter runs)
 LANES_MODULE = "estimator.whiten_lanes"
-LANE_HELPERS = ("add_products", "covariance_lanes", "factor_lanes")
+LANE_HELPERS = ("rows_products", "covariance_lanes", "factor_lanes")
 # numba's cache watches this file only: the sha256 of the files the compiled helpers come
 # from (tests/estimator/test_whitened_rows.py recomputes it and prints the new value), so
 # an edit of theirs changes this file too and a stale cache is never loaded
 HELPERS = ("estimator/whiten_lanes.py", "dsp/vec8.py")
-HELPERS_SHA256 = "49a8228c99391510c00503764226158e463957fe36188709e53066479014fc5d"
+HELPERS_SHA256 = "b178ac68ecb3bbd6f3395bf38fa7f49f30efe09494a475030a16b3787df23a9c"
 
 
 def whiten_pairs(
@@ -76,7 +83,7 @@ def whiten_pairs(
     cov = np.zeros(144 * 8)
     low = np.empty(144 * 8)
     inv = np.empty(144 * 8)
-    coef = np.empty(12)
+    coef = np.empty(144)  # W D sign
     sens_f = sens.reshape(sens.size)
     dr_f = dr.reshape(dr.size)
     for first in range(0, n_p, 8):
@@ -114,24 +121,23 @@ def whiten_pairs(
                 r[m - 1] = y[p, k]
             # W times every right-hand side: row a sums W[a, k] rhs[k] for k <= a, in order
             out[:] = 0.0
+            rows_products(inv, lane, 96, 8, 12, 12, True, rhs_f, 0, 0, m, m, out, 0, m)
             for a in range(12):
-                for k in range(a + 1):
-                    coef[k] = inv[(12 * a + k) * 8 + lane]
-                add_products(coef, a + 1, rhs_f, 0, m, m, out, m * a)
                 h_a = H[p, a]
                 for j in range(n):
                     h_a[j] = out[m * a + j]
                 y[p, a] = out[m * a + m - 1]
             # dr = (W D) sign sens (sens's model columns skipped: zero), then W model
             for a in range(12):
-                at = (p * 12 + a) * n_sys
-                for j in range(n_sys):
-                    dr_f[at + j] = 0.0
                 for k in range(12):
-                    coef[k] = out[m * a + n + k] * sign[p]
-                add_products(coef, 12, sens_f, p * 12 * n_sys, n_sys, n_s, dr_f, at)
+                    coef[12 * a + k] = out[m * a + n + k] * sign[p]
+            at = p * 12 * n_sys
+            for j in range(12 * n_sys):
+                dr_f[at + j] = 0.0
+            rows_products(coef, 0, 12, 1, 12, 12, False, sens_f, at, 0, n_sys, n_s, dr_f, at, n_sys)
+            for a in range(12):
                 for j in range(n_model):
-                    dr_f[at + n_s + j] += out[m * a + n + 12 + j]
+                    dr_f[at + a * n_sys + n_s + j] += out[m * a + n + 12 + j]
 
 
 def covariance_lanes(dm: np.ndarray, cu: np.ndarray, dcu: np.ndarray, cov: np.ndarray) -> None:
@@ -202,28 +208,37 @@ def factor_lanes(cov: np.ndarray, low: np.ndarray, inv: np.ndarray) -> None:
                 inv[(12 * i + j) * 8 + lane] = acc / low[104 * i + lane]
 
 
-def add_products(
+def rows_products(
     c: np.ndarray,
+    c_off: int,
+    c_row: int,
+    c_col: int,
+    n_rows: int,
     n_terms: int,
+    lower: bool,
     src: np.ndarray,
     s_off: int,
+    s_row: int,
     s_stride: int,
     width: int,
     dst: np.ndarray,
     d_off: int,
+    d_stride: int,
 ) -> None:
-    """``dst[d_off + j] += c[k] src[s_off + k s_stride + j]`` for k = 0 .. n_terms - 1, each
-    product added to the running sum in k order, j = 0 .. width - 1 (1-d arrays). Compiled,
-    :func:`estimator.whiten_lanes.add_products` (eight columns a vector) runs in its place:
-    the same operations in the same order."""
-    for j in range(width):
-        acc = dst[d_off + j]
-        for k in range(n_terms):
-            acc += c[k] * src[s_off + k * s_stride + j]
-        dst[d_off + j] = acc
+    """``dst[d_off + a d_stride + j] += C[a, k] src[s_off + a s_row + k s_stride + j]`` for rows a <
+    ``n_rows``, terms k < ``n_terms`` (``lower``: k <= a) in order, each product added to
+    the running sum, columns j < ``width``; ``C[a, k] = c[c_off + a c_row + k c_col]``
+    (1-d arrays). Compiled, :func:`estimator.whiten_lanes.rows_products` (eight columns a
+    vector) runs in its place: the same operations in the same order."""
+    for a in range(n_rows):
+        for j in range(width):
+            acc = dst[d_off + a * d_stride + j]
+            for k in range(a + 1 if lower else n_terms):
+                acc += c[c_off + a * c_row + k * c_col] * src[s_off + a * s_row + k * s_stride + j]
+            dst[d_off + a * d_stride + j] = acc
 
 
 # (the references the compiled lanes are tested against)
-add_products_loops = add_products
+rows_products_loops = rows_products
 covariance_lanes_loops = covariance_lanes
 factor_lanes_loops = factor_lanes

@@ -30,19 +30,27 @@ def test_the_whitening_names_its_helpers_hash() -> None:
 
 
 @NUMBA
-@pytest.mark.parametrize("width", [0, 3, 8, 13, 32, 34, 45, 77])
+@pytest.mark.parametrize("width", [0, 3, 8, 13, 16, 17, 32, 34, 45, 77])
 def test_eight_lane_sums_are_the_loops_bits(width: int) -> None:
-    from estimator.whiten_lanes import add_products
+    from estimator.whiten_lanes import rows_products
 
     rng = np.random.default_rng(width)
-    for n_terms in (0, 1, 5, 12):
-        c = rng.normal(size=12)
+    for n_terms, lower, s_row in (
+        (0, False, 0),
+        (1, False, 1),
+        (5, True, 0),
+        (12, False, 0),
+        (1, True, 5),
+    ):
+        c = rng.normal(size=200)
         stride = width + 3
-        src = rng.normal(size=2 + stride * 12) * 10.0 ** rng.integers(-8, 8, 2 + stride * 12)
-        start = rng.normal(size=width + 5)
+        size = 2 + stride * 12 + 60
+        src = rng.normal(size=size) * 10.0 ** rng.integers(-8, 8, size)
+        start = rng.normal(size=4 + 12 * (width + 1))
         want, got = start.copy(), start.copy()
-        whitened_rows.add_products_loops(c, n_terms, src, 2, stride, width, want, 4 if width else 0)
-        add_products(c, n_terms, src, 2, stride, width, got, 4 if width else 0)
+        args = (c, 3, 14, 1, 12, n_terms, lower, src, 2, s_row, stride, width)
+        whitened_rows.rows_products_loops(*args, want, 4, width + 1)
+        rows_products(*args, got, 4, width + 1)
         assert np.array_equal(got, want)
 
 
