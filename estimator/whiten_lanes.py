@@ -153,26 +153,22 @@ def rows_products(
             continue
         j = 0
         while j < width:
+            # (a block's vectors: 2 up to 16 columns, 4 up to 32, 5 up to 40, else the
+            # first 32 columns in 4; the last vector ends at the block's last column)
             rest = width - j
-            if rest > 32 and rest < 40:  # (two vectors, leaving 17-23 columns for four)
-                o1, o2, o3, two = 8, 8, 8, True
-            elif rest >= 32:
-                o1, o2, o3, two = 8, 16, 24, False
-            elif rest > 16:
-                o1, o2, o3, two = 8, rest - 16, rest - 8, False
-            else:
-                o1, o2, o3, two = rest - 8, rest - 8, rest - 8, True
+            last = min(rest, 40 if rest <= 40 else 32) - 8
+            o1 = min(8, last)
+            o2, o3 = (16, 24) if rest > 32 else (rest - 16, rest - 8)
             d0 = da + j
             a0 = vload(dst, d0)
             a1 = vload(dst, d0 + o1)
-            if two:
+            if rest <= 16:
                 for k in range(nt):
                     ck = vsplat(c[ca + k * c_col])
                     at = sa + k * s_stride + j
                     a0 = vadd(a0, vmul(ck, vload(src, at)))
                     a1 = vadd(a1, vmul(ck, vload(src, at + o1)))
-                j += 16 if rest > 16 else rest
-            else:
+            elif rest <= 32 or rest > 40:
                 a2 = vload(dst, d0 + o2)
                 a3 = vload(dst, d0 + o3)
                 for k in range(nt):
@@ -184,6 +180,21 @@ def rows_products(
                     a3 = vadd(a3, vmul(ck, vload(src, at + o3)))
                 vstore(dst, d0 + o2, a2)
                 vstore(dst, d0 + o3, a3)
-                j += 32 if rest >= 32 else rest
+            else:
+                a2 = vload(dst, d0 + 16)
+                a3 = vload(dst, d0 + 24)
+                a4 = vload(dst, d0 + last)
+                for k in range(nt):
+                    ck = vsplat(c[ca + k * c_col])
+                    at = sa + k * s_stride + j
+                    a0 = vadd(a0, vmul(ck, vload(src, at)))
+                    a1 = vadd(a1, vmul(ck, vload(src, at + 8)))
+                    a2 = vadd(a2, vmul(ck, vload(src, at + 16)))
+                    a3 = vadd(a3, vmul(ck, vload(src, at + 24)))
+                    a4 = vadd(a4, vmul(ck, vload(src, at + last)))
+                vstore(dst, d0 + 16, a2)
+                vstore(dst, d0 + 24, a3)
+                vstore(dst, d0 + last, a4)
             vstore(dst, d0, a0)
             vstore(dst, d0 + o1, a1)
+            j += rest if rest <= 40 else 32
