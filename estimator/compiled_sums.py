@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimator.hypotheses import Accumulator, rows_after
+from estimator.hypotheses import Accumulator
 from estimator.rls import RlsState
 from estimator.row_kernels import jit
 
@@ -60,6 +60,7 @@ def kernel_tail_sums(
     st = acc.state
     info, vec, sens = st.info.copy(), st.vec.copy(), acc.sens.copy()
     yty = np.array([st.yty])
+    rows = np.array([st.rows])
     (jit(tail_sums) if compiled else tail_sums)(
         np.ascontiguousarray(H),
         np.ascontiguousarray(y),
@@ -72,9 +73,9 @@ def kernel_tail_sums(
         vec,
         yty,
         sens,
+        rows,
     )
-    rows = rows_after(st.rows, np.diff(bounds), forgetting)
-    return Accumulator(RlsState(info, vec, float(yty[0]), rows), sens)
+    return Accumulator(RlsState(info, vec, float(yty[0]), float(rows[0])), sens)
 
 
 def tail_sums(
@@ -89,13 +90,16 @@ def tail_sums(
     vec: np.ndarray,
     yty: np.ndarray,
     sens: np.ndarray,
+    rows: np.ndarray,
 ) -> None:
     """Per frame ``Lambda <- lam Lambda + Ha^T Ha``, ``eta <- lam eta + Ha^T y``, ``yty <-
     lam yty + y^T y``, ``S <- lam S + Ha^T dr`` in place, ``Ha`` the rows H (pairs, 12, n)
     with their tail columns (a pair's first ``n_tail`` columns times its ``phi``): each
     frame's sums formed pair by pair (in row order), its pairs' then added, and then the
     frame's added to the state in stream order (the state does not depend on how the
-    frames were batched). ``info`` (n + n_tail, n + n_tail), ``vec``, ``sens`` likewise."""
+    frames were batched). ``info`` (n + n_tail, n + n_tail), ``vec``, ``sens`` likewise;
+    ``rows`` (1,) the row count, as :func:`estimator.hypotheses.rows_after` counts it (the
+    same operations: one sum without forgetting, else frame by frame)."""
     n = H.shape[2]
     n_sys = dr.shape[2]
     m = n + n_tail
@@ -165,3 +169,7 @@ def tail_sums(
             for j in range(n_sys):
                 sens[i, j] = lam * sens[i, j] + sens_f[i, j]
         yty[0] = lam * yty[0] + yty_f
+        if lam != 1.0:
+            rows[0] = lam * rows[0] + 12.0 * (bounds[f + 1] - bounds[f])
+    if lam == 1.0:
+        rows[0] = rows[0] + 12.0 * (bounds[bounds.shape[0] - 1] - bounds[0])
