@@ -229,18 +229,20 @@ def motion_sens(
     (6, u), their columns ``used`` (u,) and their sensors' first columns ``bases`` (u,).
     The same products and the same sums in channel order as the numpy function."""
     n_p, u = amplitudes.shape
+    n_sys = out.shape[2]
+    flat = out.reshape(out.size)  # (flat indices: no view per row, no wrap-around checks)
     pose = np.empty(6)
     for p in range(n_p):
+        go = gamma_o[p]
+        om = omega_dot[p]
         for part in range(2):
+            w0 = om[0].real if part == 0 else om[0].imag
+            w1 = om[1].real if part == 0 else om[1].imag
+            w2 = om[2].real if part == 0 else om[2].imag
             for j in range(u):
                 a = amplitudes[p, j].real if part == 0 else amplitudes[p, j].imag
                 n = directions[j]
                 r = arm[j]
-                go = gamma_o[p]
-                om = omega_dot[p]
-                w0 = om[0].real if part == 0 else om[0].imag
-                w1 = om[1].real if part == 0 else om[1].imag
-                w2 = om[2].real if part == 0 else om[2].imag
                 g0 = (go[0].real if part == 0 else go[0].imag) + (w1 * r[2] - w2 * r[1])
                 g1 = (go[1].real if part == 0 else go[1].imag) + (w2 * r[0] - w0 * r[2])
                 g2 = (go[2].real if part == 0 else go[2].imag) + (w0 * r[1] - w1 * r[0])
@@ -251,8 +253,10 @@ def motion_sens(
                 pose[3] = n[1] * w2 - n[2] * w1
                 pose[4] = n[2] * w0 - n[0] * w2
                 pose[5] = n[0] * w1 - n[1] * w0
+                base = bases[j]
                 for i in range(6):
-                    row = out[p, 6 * part + i]
-                    row[used[j]] = gain[i, j] * a
+                    row = (p * 12 + 6 * part + i) * n_sys
+                    gain_ij = gain[i, j]
+                    flat[row + used[j]] = gain_ij * a
                     for c in range(6):
-                        row[bases[j] + c] += gain[i, j] * pose[c]
+                        flat[row + base + c] += gain_ij * pose[c]

@@ -139,11 +139,18 @@ def rows_products(
     block's previous vector: both computed from the same loaded sums, the same bits,
     stored after). All in one function: a call of a compiled helper with three arrays
     costs ~20 ns, as much as a block's arithmetic."""
-    for a in range(n_rows):
+    a = 0
+    while a < n_rows:
         nt = a + 1 if lower else n_terms
         ca = c_off + a * c_row
         sa = s_off + a * s_row
         da = d_off + a * d_stride
+        if s_row == 0 and a + 1 < n_rows and 16 < width <= 32:
+            _two_rows(c, ca, c_row, c_col, nt, (a + 2) if lower else n_terms, src, s_off,
+                      s_stride, width, dst, da, d_stride)  # fmt: skip
+            a += 2
+            continue
+        a += 1
         if width < 8:
             for j in range(width):
                 acc = dst[da + j]
@@ -198,3 +205,49 @@ def rows_products(
             vstore(dst, d0, a0)
             vstore(dst, d0 + o1, a1)
             j += rest if rest <= 40 else 32
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _two_rows(c, ca, c_row, c_col, nt0, nt1, src, s_off, s_stride, width, dst, da, d_stride):
+    """Two consecutive rows of :func:`rows_products` (``nt0`` and ``nt1`` >= ``nt0`` terms,
+    17-32 columns, the same source rows): their sums interleaved, each in its own order
+    (two chains for the latency of an addition to hide behind), each source vector loaded
+    once for both."""
+    o2, o3 = width - 16, width - 8
+    db = da + d_stride
+    cb = ca + c_row
+    a0, a1, a2, a3 = vload(dst, da), vload(dst, da + 8), vload(dst, da + o2), vload(dst, da + o3)
+    b0, b1, b2, b3 = vload(dst, db), vload(dst, db + 8), vload(dst, db + o2), vload(dst, db + o3)
+    for k in range(nt0):
+        at = s_off + k * s_stride
+        x0, x1, x2, x3 = (
+            vload(src, at),
+            vload(src, at + 8),
+            vload(src, at + o2),
+            vload(src, at + o3),
+        )
+        ka = vsplat(c[ca + k * c_col])
+        kb = vsplat(c[cb + k * c_col])
+        a0 = vadd(a0, vmul(ka, x0))
+        b0 = vadd(b0, vmul(kb, x0))
+        a1 = vadd(a1, vmul(ka, x1))
+        b1 = vadd(b1, vmul(kb, x1))
+        a2 = vadd(a2, vmul(ka, x2))
+        b2 = vadd(b2, vmul(kb, x2))
+        a3 = vadd(a3, vmul(ka, x3))
+        b3 = vadd(b3, vmul(kb, x3))
+    for k in range(nt0, nt1):  # (the second row's last terms, lower triangular)
+        at = s_off + k * s_stride
+        kb = vsplat(c[cb + k * c_col])
+        b0 = vadd(b0, vmul(kb, vload(src, at)))
+        b1 = vadd(b1, vmul(kb, vload(src, at + 8)))
+        b2 = vadd(b2, vmul(kb, vload(src, at + o2)))
+        b3 = vadd(b3, vmul(kb, vload(src, at + o3)))
+    vstore(dst, da, a0)
+    vstore(dst, da + 8, a1)
+    vstore(dst, da + o2, a2)
+    vstore(dst, da + o3, a3)
+    vstore(dst, db, b0)
+    vstore(dst, db + 8, b1)
+    vstore(dst, db + o2, b2)
+    vstore(dst, db + o3, b3)

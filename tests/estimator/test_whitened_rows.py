@@ -35,12 +35,15 @@ def test_eight_lane_sums_are_the_loops_bits(width: int) -> None:
     from estimator.whiten_lanes import rows_products
 
     rng = np.random.default_rng(width)
-    for n_terms, lower, s_row in (
-        (0, False, 0),
-        (1, False, 1),
-        (5, True, 0),
-        (12, False, 0),
-        (1, True, 5),
+    # (rows two at a time where the source rows are shared: an odd count leaves one)
+    for n_terms, lower, s_row, n_rows in (
+        (0, False, 0, 12),
+        (1, False, 1, 12),
+        (5, True, 0, 12),
+        (12, False, 0, 12),
+        (1, True, 5, 12),
+        (12, True, 0, 11),
+        (7, False, 0, 9),
     ):
         c = rng.normal(size=200)
         stride = width + 3
@@ -48,7 +51,7 @@ def test_eight_lane_sums_are_the_loops_bits(width: int) -> None:
         src = rng.normal(size=size) * 10.0 ** rng.integers(-8, 8, size)
         start = rng.normal(size=4 + 12 * (width + 1))
         want, got = start.copy(), start.copy()
-        args = (c, 3, 14, 1, 12, n_terms, lower, src, 2, s_row, stride, width)
+        args = (c, 3, 14, 1, n_rows, n_terms, lower, src, 2, s_row, stride, width)
         whitened_rows.rows_products_loops(*args, want, 4, width + 1)
         rows_products(*args, got, 4, width + 1)
         assert np.array_equal(got, want)
