@@ -145,9 +145,17 @@ def rows_products(
         ca = c_off + a * c_row
         sa = s_off + a * s_row
         da = d_off + a * d_stride
-        if s_row == 0 and a + 1 < n_rows and 16 < width <= 32:
-            _two_rows(c, ca, c_row, c_col, nt, (a + 2) if lower else n_terms, src, s_off,
-                      s_stride, width, dst, da, d_stride)  # fmt: skip
+        if s_row == 0 and a + 1 < n_rows and 8 <= width <= 40:
+            nt1 = (a + 2) if lower else n_terms
+            if width <= 16:
+                _two_rows2(c, ca, c_row, c_col, nt, nt1, src, s_off, s_stride, width, dst,
+                           da, d_stride)  # fmt: skip
+            elif width <= 32:
+                _two_rows(c, ca, c_row, c_col, nt, nt1, src, s_off, s_stride, width, dst,
+                          da, d_stride)  # fmt: skip
+            else:
+                _two_rows5(c, ca, c_row, c_col, nt, nt1, src, s_off, s_stride, width, dst,
+                           da, d_stride)  # fmt: skip
             a += 2
             continue
         a += 1
@@ -251,3 +259,81 @@ def _two_rows(c, ca, c_row, c_col, nt0, nt1, src, s_off, s_stride, width, dst, d
     vstore(dst, db + 8, b1)
     vstore(dst, db + o2, b2)
     vstore(dst, db + o3, b3)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _two_rows2(c, ca, c_row, c_col, nt0, nt1, src, s_off, s_stride, width, dst, da, d_stride):
+    """:func:`_two_rows` for 8-16 columns (two vectors a row)."""
+    o1 = width - 8
+    db = da + d_stride
+    cb = ca + c_row
+    a0, a1 = vload(dst, da), vload(dst, da + o1)
+    b0, b1 = vload(dst, db), vload(dst, db + o1)
+    for k in range(nt0):
+        at = s_off + k * s_stride
+        x0, x1 = vload(src, at), vload(src, at + o1)
+        ka = vsplat(c[ca + k * c_col])
+        kb = vsplat(c[cb + k * c_col])
+        a0 = vadd(a0, vmul(ka, x0))
+        b0 = vadd(b0, vmul(kb, x0))
+        a1 = vadd(a1, vmul(ka, x1))
+        b1 = vadd(b1, vmul(kb, x1))
+    for k in range(nt0, nt1):
+        at = s_off + k * s_stride
+        kb = vsplat(c[cb + k * c_col])
+        b0 = vadd(b0, vmul(kb, vload(src, at)))
+        b1 = vadd(b1, vmul(kb, vload(src, at + o1)))
+    vstore(dst, da, a0)
+    vstore(dst, da + o1, a1)
+    vstore(dst, db, b0)
+    vstore(dst, db + o1, b1)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _two_rows5(c, ca, c_row, c_col, nt0, nt1, src, s_off, s_stride, width, dst, da, d_stride):
+    """:func:`_two_rows` for 33-40 columns (five vectors a row)."""
+    o4 = width - 8
+    db = da + d_stride
+    cb = ca + c_row
+    a0, a1, a2, a3 = vload(dst, da), vload(dst, da + 8), vload(dst, da + 16), vload(dst, da + 24)
+    b0, b1, b2, b3 = vload(dst, db), vload(dst, db + 8), vload(dst, db + 16), vload(dst, db + 24)
+    a4, b4 = vload(dst, da + o4), vload(dst, db + o4)
+    for k in range(nt0):
+        at = s_off + k * s_stride
+        x0, x1, x2, x3 = (
+            vload(src, at),
+            vload(src, at + 8),
+            vload(src, at + 16),
+            vload(src, at + 24),
+        )
+        x4 = vload(src, at + o4)
+        ka = vsplat(c[ca + k * c_col])
+        kb = vsplat(c[cb + k * c_col])
+        a0 = vadd(a0, vmul(ka, x0))
+        b0 = vadd(b0, vmul(kb, x0))
+        a1 = vadd(a1, vmul(ka, x1))
+        b1 = vadd(b1, vmul(kb, x1))
+        a2 = vadd(a2, vmul(ka, x2))
+        b2 = vadd(b2, vmul(kb, x2))
+        a3 = vadd(a3, vmul(ka, x3))
+        b3 = vadd(b3, vmul(kb, x3))
+        a4 = vadd(a4, vmul(ka, x4))
+        b4 = vadd(b4, vmul(kb, x4))
+    for k in range(nt0, nt1):
+        at = s_off + k * s_stride
+        kb = vsplat(c[cb + k * c_col])
+        b0 = vadd(b0, vmul(kb, vload(src, at)))
+        b1 = vadd(b1, vmul(kb, vload(src, at + 8)))
+        b2 = vadd(b2, vmul(kb, vload(src, at + 16)))
+        b3 = vadd(b3, vmul(kb, vload(src, at + 24)))
+        b4 = vadd(b4, vmul(kb, vload(src, at + o4)))
+    vstore(dst, da, a0)
+    vstore(dst, da + 8, a1)
+    vstore(dst, da + 16, a2)
+    vstore(dst, da + 24, a3)
+    vstore(dst, da + o4, a4)
+    vstore(dst, db, b0)
+    vstore(dst, db + 8, b1)
+    vstore(dst, db + 16, b2)
+    vstore(dst, db + 24, b3)
+    vstore(dst, db + o4, b4)

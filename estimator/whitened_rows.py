@@ -45,7 +45,7 @@ LANE_HELPERS = ("rows_products", "covariance_lanes", "factor_lanes")
 # from (tests/estimator/test_whitened_rows.py recomputes it and prints the new value), so
 # an edit of theirs changes this file too and a stale cache is never loaded
 HELPERS = ("estimator/whiten_lanes.py", "dsp/vec8.py")
-HELPERS_SHA256 = "fc3e5b8d61fb90d7ea9fedd6f7594f0ff2641e641d563b59352f46e79bdbc60d"
+HELPERS_SHA256 = "7dcf35261a4e1a1a649e12240f19768cf656697a59c676fbfb7e03d343d6e79b"
 
 
 def whiten_pairs(

@@ -7,24 +7,26 @@ from __future__ import annotations
 
 import hashlib
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
-from estimator import row_kernels, whitened_rows
+from estimator import compiled_sums, row_kernels, whitened_rows
 
 NUMBA = pytest.mark.skipif(not row_kernels.AVAILABLE, reason="numba not installed")
 ROOT = Path(whitened_rows.__file__).parent.parent
 
 
-def test_the_whitening_names_its_helpers_hash() -> None:
-    """numba's cache watches whitened_rows.py's bytes only: the sha256 of the helpers the
-    compiled kernel takes from elsewhere is written in it, so editing one changes it."""
+@pytest.mark.parametrize("module", [whitened_rows, compiled_sums], ids=lambda m: m.__name__)
+def test_the_kernels_name_their_helpers_hash(module: Any) -> None:
+    """numba's cache watches a kernel's own file's bytes only: the sha256 of the helpers
+    the compiled kernel takes from elsewhere is written in it, so editing one changes it."""
     digest = hashlib.sha256()
-    for helper in whitened_rows.HELPERS:
+    for helper in module.HELPERS:
         digest.update(helper.encode() + b"\0" + (ROOT / helper).read_bytes())
-    assert digest.hexdigest() == whitened_rows.HELPERS_SHA256, (
-        "a helper of estimator/whitened_rows.py changed: set HELPERS_SHA256 there to "
+    assert digest.hexdigest() == module.HELPERS_SHA256, (
+        f"a helper of {module.__name__} changed: set HELPERS_SHA256 there to "
         f"{digest.hexdigest()!r} so numba's cache is rebuilt"
     )
 
