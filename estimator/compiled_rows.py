@@ -1,5 +1,6 @@
 """The compiled row assembly's entry points: :func:`kernel_rows` (the rows, by
-:func:`estimator.row_kernels.pair_rows`), :func:`kernel_motion_sensitivity` and
+:func:`estimator.row_kernels.pair_rows` and :func:`estimator.whitened_rows.whiten_pairs`),
+:func:`kernel_motion_sensitivity` and
 :func:`estimator.compiled_model_rows.kernel_model_input_rows` (the sensitivities to the
 systematic errors, by the loops here, and to the model inputs, by that module's): what
 :class:`estimator.pending_rows.RowAssembler`
@@ -23,6 +24,15 @@ imported on the first call only (:func:`estimator.row_kernels.jit`), and compili
 them costs about 7 s of CPU once per install (``ptinertia run --duration 5`` with an
 empty numba cache: 12.4-13.0 s against 5.3-5.7 s with the dsp's kernels alone); from a
 filled cache they add 0.04 s to the start (1.20 against 1.16 s; load 4).
+
+Since (issue 24, ninth wave): the whitening is its own kernel with eight-lane sums
+(:mod:`estimator.whitened_rows`, :mod:`estimator.whiten_lanes`: the same bits as the loops
+it replaced), the RLS sums likewise (:mod:`estimator.compiled_sums`), the motion
+sensitivity by flat indices. On the 60 s log's calls (CPU best of 30-50, load 2-6): the
+rows 17.4-18.0 -> 9.0-10.1 ms a minute, the RLS sums 6.6-6.8 -> 6.1-6.2, the motion
+sensitivity 1.8 -> 1.5; the compiled estimator alone (``/tmp/prof/stage_prof.py est``,
+best of 7, three alternations with 4adcb8f, load 2-3) 0.0723-0.0734 -> 0.0623-0.0645 s
+a minute. The compiled default and realistic runs are the same bits as before.
 
 How close: the sensitivity loops take the numpy functions' products and sums in their
 order (the same values, tested); the rows and the RLS sums do not (loops against BLAS,

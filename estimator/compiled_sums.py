@@ -30,15 +30,13 @@ interval within 1e-13 relative (3.2e-13 before), a principal axis component 1.7e
 (1.4e-12 before); the half-order residual ratio 1.7e-11 (4.4e-11).
 Frame by frame or in blocks, the state gets the same bits.
 
-Issue 24: a pair's sums are three calls of :func:`estimator.whitened_rows.rows_products`
-per group of rows (H^T H, H^T y, H^T dr; row i's coefficients column i of the pair's H),
-compiled as :func:`estimator.whiten_lanes.rows_products` (eight columns a vector, two rows
-at a time), and the tail's scaled blocks three more; every sum the same products in the
-same order as the loops before (the 60 s log's 54 calls: the same bits). The row count
-is kept in the kernel (``rows_after`` of ``np.diff(bounds)`` was 0.8 ms a minute of Python
-around it). Kernel on the 60 s log's calls (CPU best of 50, load 2.5): 6.56-6.75 -> 6.13-6.20
-ms a minute; the sums are bound by the vector additions (fused multiply-adds, tried,
-gained 0.3 ms and would change the bits).
+Issue 24 (ninth wave): the row count is kept in the kernel (``rows_after`` of
+``np.diff(bounds)`` was 0.8 ms a minute of Python around it). The sums by
+:func:`estimator.whiten_lanes.rows_products` (eight columns a vector, two rows at a time;
+the same bits) were tried: 6.6-6.8 -> 6.1-6.2 ms a minute on the 60 s log's calls, but
+LLVM inlines that helper at each of its six call sites (5.6 s of compilation against
+1.0 s), and with one call site the kernel was slower than these loops (7.8 ms), so the
+loops stay (fused multiply-adds, tried too, gained 0.3 ms and would change the bits).
 """
 
 from __future__ import annotations
@@ -48,14 +46,6 @@ import numpy as np
 from estimator.hypotheses import Accumulator
 from estimator.rls import RlsState
 from estimator.row_kernels import jit
-from estimator.whitened_rows import rows_products
-
-# estimator.row_kernels.jit compiles tail_sums with the eight-lane rows_products (the
-# loops' bits); numba's cache watches this file only: the helpers' sha256 (tested)
-LANES_MODULE = "estimator.whiten_lanes"
-LANE_HELPERS = ("rows_products",)
-HELPERS = ("estimator/whiten_lanes.py", "dsp/vec8.py")
-HELPERS_SHA256 = "7dcf35261a4e1a1a649e12240f19768cf656697a59c676fbfb7e03d343d6e79b"
 
 
 def kernel_tail_sums(
@@ -121,57 +111,71 @@ def tail_sums(
     n = H.shape[2]
     n_sys = dr.shape[2]
     m = n + n_tail
-    # a row of the sums: H^T H over theta's columns, H^T y, H^T dr, the tail's columns
-    t0 = n + 1 + n_sys
-    w = t0 + n_tail
-    pair = np.empty(n_tail * w)  # a pair's sums over its first n_tail columns of H
-    frame = np.empty(m * w)  # the frame's sums
-    scale = np.empty(3)  # 1, phi and phi^2 of a pair
-    scale[0] = 1.0
-    h_f, y_f, dr_f = H.reshape(H.size), y.reshape(y.size), dr.reshape(dr.size)
+    info_f = np.empty((m, m))
+    vec_f = np.empty(m)
+    sens_f = np.empty((m, n_sys))
+    a = np.empty((n, n))  # one pair's H^T H (upper triangle), H^T y, H^T dr
+    v = np.empty(n)
+    s = np.empty((n, n_sys))
     for f in range(bounds.shape[0] - 1):
-        frame[:] = 0.0
+        info_f[:, :] = 0.0
+        vec_f[:] = 0.0
+        sens_f[:, :] = 0.0
         yty_f = 0.0
         for p in range(bounds[f], bounds[f + 1]):
+            a[:, :] = 0.0
+            v[:] = 0.0
+            s[:, :] = 0.0
             for r in range(12):
-                yty_f += y[p, r] * y[p, r]
-            # H^T H, H^T y, H^T dr of the pair, row i from column i of H (C[i, r] =
-            # H[p, r, i]), its rows' terms in row order; whole rows (the lower
-            # triangles' entries are never read): rows below n_tail the pair's own (the
-            # tail's sums are scaled from them), the others straight into the frame's
-            pair[:] = 0.0
-            hp, yp, dp = p * 12 * n, p * 12, p * 12 * n_sys
-            for i0 in (0, n_tail):
-                dst = pair if i0 == 0 else frame
-                n_i = n_tail if i0 == 0 else n - n_tail
-                d0 = i0 * w
-                rows_products(h_f, hp + i0, 1, n, n_i, 12, False, h_f, hp, 0, n, n, dst, d0, w)
-                rows_products(h_f, hp + i0, 1, n, n_i, 12, False, y_f, yp, 0, 1, 1, dst, d0 + n, w)
-                rows_products(h_f, hp + i0, 1, n, n_i, 12, False, dr_f, dp, 0, n_sys, n_sys,
-                              dst, d0 + n + 1, w)  # fmt: skip
-            phi_p = phi[p]
-            scale[1] = phi_p
-            scale[2] = phi_p * phi_p
+                row = H[p, r]
+                d_row = dr[p, r]
+                yr = y[p, r]
+                yty_f += yr * yr
+                for i in range(n_tail):  # (the pair's own sums: the tail's are scaled from them)
+                    hi = row[i]
+                    v[i] += hi * yr
+                    a_i = a[i]
+                    for j in range(i, n):
+                        a_i[j] += hi * row[j]
+                    s_i = s[i]
+                    for j in range(n_sys):
+                        s_i[j] += hi * d_row[j]
+                for i in range(n_tail, n):  # (the frame's sums, directly)
+                    hi = row[i]
+                    vec_f[i] += hi * yr
+                    info_i = info_f[i]
+                    for j in range(i, n):
+                        info_i[j] += hi * row[j]
+                    sens_i = sens_f[i]
+                    for j in range(n_sys):
+                        sens_i[j] += hi * d_row[j]
+            ph = phi[p]
+            ph2 = ph * ph
             for i in range(n_tail):
+                vec_f[i] += v[i]
+                for j in range(i, n):
+                    info_f[i, j] += a[i, j]
                 for j in range(n_tail):  # theta x tail: phi H_i^T H_j
-                    pair[i * w + t0 + j] = phi_p * (pair[i * w + j] if i <= j else pair[j * w + i])
+                    info_f[i, n + j] += ph * (a[i, j] if i <= j else a[j, i])
+                for j in range(n_sys):
+                    sens_f[i, j] += s[i, j]
+                vec_f[n + i] += ph * v[i]
+                for j in range(i, n_tail):  # tail x tail: phi^2 H_i^T H_j
+                    info_f[n + i, n + j] += ph2 * a[i, j]
+                for j in range(n_sys):
+                    sens_f[n + i, j] += ph * s[i, j]
             for i in range(n_tail, n):
                 for j in range(n_tail):
-                    frame[i * w + t0 + j] += phi_p * pair[j * w + i]
-            # the pair's rows into the frame's; the tail's: phi^2 H_i^T H_j, phi H_i^T y,
-            # phi H_i^T dr
-            rows_products(scale, 0, 0, 0, 1, 1, False, pair, 0, 0, 0, n_tail * w, frame, 0, 0)
-            rows_products(scale, 2, 0, 0, n_tail, 1, False, pair, 0, w, 0, n_tail, frame,
-                          n * w + t0, w)  # fmt: skip
-            rows_products(scale, 1, 0, 0, n_tail, 1, False, pair, n, w, 0, 1 + n_sys, frame,
-                          n * w + n, w)  # fmt: skip
+                    info_f[i, n + j] += ph * a[j, i]
         for i in range(m):
-            vec[i] = lam * vec[i] + frame[i * w + n]
-            for j in range(m):  # (the upper triangle mirrored)
-                a, b = (i, j) if i <= j else (j, i)
-                info[i, j] = lam * info[i, j] + frame[a * w + (b if b < n else t0 + b - n)]
+            for j in range(i + 1, m):
+                info_f[j, i] = info_f[i, j]
+        for i in range(m):
+            vec[i] = lam * vec[i] + vec_f[i]
+            for j in range(m):
+                info[i, j] = lam * info[i, j] + info_f[i, j]
             for j in range(n_sys):
-                sens[i, j] = lam * sens[i, j] + frame[i * w + n + 1 + j]
+                sens[i, j] = lam * sens[i, j] + sens_f[i, j]
         yty[0] = lam * yty[0] + yty_f
         if lam != 1.0:
             rows[0] = lam * rows[0] + 12.0 * (bounds[f + 1] - bounds[f])

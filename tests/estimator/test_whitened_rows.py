@@ -12,13 +12,13 @@ from typing import Any
 import numpy as np
 import pytest
 
-from estimator import compiled_sums, row_kernels, whitened_rows
+from estimator import row_kernels, whitened_rows
 
 NUMBA = pytest.mark.skipif(not row_kernels.AVAILABLE, reason="numba not installed")
 ROOT = Path(whitened_rows.__file__).parent.parent
 
 
-@pytest.mark.parametrize("module", [whitened_rows, compiled_sums], ids=lambda m: m.__name__)
+@pytest.mark.parametrize("module", [whitened_rows], ids=lambda m: m.__name__)
 def test_the_kernels_name_their_helpers_hash(module: Any) -> None:
     """numba's cache watches a kernel's own file's bytes only: the sha256 of the helpers
     the compiled kernel takes from elsewhere is written in it, so editing one changes it."""
