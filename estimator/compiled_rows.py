@@ -33,6 +33,11 @@ rows 17.4-18.0 -> 9.0-10.1 ms a minute, the RLS sums 6.6-6.8 -> 6.1-6.2, the mot
 sensitivity 1.8 -> 1.5; the compiled estimator alone (``/tmp/prof/stage_prof.py est``,
 best of 7, three alternations with 4adcb8f, load 2-3) 0.0723-0.0734 -> 0.0623-0.0645 s
 a minute. The compiled default and realistic runs are the same bits as before.
+Compiling on an empty numba cache (CPU, this module's kernels one by one, load 3-7): the
+rows 5.2 -> 7.6 s (``pair_rows`` 3.3, ``whiten_pairs`` 4.3: LLVM inlines
+:func:`estimator.whiten_lanes.rows_products` at both its call sites, ~1 s each; one call
+site compiled in 3.4 s but ran 0.5 ms a minute slower), the motion sensitivity 0.6 ->
+0.3 s, the RLS sums 1.0 s: 6.7 -> 8.9 s in all, once per install.
 
 How close: the sensitivity loops take the numpy functions' products and sums in their
 order (the same values, tested); the rows and the RLS sums do not (loops against BLAS,
