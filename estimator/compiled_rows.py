@@ -167,7 +167,7 @@ def kernel_rows(
     dr = np.empty((n_p, 12, sens.shape[2]))
     (jit(pair_rows) if compiled else pair_rows)(
         np.asarray(orders, float),
-        _per_pair(np.asarray(rpm, float) * 2 * np.pi / 60.0, (n_p,), float),
+        _per_pair(rpm, (n_p,), float),
         _per_pair(origin, (n_p, 3), float),
         np.ascontiguousarray(gamma_o, complex),
         np.ascontiguousarray(omega_dot, complex),

@@ -71,6 +71,10 @@ def jit(fn: Callable[..., None]) -> Callable[..., None]:
         # compiles): the kernel is compiled from a copy of the function whose globals hold
         # those, the module's own (the reference loops) stay for the interpreter
         module = sys.modules[fn.__module__]
+        # (a kernel module's own helpers, named in its JIT_HELPERS, likewise)
+        for helper in getattr(module, "JIT_HELPERS", ()):
+            if not hasattr(getattr(module, helper), "py_func"):
+                setattr(module, helper, njit(cache=True, nogil=True)(getattr(module, helper)))
         source = fn
         if getattr(module, "LANE_HELPERS", ()):
             lanes = importlib.import_module(module.LANES_MODULE)
@@ -105,7 +109,7 @@ def _matmul3_rc(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
 
 def pair_rows(
     h: np.ndarray,
-    w: np.ndarray,
+    rpm: np.ndarray,
     origin: np.ndarray,
     gamma_o: np.ndarray,
     omega_dot: np.ndarray,
@@ -127,7 +131,7 @@ def pair_rows(
     and ``d_meas`` (P, 12, 12): :func:`estimator.equations.frame_rows`' before whitening
     (which :func:`estimator.whitened_rows.whiten_pairs` does).
 
-    Per pair: order ``h``, crank speed ``w`` rad/s, ``origin`` (3,) m, the motion
+    Per pair: order ``h``, crank speed ``rpm`` (rev/min), ``origin`` (3,) m, the motion
     ``gamma_o``, ``omega_dot``, the excitation ``force``, ``moment`` and its measured part
     ``measured`` (3,) complex (zeros when none). ``lin``: cog (3), mass,
     whether the mass is unknown (1.0) ; ``inertia`` (3, 3) the linearisation's;
@@ -169,7 +173,8 @@ def pair_rows(
     cog_o = np.empty(3)
     f_known = np.empty(3, np.complex128)
     for p in range(n_p):
-        big_w2 = (h[p] * w[p]) ** 2
+        w_p = rpm[p] * 2 * np.pi / 60.0  # (numpy's operations on the rpm, in its order)
+        big_w2 = (h[p] * w_p) ** 2
         o = origin[p]
         g = gamma_o[p]
         om = omega_dot[p]
@@ -258,7 +263,7 @@ def pair_rows(
         if i_a >= 0 and h[p] == 1.0:
             # the residual unbalance: F_unb = a col_a + b col_b, z = a + i b
             for a in range(3):
-                col_a = w[p] ** 2 * c_it[a]
+                col_a = w_p**2 * c_it[a]
                 col_b = 1j * col_a
                 rows[a, i_a] = -col_a
                 rows[a, i_b] = -col_b
@@ -266,7 +271,7 @@ def pair_rows(
                     rows[3 + a, i_qa] = -col_b
                     rows[3 + a, i_qb] = col_a
             for a in range(3):
-                arm_a = _cross_unb(consts[7:10], lin[0:3], c_it, w[p] ** 2, a)
+                arm_a = _cross_unb(consts[7:10], lin[0:3], c_it, w_p**2, a)
                 rows[3 + a, i_a] = -unb_scale * arm_a
                 rows[3 + a, i_b] = -unb_scale * (1j * arm_a)
         if i_off >= 0:
