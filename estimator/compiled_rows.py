@@ -26,13 +26,17 @@ empty numba cache: 12.4-13.0 s against 5.3-5.7 s with the dsp's kernels alone); 
 filled cache they add 0.04 s to the start (1.20 against 1.16 s; load 4).
 
 Since (issue 24, ninth wave): the whitening is its own kernel with eight-lane sums
-(:mod:`estimator.whitened_rows`, :mod:`estimator.whiten_lanes`: the same bits as the loops
-it replaced), the RLS sums likewise (:mod:`estimator.compiled_sums`), the motion
-sensitivity by flat indices. On the 60 s log's calls (CPU best of 30-50, load 2-6): the
-rows 17.4-18.0 -> 9.0-10.1 ms a minute, the RLS sums 6.6-6.8 -> 6.1-6.2, the motion
-sensitivity 1.8 -> 1.5; the compiled estimator alone (``/tmp/prof/stage_prof.py est``,
-best of 7, three alternations with 4adcb8f, load 2-3) 0.0723-0.0734 -> 0.0623-0.0645 s
-a minute. The compiled default and realistic runs are the same bits as before.
+(:mod:`estimator.whitened_rows`, :mod:`estimator.whiten_lanes`), complex-by-real products
+part by part in :func:`estimator.row_kernels.pair_rows` and
+:func:`estimator.compiled_model_rows.model_rows`, the RLS sums' row count in their kernel,
+the motion sensitivity by flat indices; every one the same bits as before (the 60 s log's
+calls; the compiled default and realistic runs: 0 difference). On the 60 s log's calls
+(CPU best of 30-50, load 2-6, against 4adcb8f's kernels): the rows 16.6-18.5 -> 9.0-10.3
+ms a minute, the motion sensitivity 1.8 -> 1.5, the model inputs' rows 0.85 -> 0.78; the
+compiled estimator alone (``/tmp/prof/stage_prof.py est``, best of 7, three alternations
+with 4adcb8f, load 2.7-2.9) 0.0674-0.0689 -> 0.0597-0.0601 s a minute; the compiled replay
+(``/tmp/prof/replay_prof.py``, load ~3.5) processing thread 0.203-0.220 -> 0.188-0.201 s,
+244-268x -> 269-287x.
 Compiling on an empty numba cache (CPU, this module's kernels one by one, load 3-7): the
 rows 5.2 -> 7.6 s (``pair_rows`` 3.3, ``whiten_pairs`` 4.3: LLVM inlines
 :func:`estimator.whiten_lanes.rows_products` at both its call sites, ~1 s each; one call

@@ -27,10 +27,13 @@ products in the same order as the scalar loops that were in
 (the 60 s log's 4494 pairs, and the compiled default run, checked).
 
 Measured on those pairs (54 calls captured from ``/tmp/prof/stage_prof.py est``; CPU
-best of 30, load 2.1-2.3 on the 2 cores): the rows (raw and whitened) 17.4-18.0 -> 10.2-10.5
-ms a minute (the whitening 14.5-15 -> 7.3, the raw rows 3.0); step by step: the
-whitening's sums a vector at a time 18.1 -> 13.3, eight pairs' covariances and factors
-a lane each -> 10.9-11.8, one call for each matrix product -> 10.2-10.5.
+best of 30, load 2-7 on the 2 cores, against 4adcb8f's kernel on the same calls): the rows
+(raw and whitened) 16.6-18.5 -> 9.0-10.3 ms a minute; step by step: the whitening's sums
+a vector at a time 18.1 -> 13.3, eight pairs' covariances and factors a lane each ->
+10.9-11.8, one call for each matrix product -> 10.2-10.5, two rows at a time -> 9.0-10.1,
+the raw rows' complex-by-real products part by part (:mod:`estimator.row_kernels`) ->
+9.2-9.9. The whitening alone about 6.7 (its ``W D sign sens`` 2.0 of it: the vector
+additions' throughput; fused multiply-adds would change the bits).
 """
 
 from __future__ import annotations
