@@ -205,7 +205,12 @@ def estimator_alone(log: Path, repeat: int = 3) -> None:
     best of 5, load 2.3-2.5: in blocks compiled 63.5-67.2 -> 57.8-59.6 us; as a quiet
     replay runs it (no running estimates, /tmp/prof/stage_prof.py est) 0.080-0.083 ->
     0.073-0.078 s of CPU a minute (load 2.5-2.6); callgrind, the same feed on pickled
-    blocks (two runs' difference, halved): 1171.9 -> 1113.1 M instructions a minute."""
+    blocks (two runs' difference, halved): 1171.9 -> 1113.1 M instructions a minute.
+    The ninth round (estk9: the compiled whitening in eight lanes, complex-by-real products
+    part by part; the same bits), side by side with 4adcb8f: this function, best of 5, load
+    3.5-3.7, in blocks compiled 54 -> 50 us (row assembly and RLS sums 24 -> 19), one frame
+    at a time 137 -> 134; as a quiet replay runs it (/tmp/prof/stage_prof.py est, best of 7,
+    three rounds, load 2.7-2.9) 0.0674-0.0689 -> 0.0597-0.0601 s of CPU a minute."""
     from acquisition.stream import SourceEvent
     from estimator import row_kernels
     from ptinertia.runner import processing_chain

@@ -22,6 +22,9 @@ from estimator.row_kernels import jit
 from estimator.setup import EstimatorSetup, ModelInput
 from powertrain.half_orders import rpm_to_omega
 
+# the helpers estimator.row_kernels.jit compiles with model_rows
+JIT_HELPERS = ("_times",)
+
 
 def model_constants(
     setup: EstimatorSetup, lin: Linearisation, mass_known: bool
@@ -173,39 +176,46 @@ def model_rows(
             if kinds[j] == 0:
                 gas, unit = exc[j, 0, at[p]], exc[j, 1, at[p]]
                 for a in range(6):
-                    d[a] = gas[a] + w2[p] * unit[a]
+                    d[a] = gas[a] + _times(w2[p], unit[a])
                 for a in range(3):
                     arm[a] = g[a] - consts[3 + a]
-                    t[a] = -per_force * d[a]
+                    t[a] = _times(-per_force, d[a])
                 for a in range(3):
                     b, c = (a + 1) % 3, (a + 2) % 3
-                    r[a] = (arm[b] * d[c] - arm[c] * d[b]) - d[3 + a]
+                    r[a] = (_times(arm[b], d[c]) - _times(arm[c], d[b])) - d[3 + a]
             elif kinds[j] == 1:
                 s = consts[6:9]
                 for a in range(3):
                     b, c = (a + 1) % 3, (a + 2) % 3
                     t[a] = 0.0
-                    r[a] = (om[b] * s[c] - om[c] * s[b]) / (1j * h[p])
+                    r[a] = (_times(s[c], om[b]) - _times(s[b], om[c])) / (1j * h[p])
             else:
                 pos = mount_pos[j]
                 k = mount_stiff[j]
                 for a in range(3):
                     b, c = (a + 1) % 3, (a + 2) % 3
                     v[a] = gamma_o[p, a] + (
-                        om[b] * (pos[c] - origin[p, c]) - om[c] * (pos[b] - origin[p, b])
+                        _times(pos[c] - origin[p, c], om[b]) - _times(pos[b] - origin[p, b], om[c])
                     )
                 for a in range(3):
                     f_a = (k[a, 0] * v[0] + k[a, 1] * v[1] + k[a, 2] * v[2]) / big_w2
-                    t[a] = -per_force * f_a
+                    t[a] = _times(-per_force, f_a)
                     r[a] = f_a  # (f, then the moment below)
                 for a in range(3):
                     arm[a] = g[a] - pos[a]
                 for a in range(3):
                     b, c = (a + 1) % 3, (a + 2) % 3
-                    v[a] = arm[b] * r[c] - arm[c] * r[b]
+                    v[a] = _times(arm[b], r[c]) - _times(arm[c], r[b])
                 r[:] = v
             for a in range(3):
                 out[p, a, j] = t[a].real
                 out[p, 3 + a, j] = r[a].real
                 out[p, 6 + a, j] = t[a].imag
                 out[p, 9 + a, j] = r[a].imag
+
+
+def _times(x: float, z: complex) -> complex:
+    """``x z``, a real times a complex, part by part: the values of numba's product of
+    ``z`` and ``x`` made a complex with a zero imaginary part, without the products by that
+    zero (issue 24)."""
+    return complex(x * z.real, x * z.imag)

@@ -1,5 +1,6 @@
 """The compiled row assembly's entry points: :func:`kernel_rows` (the rows, by
-:func:`estimator.row_kernels.pair_rows`), :func:`kernel_motion_sensitivity` and
+:func:`estimator.row_kernels.pair_rows` and :func:`estimator.whitened_rows.whiten_pairs`),
+:func:`kernel_motion_sensitivity` and
 :func:`estimator.compiled_model_rows.kernel_model_input_rows` (the sensitivities to the
 systematic errors, by the loops here, and to the model inputs, by that module's): what
 :class:`estimator.pending_rows.RowAssembler`
@@ -23,6 +24,24 @@ imported on the first call only (:func:`estimator.row_kernels.jit`), and compili
 them costs about 7 s of CPU once per install (``ptinertia run --duration 5`` with an
 empty numba cache: 12.4-13.0 s against 5.3-5.7 s with the dsp's kernels alone); from a
 filled cache they add 0.04 s to the start (1.20 against 1.16 s; load 4).
+
+Since (issue 24, ninth wave): the whitening is its own kernel with eight-lane sums
+(:mod:`estimator.whitened_rows`, :mod:`estimator.whiten_lanes`), complex-by-real products
+part by part in :func:`estimator.row_kernels.pair_rows` and
+:func:`estimator.compiled_model_rows.model_rows`, the RLS sums' row count in their kernel,
+the motion sensitivity by flat indices; every one the same bits as before (the 60 s log's
+calls; the compiled default and realistic runs: 0 difference). On the 60 s log's calls
+(CPU best of 30-50, load 2-6, against 4adcb8f's kernels): the rows 16.6-18.5 -> 9.0-10.3
+ms a minute, the motion sensitivity 1.8 -> 1.5, the model inputs' rows 0.85 -> 0.78; the
+compiled estimator alone (``/tmp/prof/stage_prof.py est``, best of 7, three alternations
+with 4adcb8f, load 2.7-2.9) 0.0674-0.0689 -> 0.0597-0.0601 s a minute; the compiled replay
+(``/tmp/prof/replay_prof.py``, load ~3.5) processing thread 0.203-0.220 -> 0.188-0.201 s,
+244-268x -> 269-287x.
+Compiling on an empty numba cache (CPU, this module's kernels one by one, load 3-7): the
+rows 5.2 -> 7.6 s (``pair_rows`` 3.3, ``whiten_pairs`` 4.3: LLVM inlines
+:func:`estimator.whiten_lanes.rows_products` at both its call sites, ~1 s each; one call
+site compiled in 3.4 s but ran 0.5 ms a minute slower), the motion sensitivity 0.6 ->
+0.3 s, the RLS sums 1.0 s: 6.7 -> 8.9 s in all, once per install.
 
 How close: the sensitivity loops take the numpy functions' products and sums in their
 order (the same values, tested); the rows and the RLS sums do not (loops against BLAS,
@@ -49,6 +68,7 @@ from estimator.equations import Linearisation, ParameterLayout
 from estimator.row_kernels import jit, pair_rows
 from estimator.setup import EstimatorSetup
 from estimator.systematic import SensorBlocks
+from estimator.whitened_rows import whiten_pairs
 
 
 def row_constants(
@@ -147,10 +167,11 @@ def kernel_rows(
     lin_c, inertia, mount_pos, mount_stiff, consts, c_it, cols = constants
     H = np.empty((n_p, 12, layout.size))
     y = np.empty((n_p, 12))
+    d_meas = np.empty((n_p, 12, 12))
     dr = np.empty((n_p, 12, sens.shape[2]))
     (jit(pair_rows) if compiled else pair_rows)(
         np.asarray(orders, float),
-        _per_pair(np.asarray(rpm, float) * 2 * np.pi / 60.0, (n_p,), float),
+        _per_pair(rpm, (n_p,), float),
         _per_pair(origin, (n_p, 3), float),
         np.ascontiguousarray(gamma_o, complex),
         np.ascontiguousarray(omega_dot, complex),
@@ -159,8 +180,6 @@ def kernel_rows(
         np.zeros((n_p, 3), complex)
         if measured_moment is None
         else np.ascontiguousarray(measured_moment, complex),
-        np.asarray(noise_var, float),
-        _per_pair(cov_unit, (n_p, 6, 6), float),
         lin_c,
         inertia,
         mount_pos,
@@ -168,13 +187,19 @@ def kernel_rows(
         consts,
         c_it,
         cols,
-        np.ascontiguousarray(sens, float),
+        H,
+        y,
+        d_meas,
+    )
+    (jit(whiten_pairs) if compiled else whiten_pairs)(
+        np.asarray(noise_var, float),
+        _per_pair(cov_unit, (n_p, 6, 6), float),
         np.asarray(sign, float),
+        np.ascontiguousarray(sens, float),
         np.ascontiguousarray(model, float),
         H,
         y,
-        np.empty((n_p, 12, 12)),
-        np.empty((n_p, 12, 12)),
+        d_meas,
         dr,
     )
     return H, y, dr
@@ -223,18 +248,20 @@ def motion_sens(
     (6, u), their columns ``used`` (u,) and their sensors' first columns ``bases`` (u,).
     The same products and the same sums in channel order as the numpy function."""
     n_p, u = amplitudes.shape
+    n_sys = out.shape[2]
+    flat = out.reshape(out.size)  # (flat indices: no view per row, no wrap-around checks)
     pose = np.empty(6)
     for p in range(n_p):
+        go = gamma_o[p]
+        om = omega_dot[p]
         for part in range(2):
+            w0 = om[0].real if part == 0 else om[0].imag
+            w1 = om[1].real if part == 0 else om[1].imag
+            w2 = om[2].real if part == 0 else om[2].imag
             for j in range(u):
                 a = amplitudes[p, j].real if part == 0 else amplitudes[p, j].imag
                 n = directions[j]
                 r = arm[j]
-                go = gamma_o[p]
-                om = omega_dot[p]
-                w0 = om[0].real if part == 0 else om[0].imag
-                w1 = om[1].real if part == 0 else om[1].imag
-                w2 = om[2].real if part == 0 else om[2].imag
                 g0 = (go[0].real if part == 0 else go[0].imag) + (w1 * r[2] - w2 * r[1])
                 g1 = (go[1].real if part == 0 else go[1].imag) + (w2 * r[0] - w0 * r[2])
                 g2 = (go[2].real if part == 0 else go[2].imag) + (w0 * r[1] - w1 * r[0])
@@ -245,8 +272,10 @@ def motion_sens(
                 pose[3] = n[1] * w2 - n[2] * w1
                 pose[4] = n[2] * w0 - n[0] * w2
                 pose[5] = n[0] * w1 - n[1] * w0
+                base = bases[j]
                 for i in range(6):
-                    row = out[p, 6 * part + i]
-                    row[used[j]] = gain[i, j] * a
+                    row = (p * 12 + 6 * part + i) * n_sys
+                    gain_ij = gain[i, j]
+                    flat[row + used[j]] = gain_ij * a
                     for c in range(6):
-                        row[bases[j] + c] += gain[i, j] * pose[c]
+                        flat[row + base + c] += gain_ij * pose[c]

@@ -29,13 +29,21 @@ before. ``ptinertia run --realistic`` (compiled against numpy): every estimate a
 interval within 1e-13 relative (3.2e-13 before), a principal axis component 1.7e-13
 (1.4e-12 before); the half-order residual ratio 1.7e-11 (4.4e-11).
 Frame by frame or in blocks, the state gets the same bits.
+
+Issue 24 (ninth wave): the row count is kept in the kernel (``rows_after`` of
+``np.diff(bounds)`` was 0.8 ms a minute of Python around it). The sums by
+:func:`estimator.whiten_lanes.rows_products` (eight columns a vector, two rows at a time;
+the same bits) were tried: 6.6-6.8 -> 6.1-6.2 ms a minute on the 60 s log's calls, but
+LLVM inlines that helper at each of its six call sites (5.6 s of compilation against
+1.0 s), and with one call site the kernel was slower than these loops (7.8 ms), so the
+loops stay (fused multiply-adds, tried too, gained 0.3 ms and would change the bits).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from estimator.hypotheses import Accumulator, rows_after
+from estimator.hypotheses import Accumulator
 from estimator.rls import RlsState
 from estimator.row_kernels import jit
 
@@ -60,6 +68,7 @@ def kernel_tail_sums(
     st = acc.state
     info, vec, sens = st.info.copy(), st.vec.copy(), acc.sens.copy()
     yty = np.array([st.yty])
+    rows = np.array([st.rows])
     (jit(tail_sums) if compiled else tail_sums)(
         np.ascontiguousarray(H),
         np.ascontiguousarray(y),
@@ -72,9 +81,9 @@ def kernel_tail_sums(
         vec,
         yty,
         sens,
+        rows,
     )
-    rows = rows_after(st.rows, np.diff(bounds), forgetting)
-    return Accumulator(RlsState(info, vec, float(yty[0]), rows), sens)
+    return Accumulator(RlsState(info, vec, float(yty[0]), float(rows[0])), sens)
 
 
 def tail_sums(
@@ -89,13 +98,16 @@ def tail_sums(
     vec: np.ndarray,
     yty: np.ndarray,
     sens: np.ndarray,
+    rows: np.ndarray,
 ) -> None:
     """Per frame ``Lambda <- lam Lambda + Ha^T Ha``, ``eta <- lam eta + Ha^T y``, ``yty <-
     lam yty + y^T y``, ``S <- lam S + Ha^T dr`` in place, ``Ha`` the rows H (pairs, 12, n)
     with their tail columns (a pair's first ``n_tail`` columns times its ``phi``): each
     frame's sums formed pair by pair (in row order), its pairs' then added, and then the
     frame's added to the state in stream order (the state does not depend on how the
-    frames were batched). ``info`` (n + n_tail, n + n_tail), ``vec``, ``sens`` likewise."""
+    frames were batched). ``info`` (n + n_tail, n + n_tail), ``vec``, ``sens`` likewise;
+    ``rows`` (1,) the row count, as :func:`estimator.hypotheses.rows_after` counts it (the
+    same operations: one sum without forgetting, else frame by frame)."""
     n = H.shape[2]
     n_sys = dr.shape[2]
     m = n + n_tail
@@ -165,3 +177,7 @@ def tail_sums(
             for j in range(n_sys):
                 sens[i, j] = lam * sens[i, j] + sens_f[i, j]
         yty[0] = lam * yty[0] + yty_f
+        if lam != 1.0:
+            rows[0] = lam * rows[0] + 12.0 * (bounds[f + 1] - bounds[f])
+    if lam == 1.0:
+        rows[0] = rows[0] + 12.0 * (bounds[bounds.shape[0] - 1] - bounds[0])

@@ -1,22 +1,35 @@
-"""Compiled row assembly: the whitened rows of (frame, order) pairs, one pair at a time.
+"""Compiled row assembly: the raw rows of (frame, order) pairs, one pair at a time.
 
 :func:`pair_rows` does :func:`estimator.equations.frame_rows`' arithmetic pair by pair in
 loops (mount reactions, gyroscopic term, translation and rotation rows, unbalance and
-crank-offset columns, d residual / d measurement, the row covariance, its Cholesky factor
-and inverse, the whitened rows), and :class:`estimator.pending_rows.RowAssembler`'s
-whitened sensitivities ``dr`` beside them. Layouts with estimated mount stiffness scales
-stay on the numpy path. :func:`jit` compiles this module's kernels and those of
-:mod:`estimator.compiled_rows`, :mod:`estimator.compiled_model_rows` and
-:mod:`estimator.compiled_sums` (``cache=True``,
+crank-offset columns, d residual / d measurement); :func:`estimator.whitened_rows.whiten_pairs`
+then whitens them (the row covariance, its Cholesky factor and inverse) and forms
+:class:`estimator.pending_rows.RowAssembler`'s whitened sensitivities ``dr``. Layouts
+with estimated mount stiffness scales stay on the numpy path. :func:`jit` compiles this
+module's kernels and those of :mod:`estimator.compiled_rows`,
+:mod:`estimator.whitened_rows` (with the eight-lane helpers its ``LANE_HELPERS`` name),
+:mod:`estimator.compiled_model_rows` and :mod:`estimator.compiled_sums` (``cache=True``,
 ``nogil=True``: they release the GIL), importing numba on the first call: the default
 path (``PTINERTIA_NUMBA`` unset) never imports it. Why, what it gains and how close it
 stays to the numpy reference: :mod:`estimator.compiled_rows`.
+
+Products of a complex and a real (the mounts' stiffness and the skew matrices of the
+mounts' positions, crosses with real arms) are formed part by part
+(:func:`_matmul3_cr`, :func:`_cross_cr`, ...): numba makes the real a complex with a zero
+imaginary part and multiplies in full, products by that zero included, which without
+fast-math LLVM may not drop. The same values (the 60 s log's pairs: the same bits), about
+a quarter fewer instructions (issue 24; callgrind, the 60 s log's 54 calls: 42.5 -> 37.3M
+with the 3 x 3 products, 31.5M with the crosses too; CPU 3.0 -> 2.4-2.8 ms a minute,
+load 2).
 """
 
 from __future__ import annotations
 
+import importlib
 import importlib.util
 import os
+import sys
+import types
 from collections.abc import Callable
 from typing import Any
 
@@ -30,13 +43,15 @@ _compiled: dict[Callable[..., None], Callable[..., None]] = {}
 
 # the helpers pair_rows calls: compiled with it (a compiled function calls compiled ones)
 _HELPERS = (
-    "_matmul3",
+    "_matmul3_cr",
+    "_matmul3_rc",
     "_skew",
     "_skew_entry",
     "_skew_into",
-    "_cross_at",
+    "_cross_cr",
+    "_cross_rc",
+    "_dot3_rc",
     "_cross_unb",
-    "_cholesky_inverse",
 )
 
 
@@ -52,27 +67,55 @@ def jit(fn: Callable[..., None]) -> Callable[..., None]:
         for helper in _HELPERS:
             if not hasattr(names[helper], "py_func"):
                 names[helper] = njit(cache=True, nogil=True)(names[helper])
-        compiled = _compiled[fn] = njit(cache=True, nogil=True)(fn)
+        # a kernel's module may name helpers compiled elsewhere (eight-lane code that only
+        # compiles): the kernel is compiled from a copy of the function whose globals hold
+        # those, the module's own (the reference loops) stay for the interpreter
+        module = sys.modules[fn.__module__]
+        # (a kernel module's own helpers, named in its JIT_HELPERS, likewise)
+        for helper in getattr(module, "JIT_HELPERS", ()):
+            if not hasattr(getattr(module, helper), "py_func"):
+                setattr(module, helper, njit(cache=True, nogil=True)(getattr(module, helper)))
+        source = fn
+        if getattr(module, "LANE_HELPERS", ()):
+            lanes = importlib.import_module(module.LANES_MODULE)
+            scope = dict(fn.__globals__)
+            for helper in module.LANE_HELPERS:
+                scope[helper] = getattr(lanes, helper)
+            source = types.FunctionType(fn.__code__, scope, fn.__name__, fn.__defaults__)
+            source.__qualname__ = fn.__qualname__
+        compiled = _compiled[fn] = njit(cache=True, nogil=True)(source)
     return compiled
 
 
-def _matmul3(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+def _matmul3_cr(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """``out = a b``, ``a`` complex, ``b`` real (3, 3): each part's products on their own
+    (a complex times a real as a complex with a zero imaginary part would add products by
+    that zero: the same values, twice the multiplications)."""
     for i in range(3):
         for j in range(3):
-            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j]
+            re = a[i, 0].real * b[0, j] + a[i, 1].real * b[1, j] + a[i, 2].real * b[2, j]
+            im = a[i, 0].imag * b[0, j] + a[i, 1].imag * b[1, j] + a[i, 2].imag * b[2, j]
+            out[i, j] = complex(re, im)
+
+
+def _matmul3_rc(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """``out = a b``, ``a`` real, ``b`` complex (3, 3), as :func:`_matmul3_cr`."""
+    for i in range(3):
+        for j in range(3):
+            re = a[i, 0] * b[0, j].real + a[i, 1] * b[1, j].real + a[i, 2] * b[2, j].real
+            im = a[i, 0] * b[0, j].imag + a[i, 1] * b[1, j].imag + a[i, 2] * b[2, j].imag
+            out[i, j] = complex(re, im)
 
 
 def pair_rows(
     h: np.ndarray,
-    w: np.ndarray,
+    rpm: np.ndarray,
     origin: np.ndarray,
     gamma_o: np.ndarray,
     omega_dot: np.ndarray,
     force: np.ndarray,
     moment: np.ndarray,
     measured: np.ndarray,
-    var: np.ndarray,
-    cov_unit: np.ndarray,
     lin: np.ndarray,
     inertia: np.ndarray,
     mount_pos: np.ndarray,
@@ -80,25 +123,17 @@ def pair_rows(
     consts: np.ndarray,
     c_it: np.ndarray,
     cols: np.ndarray,
-    sens: np.ndarray,
-    sign: np.ndarray,
-    model: np.ndarray,
     H: np.ndarray,
     y: np.ndarray,
-    whiten: np.ndarray,
     d_meas: np.ndarray,
-    dr: np.ndarray,
 ) -> None:
-    """The rows of P (frame, order) pairs, written into ``H`` (P, 12, n), ``y`` (P, 12),
-    ``whiten`` and ``d_meas`` (P, 12, 12) and ``dr`` (P, 12, n_sys): what
-    :func:`estimator.equations.frame_rows` returns and :meth:`RowAssembler.rows`' ``dr``.
+    """The raw rows of P (frame, order) pairs, written into ``H`` (P, 12, n), ``y`` (P, 12)
+    and ``d_meas`` (P, 12, 12): :func:`estimator.equations.frame_rows`' before whitening
+    (which :func:`estimator.whitened_rows.whiten_pairs` does).
 
-    Per pair: order ``h``, crank speed ``w`` rad/s, ``origin`` (3,) m, the motion
+    Per pair: order ``h``, crank speed ``rpm`` (rev/min), ``origin`` (3,) m, the motion
     ``gamma_o``, ``omega_dot``, the excitation ``force``, ``moment`` and its measured part
-    ``measured`` (3,) complex (zeros when none), the channel noise ``var``, ``cov_unit``
-    (6, 6); ``sens`` (P, 12, n_sys) d motion / d systematic parameters, ``sign`` (P,)
-    the half-order sign the motion was multiplied by, ``model`` (P, 12, n_model) the
-    model inputs' raw rows (the last n_model columns of ``dr``). ``lin``: cog (3), mass,
+    ``measured`` (3,) complex (zeros when none). ``lin``: cog (3), mass,
     whether the mass is unknown (1.0) ; ``inertia`` (3, 3) the linearisation's;
     ``mount_pos`` (M, 3), ``mount_stiff`` (M, 3, 3) complex (M = 0 without the
     suspension); ``consts``: crank axis (3), spin inertia (0 without the gyroscopic
@@ -108,8 +143,6 @@ def pair_rows(
     """
     n_p = h.shape[0]
     n = H.shape[2]
-    n_sys = sens.shape[2]
-    n_model = model.shape[2]
     n_mounts = mount_pos.shape[0]
     i_inv, i_a, i_b, i_qa, i_qb, i_off = cols[0], cols[1], cols[2], cols[3], cols[4], cols[5]
     has_measured = cols[6]
@@ -136,19 +169,12 @@ def pair_rows(
     m_mounts = np.empty(3, np.complex128)
     f_i = np.empty(3, np.complex128)
     gamma_i = np.empty(3, np.complex128)
-    cov = np.empty((12, 12))
-    dcu = np.empty((12, 6))  # D[:, :6] C
-    low = np.empty((12, 12))
-    wd = np.empty((12, 12))
-    raw = np.empty((12, n))
-    model_w = np.empty((12, n_model))
     r = np.empty(3)
     cog_o = np.empty(3)
     f_known = np.empty(3, np.complex128)
-    cu = np.empty((6, 6))
-    yraw = np.empty(12)
     for p in range(n_p):
-        big_w2 = (h[p] * w[p]) ** 2
+        w_p = rpm[p] * 2 * np.pi / 60.0  # (numpy's operations on the rpm, in its order)
+        big_w2 = (h[p] * w_p) ** 2
         o = origin[p]
         g = gamma_o[p]
         om = omega_dot[p]
@@ -169,23 +195,23 @@ def pair_rows(
                 for b in range(3):
                     kw[a, b] = mount_stiff[i, a, b] / big_w2
             for a in range(3):
-                gamma_i[a] = g[a] + _cross_at(om, r, a)
+                gamma_i[a] = g[a] + _cross_cr(om, r, a)
             for a in range(3):
                 f_i[a] = kw[a, 0] * gamma_i[0] + kw[a, 1] * gamma_i[1] + kw[a, 2] * gamma_i[2]
             for a in range(3):
                 f_mounts[a] += f_i[a]
-                m_mounts[a] += _cross_at(pos, f_i, a)
-            _matmul3(kw, skew_r, dfi_dw)
+                m_mounts[a] += _cross_rc(pos, f_i, a)
+            _matmul3_cr(kw, skew_r, dfi_dw)
             for a in range(3):
                 for b in range(3):
                     dfi_dw[a, b] = -dfi_dw[a, b]
                     df_dgo[a, b] += kw[a, b]
                     df_dw[a, b] += dfi_dw[a, b]
-            _matmul3(skew_p, kw, tmp)
+            _matmul3_rc(skew_p, kw, tmp)
             for a in range(3):
                 for b in range(3):
                     dmp_dgo[a, b] += tmp[a, b]
-            _matmul3(skew_p, dfi_dw, tmp)
+            _matmul3_rc(skew_p, dfi_dw, tmp)
             for a in range(3):
                 for b in range(3):
                     dmp_dw[a, b] += tmp[a, b]
@@ -204,16 +230,16 @@ def pair_rows(
         for a in range(3):
             # translation: scale (gamma_O + Omega' x (G - O)) (- F / m)
             yc[a] = (
-                -g[a] + _cross_at(om, o, a)
+                -g[a] + _cross_cr(om, o, a)
                 if mass_unknown
-                else f_known[a] - mass * g[a] + mass * _cross_at(om, o, a)
+                else f_known[a] - mass * g[a] + mass * _cross_cr(om, o, a)
             )
             # rotation: I Omega' + G x F_known = M_R + R x F + sum p_i x f_i - gyro
             yc[3 + a] = (
                 moment[p, a]
-                + _cross_at(consts[4:7], force[p], a)
+                + _cross_rc(consts[4:7], force[p], a)
                 + m_mounts[a]
-                - spin * _cross_at(om, consts[0:3], a)
+                - spin * _cross_cr(om, consts[0:3], a)
             )
         _skew_into(om, rows, 0, 6, scale)
         _skew_into(f_known, rows, 3, 6, -1.0)
@@ -230,16 +256,14 @@ def pair_rows(
                 else:
                     d_c[a, b] = mass * eye - df_dgo[a, b]
                     d_c[a, 3 + b] = -mass * sk_cog_o - df_dw[a, b]
-                sg_go = skew_g[a, 0] * df_dgo[0, b] + skew_g[a, 1] * df_dgo[1, b]
-                sg_go += skew_g[a, 2] * df_dgo[2, b]
-                sg_w = skew_g[a, 0] * df_dw[0, b] + skew_g[a, 1] * df_dw[1, b]
-                sg_w += skew_g[a, 2] * df_dw[2, b]
+                sg_go = _dot3_rc(skew_g, a, df_dgo, b)
+                sg_w = _dot3_rc(skew_g, a, df_dw, b)
                 d_c[3 + a, b] = sg_go - dmp_dgo[a, b]
                 d_c[3 + a, 3 + b] = inertia[a, b] - spin * skew_s[a, b] + sg_w - dmp_dw[a, b]
         if i_a >= 0 and h[p] == 1.0:
             # the residual unbalance: F_unb = a col_a + b col_b, z = a + i b
             for a in range(3):
-                col_a = w[p] ** 2 * c_it[a]
+                col_a = w_p**2 * c_it[a]
                 col_b = 1j * col_a
                 rows[a, i_a] = -col_a
                 rows[a, i_b] = -col_b
@@ -247,7 +271,7 @@ def pair_rows(
                     rows[3 + a, i_qa] = -col_b
                     rows[3 + a, i_qb] = col_a
             for a in range(3):
-                arm_a = _cross_unb(consts[7:10], lin[0:3], c_it, w[p] ** 2, a)
+                arm_a = _cross_unb(consts[7:10], lin[0:3], c_it, w_p**2, a)
                 rows[3 + a, i_a] = -unb_scale * arm_a
                 rows[3 + a, i_b] = -unb_scale * (1j * arm_a)
         if i_off >= 0:
@@ -262,76 +286,18 @@ def pair_rows(
                     rows[3 + a, i_off] += 1j * h[p] * measured[p, a]
         # real form: Re rows, then Im rows; D acts on [Re m, Im m]
         dm = d_meas[p]
+        hp = H[p]
         for a in range(6):
-            yraw[a] = yc[a].real
-            yraw[6 + a] = yc[a].imag
+            y[p, a] = yc[a].real
+            y[p, 6 + a] = yc[a].imag
             for j in range(n):
-                raw[a, j] = rows[a, j].real
-                raw[6 + a, j] = rows[a, j].imag
+                hp[a, j] = rows[a, j].real
+                hp[6 + a, j] = rows[a, j].imag
             for b in range(6):
                 dm[a, b] = d_c[a, b].real
                 dm[a, 6 + b] = -d_c[a, b].imag
                 dm[6 + a, b] = d_c[a, b].imag
                 dm[6 + a, 6 + b] = d_c[a, b].real
-        # row covariance D diag(C, C) D^T, C = var cov_unit, D = [[R, -I], [I, R]]: D[:, 6:]
-        # C is D[:, :6] C with its row blocks swapped, the upper one negated (exact), and
-        # the lower right block the upper left one (R C R^T + I C I^T, its two sums added
-        # in the other order: exact). The same bits as both halves in full, 2/3 of the
-        # products (pair_rows 16.7-18.2 -> 16.0-17.4 ms a minute on the 60 s log, 4-6 %).
-        for a in range(6):
-            for b in range(6):
-                cu[a, b] = cov_unit[p, a, b] * var[p]
-        dcu[:, :] = 0.0
-        for a in range(12):
-            for k in range(6):
-                c = dm[a, k]
-                for b in range(6):
-                    dcu[a, b] += c * cu[k, b]
-        for a in range(12):  # (the lower triangle: all the Cholesky factor reads)
-            for b in range(a + 1 if a < 6 else 6):
-                acc_r = 0.0
-                for k in range(6):
-                    acc_r += dcu[a, k] * dm[b, k]
-                acc_i = 0.0
-                for k in range(6):
-                    acc_i += (-dcu[6 + a, k] if a < 6 else dcu[a - 6, k]) * dm[b, 6 + k]
-                cov[a, b] = (0.0 + acc_r) + acc_i  # (the halves added as they were)
-        for a in range(6, 12):
-            for b in range(6, a + 1):
-                cov[a, b] = cov[a - 6, b - 6]
-        trace = 0.0
-        for a in range(12):
-            trace += cov[a, a]
-        jitter = 1e-12 * trace / 12 + 1e-300
-        for a in range(12):
-            cov[a, a] += jitter
-        _cholesky_inverse(cov, low, whiten[p])
-        wp = whiten[p]
-        hp = H[p]
-        drp = dr[p]
-        hp[:, :] = 0.0
-        wd[:, :] = 0.0
-        model_w[:, :] = 0.0
-        drp[:, :] = 0.0
-        for a in range(12):
-            acc_r = 0.0
-            for k in range(a + 1):
-                c = wp[a, k]
-                acc_r += c * yraw[k]
-                for j in range(n):
-                    hp[a, j] += c * raw[k, j]
-                for b in range(12):
-                    wd[a, b] += c * dm[k, b]
-                for j in range(n_model):
-                    model_w[a, j] += c * model[p, k, j]
-            y[p, a] = acc_r
-        for a in range(12):
-            for k in range(12):
-                c = wd[a, k] * sign[p]
-                for j in range(n_sys - n_model):  # (the model inputs' columns of sens: 0)
-                    drp[a, j] += c * sens[p, k, j]
-            for j in range(n_model):
-                drp[a, n_sys - n_model + j] += model_w[a, j]
 
 
 def _skew(v: np.ndarray, out: np.ndarray) -> None:
@@ -356,41 +322,33 @@ def _skew_into(v: np.ndarray, rows: np.ndarray, r0: int, c0: int, scale: float) 
             rows[r0 + a, c0 + b] = scale * _skew_entry(v, a, b)
 
 
-def _cross_at(a: np.ndarray, b: np.ndarray, i: int) -> Any:
-    """Component ``i`` of ``a x b``."""
+def _cross_cr(a: np.ndarray, b: np.ndarray, i: int) -> complex:
+    """Component ``i`` of ``a x b``, ``a`` complex, ``b`` real: each part's products on
+    their own (as :func:`_matmul3_cr`)."""
     if i == 0:
-        return a[1] * b[2] - a[2] * b[1]
+        return complex(a[1].real * b[2] - a[2].real * b[1], a[1].imag * b[2] - a[2].imag * b[1])
     if i == 1:
-        return a[2] * b[0] - a[0] * b[2]
-    return a[0] * b[1] - a[1] * b[0]
+        return complex(a[2].real * b[0] - a[0].real * b[2], a[2].imag * b[0] - a[0].imag * b[2])
+    return complex(a[0].real * b[1] - a[1].real * b[0], a[0].imag * b[1] - a[1].imag * b[0])
+
+
+def _cross_rc(a: np.ndarray, b: np.ndarray, i: int) -> complex:
+    """Component ``i`` of ``a x b``, ``a`` real, ``b`` complex (as :func:`_cross_cr`)."""
+    if i == 0:
+        return complex(a[1] * b[2].real - a[2] * b[1].real, a[1] * b[2].imag - a[2] * b[1].imag)
+    if i == 1:
+        return complex(a[2] * b[0].real - a[0] * b[2].real, a[2] * b[0].imag - a[0] * b[2].imag)
+    return complex(a[0] * b[1].real - a[1] * b[0].real, a[0] * b[1].imag - a[1] * b[0].imag)
+
+
+def _dot3_rc(a: np.ndarray, i: int, b: np.ndarray, j: int) -> complex:
+    """``(a b)[i, j]``, ``a`` real, ``b`` complex (3, 3), its products summed in order."""
+    re = a[i, 0] * b[0, j].real + a[i, 1] * b[1, j].real
+    im = a[i, 0] * b[0, j].imag + a[i, 1] * b[1, j].imag
+    return complex(re + a[i, 2] * b[2, j].real, im + a[i, 2] * b[2, j].imag)
 
 
 def _cross_unb(point: np.ndarray, cog: np.ndarray, c_it: np.ndarray, w2: float, i: int) -> Any:
     """Component ``i`` of ``(point - cog) x (w2 c_it)``."""
     j, k = (i + 1) % 3, (i + 2) % 3
     return (point[j] - cog[j]) * (w2 * c_it[k]) - (point[k] - cog[k]) * (w2 * c_it[j])
-
-
-def _cholesky_inverse(cov: np.ndarray, low: np.ndarray, inv: np.ndarray) -> None:
-    """``inv = L^-1``, ``L L^T = cov`` (12, 12) lower triangular; ``low`` is work space."""
-    m = cov.shape[0]
-    for j in range(m):
-        acc = cov[j, j]
-        for k in range(j):
-            acc -= low[j, k] * low[j, k]
-        d = np.sqrt(acc)
-        low[j, j] = d
-        for i in range(j + 1, m):
-            acc = cov[i, j]
-            for k in range(j):
-                acc -= low[i, k] * low[j, k]
-            low[i, j] = acc / d
-    for j in range(m):
-        for i in range(m):
-            inv[i, j] = 0.0
-        inv[j, j] = 1.0 / low[j, j]
-        for i in range(j + 1, m):
-            acc = 0.0
-            for k in range(j, i):
-                acc -= low[i, k] * inv[k, j]
-            inv[i, j] = acc / low[i, i]
