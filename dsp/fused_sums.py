@@ -194,8 +194,8 @@ def _sums1(x, c, s0, n, e, rp, r0, sums, top, clipping):
 # the code without changing this file. Their hash, written here, makes any edit of
 # theirs change this file too (tests/dsp/test_kernels.py recomputes it and fails with
 # the new value), so a stale cache is never loaded.
-HELPERS = ("fused_rows.py", "fused_segments.py", "spectrum_lanes.py", "vec8.py")
-HELPERS_SHA256 = "94e8f57a96f06f1748db52d6b7b20a5eac0549f395663bf7ecfd8ee8ecc3ca1a"
+HELPERS = ("fused_rows.py", "spectrum_lanes.py", "vec8.py")
+HELPERS_SHA256 = "29a946a5c15a162e438ac771592a7db3b2d01609ee7c950626c004e37a690522"
 
 # one signature, compiled (or loaded from numba's cache) when this module is imported, so
 # after the helpers above: the samples as any 2-d layout (blocks come channel-fastest,

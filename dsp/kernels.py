@@ -212,7 +212,8 @@ def wheel_intervals(
     """:func:`dsp.wheel_intervals.wheel_intervals` in one compiled pass (the same bits)."""
     c, n_rel = np.empty(buf.size, np.int64), np.empty(buf.size, np.int64)
     r, prev, ratio = np.empty(d.size), np.empty(d.size), np.empty(d.size)
-    b = _jit(interval_loops)(buf, d, c0, teeth, gap, r_prev, tol, c, n_rel, r, prev, ratio)
+    loops = _jit(interval_loops, numpy_division=True)  # a zero interval: inf, as numpy
+    b = loops(buf, d, c0, teeth, gap, r_prev, tol, c, n_rel, r, prev, ratio)
     return c, n_rel, r, prev, ratio, b
 
 
@@ -286,7 +287,9 @@ def cubic_times(*args: Any) -> None:
 
 def _jit(fn: _Fn, numpy_division: bool = False) -> _Fn:
     """``fn`` compiled by numba, once per process (``numpy_division``: numba's numpy
-    error model, a float division by zero gives inf or NaN instead of raising)."""
+    error model, a float division by zero gives inf or NaN instead of raising). numba's
+    disk cache does not key on the error model: a function is always compiled with the
+    same one, and a change of it goes with an edit of the function's file."""
     compiled = _compiled.get(fn)
     if compiled is None:
         from numba import njit  # heavy (0.3 s): only where a kernel is used

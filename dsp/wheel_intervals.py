@@ -56,7 +56,10 @@ def interval_loops(
     ratio: np.ndarray,
 ) -> int:
     """:func:`wheel_intervals` edge by edge: writes ``c``, ``n_rel`` (k,), ``r``, ``prev``,
-    ``ratio`` (k - 1,) and returns the first interval out of tolerance (-1 if none)."""
+    ``ratio`` (k - 1,) and returns the first interval out of tolerance (-1 if none).
+    Compiled with numba's numpy error model (:func:`dsp.kernels.wheel_intervals`): a
+    repeated edge's zero interval divides by zero into inf or NaN, out of tolerance, as
+    numpy's division does, not a ZeroDivisionError."""
     per_rev = teeth - gap
     lo, hi = 1 - tol, 1 + tol
     for i in range(buf.size):

@@ -311,3 +311,25 @@ def test_compiled_frames_fill_lost_samples_as_numpy(monkeypatch):
             np.testing.assert_allclose(g.variance_factor, w.variance_factor, rtol=1e-12)
         scale = np.nanmax(np.abs(w.amplitudes))
         np.testing.assert_allclose(g.amplitudes, w.amplitudes, rtol=0, atol=1e-12 * scale)
+
+
+def test_a_repeated_tacho_edge_is_survived_by_the_compiled_wheel_decoder(monkeypatch):
+    """Two edges at the same time (a logger's duplicate): a zero interval, whose ratio to
+    the next is a division by zero. The numpy path flags a re-sync and goes on; the compiled
+    decoder did the same division with numba's Python error model and raised."""
+    rng = np.random.default_rng(0)
+    clean = SyntheticBench(Ramp(1500.0, 3000.0, 3.0), [random_content(rng) for _ in range(2)])
+    twice = float(clean.edge_times(3.0)[400])
+    bench = SyntheticBench(Ramp(1500.0, 3000.0, 3.0), clean.contents, extra_edges_s=(twice,))
+    config = OrderTrackerConfig(tacho=TachoConfig(tdc_after_gap_deg=84.0))
+    items = list(bench.items(3.0))
+
+    def frames(compiled):
+        monkeypatch.setattr(kernels, "USE", compiled)
+        return [x for x in track_items(bench.layout, items, config) if isinstance(x, OrderFrame)]
+
+    want, got = frames(False), frames(True)
+    assert len(want) > 20 and any("tacho_resync" in w.flags for w in want)
+    assert [(g.time_s, g.crank_angle_rad, g.flags) for g in got] == [
+        (w.time_s, w.crank_angle_rad, w.flags) for w in want
+    ]
