@@ -37,7 +37,7 @@ from numba import njit
 from dsp.vec8 import vadd, vfma, vload, vsplat, vstore, vzero
 
 HELPERS = ("vec8.py",)
-HELPERS_SHA256 = "be8a890e324af3380d1a356d95de5c8ae389e3f0516c8c718f5b57dff00d62a8"
+HELPERS_SHA256 = "d5b248d7803074a1bceacba3229e2f17bae7537116e76ac70f400793a0fa8ca4"
 
 
 @njit(cache=True, nogil=True)

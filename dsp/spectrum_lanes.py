@@ -25,6 +25,11 @@ from numba import njit
 
 from dsp.vec8 import vadd, vfma, vload, vmul, vstore, vsub, vzero
 
+# numba's cache watches this file only, and its functions are cached on their own: the
+# sha256 of the intrinsics they inline (tests/dsp/test_kernels.py prints a new value)
+HELPERS = ("vec8.py",)
+HELPERS_SHA256 = "d5b248d7803074a1bceacba3229e2f17bae7537116e76ac70f400793a0fa8ca4"
+
 
 @njit(cache=True, nogil=True)
 def lane_sums(x, c, s0, n, nz, pb_re, pb_im, pq, fall, k2, px, lanes, acc_a, acc_d):

@@ -1,12 +1,14 @@
 """Eight float64 lanes as one numba value (LLVM's ``<8 x double>``) and what the compiled
 segment sums (:mod:`dsp.fused_sums`) do with them.
 
-Imported only by :mod:`dsp.fused_sums` (it imports numba and llvmlite: never on the
+Imported only by the compiled kernels (it imports numba and llvmlite: never on the
 default path). Each function is a numba intrinsic, callable from compiled code only;
 the arithmetic carries no fast-math flags (IEEE, no contraction), so a lane rounds as
 the scalar operation would. numba's cache does not watch this file: after changing it,
-set ``dsp.fused_sums.HELPERS_SHA256`` anew (its test prints the value), so the cached
-machine code is rebuilt.
+set anew the ``HELPERS_SHA256`` of every module that inlines it, each with cached
+functions of its own (:mod:`dsp.fused_sums`, :mod:`dsp.fused_ramps`,
+:mod:`dsp.spectrum_lanes`, :mod:`estimator.whiten_lanes`, :mod:`estimator.whitened_rows`;
+their tests print the values), so no cached machine code of the old one is loaded.
 """
 
 from __future__ import annotations

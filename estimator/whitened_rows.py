@@ -48,7 +48,7 @@ LANE_HELPERS = ("rows_products", "covariance_lanes", "factor_lanes")
 # from (tests/estimator/test_whitened_rows.py recomputes it and prints the new value), so
 # an edit of theirs changes this file too and a stale cache is never loaded
 HELPERS = ("estimator/whiten_lanes.py", "dsp/vec8.py")
-HELPERS_SHA256 = "7dcf35261a4e1a1a649e12240f19768cf656697a59c676fbfb7e03d343d6e79b"
+HELPERS_SHA256 = "50538c14f5892461c61398db6a9fa4f9591acc1a7ab2c7366c7aed174f239b1b"
 
 
 def whiten_pairs(
