@@ -97,3 +97,23 @@ def test_compiled_whitening_is_the_interpreted_loops_bits(shape) -> None:
     cov = d_meas @ np.block([[c, 0 * c], [0 * c, c]]) @ d_meas.transpose(0, 2, 1)
     gram = raw_h.transpose(0, 2, 1) @ np.linalg.solve(cov, raw_h)
     assert np.allclose(got[5].transpose(0, 2, 1) @ got[5], gram, rtol=1e-6)
+
+
+@NUMBA
+@pytest.mark.filterwarnings("ignore:invalid value encountered in sqrt:RuntimeWarning")
+@pytest.mark.parametrize("n_p", [0, 1, 7, 8, 9])
+def test_compiled_whitening_at_the_lane_edges_and_a_failed_pivot(n_p: int) -> None:
+    """Pair counts around the eight lanes, a covariance with a negative pivot (NaN rows, as
+    the loops give) and one of extreme scale beside ordinary ones, which stay unaffected:
+    the same bits, NaNs where the loops put them, arrays sized exactly."""
+    want, got = _pairs(n_p, 10, 12, 3), _pairs(n_p, 10, 12, 3)
+    if n_p > 1:
+        for args in (want, got):
+            args[1][0] = -np.eye(6)  # var * cov_unit negative definite: no Cholesky factor
+            args[0][-1] = 1e290
+    whitened_rows.whiten_pairs(*want)
+    row_kernels.jit(whitened_rows.whiten_pairs)(*got)
+    for a, b in zip(want[5:], got[5:], strict=True):
+        assert np.array_equal(a, b, equal_nan=True)
+    if n_p > 1:
+        assert np.isnan(got[5][0]).all() and np.isfinite(got[5][1:-1]).all()
