@@ -19,7 +19,7 @@ import numpy as np
 
 from acquisition.stream import SourceEvent
 from estimator.compiled_sums import kernel_tail_sums
-from estimator.hypotheses import Accumulator, add_frames, add_frames_redundant
+from estimator.hypotheses import Accumulator, Redundancy, add_frames, add_frames_redundant
 
 ELASTIC_F_REF_HZ = 100.0
 ELASTIC_TERMS = 9  # the six inertia terms and G, the first nine entries of theta
@@ -47,7 +47,7 @@ def add_with_tail(
     forgetting: float,
     f_hz: np.ndarray,
     compiled: bool = False,
-    redundancy: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    redundancy: Redundancy | None = None,
 ) -> Accumulator:
     """Consecutive frames' rows (:func:`estimator.hypotheses.add_frames`' arguments, H
     without the tail) added, with their tail columns (:func:`with_tail`, ``f_hz`` per

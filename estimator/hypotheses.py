@@ -24,6 +24,10 @@ import numpy as np
 
 from estimator.rls import RlsState, rank_decision, rls_init, rls_update
 
+# Self-calibration rows of consecutive frames, one entry a frame in each list: H (k, 2r, n),
+# y (k, 2r), dr (k, 2r, n_sys) (estimator.pending_rows.RowAssembler.redundancy)
+Redundancy = tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]
+
 # The half-order sign is decided when, after this many ambiguous frames, the wrong
 # hypothesis leaves this many times the weighted residual of the right one.
 DECIDE_AFTER_FRAMES = 40
@@ -111,13 +115,15 @@ def add_frames_redundant(
     dr: np.ndarray,
     bounds: np.ndarray,
     forgetting: float,
-    redundancy: tuple[np.ndarray, np.ndarray, np.ndarray],
+    redundancy: Redundancy,
 ) -> Accumulator:
     """:func:`add_frame` for consecutive frames with self-calibration: frame f's rows are
-    ``H[bounds[f]:bounds[f + 1]]``, ``y`` and ``dr`` alike, and so are its redundancy rows
-    (already discounted with the frame's own), added one frame at a time in stream order."""
-    for a, b in itertools.pairwise(bounds.tolist()):
-        own = (redundancy[0][a:b], redundancy[1][a:b], redundancy[2][a:b])
+    ``H[bounds[f]:bounds[f + 1]]``, ``y`` and ``dr`` alike; its redundancy rows are entry f
+    of each of ``redundancy``'s lists (:meth:`estimator.pending_rows.RowAssembler.
+    redundancy`: their row counts differ between frames that fit different channels),
+    added after the discount, one frame at a time in stream order."""
+    for f, (a, b) in enumerate(itertools.pairwise(bounds.tolist())):
+        own = (redundancy[0][f], redundancy[1][f], redundancy[2][f])
         acc = add_frame(acc, H[a:b], y[a:b], dr[a:b], forgetting, own)
     return acc
 

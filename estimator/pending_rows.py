@@ -37,6 +37,7 @@ from estimator.compiled_rows import (
 from estimator.elastic_tail import ELASTIC_TERMS
 from estimator.equations import Linearisation, ParameterLayout, frame_rows
 from estimator.frame_stack import FrameStack, PendingFrame, stacked
+from estimator.hypotheses import Redundancy
 from estimator.kinematics import RigidFit, RigidMotion
 from estimator.model_inputs import model_input_rows
 from estimator.redundancy import redundancy_rows
@@ -376,14 +377,13 @@ class RowAssembler:
             dr[:, :, self.cal] = 0.0
         return H, y, dr
 
-    def redundancy(self, batch: list[PendingFrame]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Self-calibration rows from the rigid fits' redundancy (:mod:`estimator.redundancy`)
-        of every pair of ``batch``: H (P, 2k, n_all) on the calibration columns, y (P, 2k),
-        and the sensitivities to the other systematic errors (P, 2k, n_sys).
-
-        The same under both half-order signs: a flipped motion flips the residual and
-        its sensitivity alike. (Frames that see only two sensors have no redundancy
-        to speak of and give none.)"""
+    def redundancy(self, batch: list[PendingFrame]) -> Redundancy:
+        """Self-calibration rows from the rigid fits' redundancy (:mod:`estimator.redundancy`),
+        a frame of ``batch`` an entry: H (k, 2r, n_all) on the calibration columns for its
+        k pairs, y (k, 2r), the sensitivities to the other systematic errors (k, 2r, n_sys);
+        r may differ between frames (a channel lost in some): not stacked. The same under
+        both half-order signs: a flipped motion flips the residual and its sensitivity
+        alike. (Frames that see only two sensors have no redundancy and give none.)"""
         rows, ys, drs = [], [], []
         for p in batch:
             assert p.redundancy is not None
@@ -396,4 +396,4 @@ class RowAssembler:
             rows.append(H)
             ys.append(y)
             drs.append(dr)
-        return np.concatenate(rows), np.concatenate(ys), np.concatenate(drs)
+        return rows, ys, drs

@@ -229,8 +229,8 @@ def test_the_per_frame_update_agrees_with_its_pure_function_twin(self_calibratio
     kin = est.rows.redundancy(pending) if self_calibration else None
     expected = est.acc[1]
     bounds = np.cumsum([0] + [len(p.orders) for p in pending])
-    for a, b in itertools.pairwise(bounds):
-        own = None if kin is None else (kin[0][a:b], kin[1][a:b], kin[2][a:b])
+    for f, (a, b) in enumerate(itertools.pairwise(bounds)):
+        own = None if kin is None else (kin[0][f], kin[1][f], kin[2][f])
         expected = add_frame(expected, H[a:b], y[a:b], dr[a:b], est.forgetting, own)
     est.best_state()  # assembles the queued frames' rows and adds them
     got = est.acc[1]
