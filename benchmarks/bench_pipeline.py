@@ -45,7 +45,10 @@ Prints:
    numpy live 56-73x, replay 113-122x; the morning's build, interleaved: live 106-111x,
    replay 179-182x. Evening, load 1.0-1.7, two rounds interleaved with the afternoon's
    d450fdd: live 143-144x (129-136x), 129-138x with the dsp thread, replay 286x (255-260x),
-   275-291x with the dsp thread; numpy replay best of three 137-141x (115-127x)).
+   275-291x with the dsp thread; numpy replay best of three 137-141x (115-127x). Night,
+   load 0.1-1.5, the host 5-15 % slower, three rounds interleaved with the evening's
+   4adcb8f: live 125 / 124 / 102x (123 / 114 / 100x), replay 305 / 297 / 261x
+   (282 / 262 / 247x), 227-269x with the dsp thread).
 
 Usage: python benchmarks/bench_pipeline.py [--hours 1.0] [--skip-long]
 """
