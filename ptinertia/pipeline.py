@@ -42,6 +42,7 @@ from ptinertia.stage_threads import (
     FINISHED,
     TRACKED_ITEMS,
     FrameTracker,
+    HandOffQueue,
     Reader,
     Tracking,
 )
@@ -115,7 +116,7 @@ class Pipeline:
         self.sinks = list(sinks)
         self.context = context
         self.live = live
-        self.queue: queue.Queue[Any] = queue.Queue(maxsize=0 if live else queue_items)
+        self.queue: queue.Queue[Any] = HandOffQueue(maxsize=0 if live else queue_items)
         self.frames = 0
         self.items = 0
         self.max_backlog = 0.0
