@@ -58,10 +58,19 @@ class _WhenDrained(threading.Condition):
     def __init__(self, lock: threading.Lock, drained: Callable[[], bool]) -> None:
         super().__init__(lock)
         self._drained = drained
+        self._all = False
 
     def notify(self, n: int = 1) -> None:
-        if self._drained():
+        if self._all or self._drained():
             super().notify(n)
+
+    def notify_all(self) -> None:
+        # (every waiter, drained or not: Python 3.13's Queue.shutdown wakes them so)
+        self._all = True
+        try:
+            super().notify_all()
+        finally:
+            self._all = False
 
 
 class HandOffQueue(queue.Queue[Any]):

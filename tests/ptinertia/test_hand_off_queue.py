@@ -36,6 +36,25 @@ def test_a_get_wakes_the_producer_only_once_half_is_taken(monkeypatch) -> None:
     assert _wakes(queue.Queue(8), monkeypatch) == [7, 6, 5, 4, 3, 2, 1, 0]
 
 
+def test_a_wake_for_all_wakes_a_full_queue_s_producers(monkeypatch) -> None:
+    """notify_all (a shutdown's) is not held back until half is taken."""
+    q = HandOffQueue(4)
+    for i in range(4):
+        q.put(i)
+    called: list[int] = []
+    notify = threading.Condition.notify
+
+    def counted(self: threading.Condition, n: int = 1) -> None:
+        called.append(n)
+        notify(self, n)
+
+    monkeypatch.setattr(threading.Condition, "notify", counted)
+    with q.mutex:
+        q.not_full.notify()  # full: held back
+        q.not_full.notify_all()
+    assert called == [0]  # notify_all passed on (to no waiter: n = 0)
+
+
 def test_a_producer_ahead_of_its_consumer_hands_over_every_item_in_order() -> None:
     q = HandOffQueue(4)
     n = 2000
