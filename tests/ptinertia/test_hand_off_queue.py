@@ -64,13 +64,13 @@ def test_a_producer_ahead_of_its_consumer_hands_over_every_item_in_order() -> No
             q.put(i)  # blocks while full, until the consumer has taken half
         q.put(-1)
 
-    producer = threading.Thread(target=produce)
+    producer = threading.Thread(target=produce, daemon=True)
     producer.start()
     got = []
-    while (item := q.get()) != -1:
+    while (item := q.get(timeout=10.0)) != -1:  # (a lost wake: queue.Empty, not a hang)
         got.append(item)
-    producer.join()
-    assert got == list(range(n))
+    producer.join(timeout=10.0)
+    assert got == list(range(n)) and not producer.is_alive()
 
 
 def test_an_unbounded_queue_and_a_timed_get_behave_as_the_standard_one() -> None:
