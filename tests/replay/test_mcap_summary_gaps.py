@@ -5,6 +5,8 @@ summary nothing vouches for. A chunk or attachment index whose opcode turned int
 MCAP readers skip, or a chunk index pointing past the file, leaves the indexes short of
 the data section they should cover: the file is read front to back, as when the summary
 indexes nothing, and the replay gives the clean result with a note (the data is whole).
+(A whole file written so is read by its indexes without a note:
+tests/replay/test_mcap_writer_options.py.)
 """
 
 from __future__ import annotations
@@ -15,11 +17,8 @@ from typing import Any
 
 import pytest
 from mcap.opcode import Opcode
-from mcap.writer import CompressionType
 from support.clean_run import CleanRun
 from support.rewritten_logs import replay, rewritten, summary_records
-
-from replay.reader import open_log
 
 UNCHECKED: dict[str, Any] = {"enable_crcs": False, "use_statistics": False}
 
@@ -59,29 +58,6 @@ def test_a_chunk_index_pointing_past_the_file_is_read_front_to_back(
     code, doc, err = replay(log, tmp_path / "r.json", capsys)
     assert code == 0 and doc == clean_run.result
     assert any("read front to back" in line for line in err)
-
-
-@pytest.mark.parametrize(
-    "options",
-    [
-        UNCHECKED,
-        {"enable_crcs": False, "compression": CompressionType.NONE},
-        {"enable_crcs": False, "chunk_size": 4096},  # many chunks, metadata between them
-    ],
-    ids=["zstd", "uncompressed", "small-chunks"],
-)
-def test_an_unchecked_summary_that_tiles_the_data_section_is_read_by_its_indexes(
-    clean_run: CleanRun,
-    tmp_path: Path,
-    capsys: pytest.CaptureFixture[str],
-    options: dict[str, Any],
-) -> None:
-    """The check costs a whole file nothing: its indexes are used, without a note."""
-    log = rewritten(clean_run.log, tmp_path / "log.mcap", **options)
-    opened = open_log(log)
-    assert opened.chunk_records is not None and opened.report.notes == []
-    code, doc, err = replay(log, tmp_path / "r.json", capsys)
-    assert (code, doc, err) == (0, clean_run.result, [])
 
 
 @pytest.mark.parametrize("damage", ["data end opcode", "header opcode"])

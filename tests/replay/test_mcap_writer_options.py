@@ -14,7 +14,7 @@ import pytest
 from mcap.opcode import Opcode
 from mcap.records import Channel, Metadata, Schema
 from mcap.stream_reader import StreamReader
-from mcap.writer import IndexType, Writer
+from mcap.writer import CompressionType, IndexType, Writer
 from support.clean_run import CleanRun
 from support.rewritten_logs import replay, rewritten, summary_records
 
@@ -53,10 +53,25 @@ def test_a_summary_without_indexes_is_read_front_to_back_with_the_clean_result(
     assert any("the summary does not index the whole file" in line for line in err)
 
 
+@pytest.mark.parametrize(
+    "options",
+    [
+        {},
+        # without a summary CRC its indexes must tile the data section (replay.summary.untiled):
+        # a whole file passes, whatever the chunks
+        {"enable_crcs": False, "use_statistics": False},
+        {"enable_crcs": False, "compression": CompressionType.NONE},
+        {"enable_crcs": False, "chunk_size": 4096},  # many chunks, metadata between them
+    ],
+    ids=["default", "unchecked", "unchecked-uncompressed", "unchecked-small-chunks"],
+)
 def test_an_indexed_summary_is_read_by_its_indexes_without_a_note(
-    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    clean_run: CleanRun,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    options: dict[str, Any],
 ) -> None:
-    log = rewritten(clean_run.log, tmp_path / "log.mcap")
+    log = rewritten(clean_run.log, tmp_path / "log.mcap", **options)
     for path in (log, clean_run.log):  # a user's tool's copy, and our own recording
         opened = open_log(path)
         assert opened.chunk_records is not None and opened.report.notes == []
