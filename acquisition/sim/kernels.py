@@ -14,7 +14,7 @@ and stays (about half of the compiled path's time); the rest is compiled here:
   powers by the running product, a row per half order (``cos h phi``, ``sin h phi``:
   the layout BLAS reads as is). Anchors sit at absolute sample indices, so a sample's
   carriers depend on its index only, never on the block it falls in.
-* :func:`horner`: the product's rows summed in ``u`` per channel in one pass.
+* the product and the Horner sums of a run of samples: :mod:`acquisition.sim.block_kernels`.
 * :func:`motion`, :func:`locate`, :func:`pressure`: ``RpmProfile.evaluate``,
   ``AmplitudeTable.locate`` and ``PressureCycle.__call__`` (its ``mod`` without libm's
   ``fmod``, exactly), one pass each, the interval found by walking from the previous
@@ -96,11 +96,6 @@ def carriers(
     order."""
     _jit("carriers", _carriers)(phi, anchor_phi, offset, spacing, 2 * position[0], out)
     _jit("powers", _powers)(position, out)
-
-
-def horner(y: np.ndarray, u: np.ndarray, out: np.ndarray, first: int) -> None:
-    """:func:`_horner` compiled (on the first call)."""
-    _jit("horner", _horner)(y, u, out, first)
 
 
 def motion(
@@ -301,32 +296,3 @@ def _powers(position: np.ndarray, out: np.ndarray) -> None:
             bi = out[b + 1, s]
             out[q, s] = pr * br - pi * bi
             out[q + 1, s] = pr * bi + pi * br
-
-
-def _horner(y: np.ndarray, u: np.ndarray, out: np.ndarray, first: int) -> None:
-    """``out[c, first + s] = sum_k y[k n_ch + c, s] u[s]^k`` by Horner, highest ``k`` first.
-
-    ``y`` (n_k n_ch, n) the product's rows (power ``k`` of channel ``c`` in row
-    ``k n_ch + c``), ``u`` (n,), ``out`` (n_ch, >= first + n).
-    """
-    n_ch = out.shape[0]
-    n_k = y.shape[0] // n_ch
-    n = y.shape[1]
-    for c in range(n_ch):
-        if n_k == 5:  # the table's default degree, the sum in registers: one pass
-            y0 = y[c]
-            y1 = y[n_ch + c]
-            y2 = y[2 * n_ch + c]
-            y3 = y[3 * n_ch + c]
-            y4 = y[4 * n_ch + c]
-            for s in range(n):
-                us = u[s]
-                out[c, first + s] = (((y4[s] * us + y3[s]) * us + y2[s]) * us + y1[s]) * us + y0[s]
-            continue
-        top = y[(n_k - 1) * n_ch + c]
-        for s in range(n):
-            out[c, first + s] = top[s]
-        for k in range(n_k - 2, -1, -1):
-            yk = y[k * n_ch + c]
-            for s in range(n):
-                out[c, first + s] = out[c, first + s] * u[s] + yk[s]

@@ -10,6 +10,7 @@ import pytest
 
 from acquisition.sim import kernels
 from acquisition.sim.amplitude_table import AmplitudeTable
+from acquisition.sim.block_kernels import CHUNK, block_accel
 from acquisition.sim.compact_design import DROP_RTOL
 from acquisition.sim.sweep import RpmProfile, hold, ramp
 from acquisition.sim.synthesis import half_orders, synthesize_accel
@@ -158,3 +159,50 @@ def test_orders_without_rpm_dependence_worth_keeping_are_dropped_within_their_bo
     ref = synthesize_accel(table, profile, t, compiled=False)
     largest = np.abs(table.coeffs[0][:, 0]).max(axis=(0, 1))
     assert np.max(np.abs(fast - ref).max(axis=1) / largest) < DROP_RTOL
+
+
+def test_block_kernel_is_the_chunked_numpy_product_and_horner_bit_for_bit(i3) -> None:
+    """block_accel (every interval and chunk in one compiled call, numba's ``np.dot``) gives
+    the bits of numpy's product chunk by chunk and the Horner sum highest power first,
+    over a sweep crossing table intervals, with runs longer and shorter than a chunk."""
+    profile = RpmProfile([ramp(900, 4800, 0.25), hold(4800, 0.05), ramp(4800, 1200, 0.2)])
+    table = open_source("sim", i3, profile=profile).table
+    design = table.compact
+    rate = 25_600.0
+    n = int(profile.duration_s * rate)
+    rows = _carriers(profile, rate, 0, n, table.orders.size)[design_rows(design)]
+    seg, _, _, rpm = kernels.motion(profile, np.arange(n) / rate)
+    kept, n_ch = 2 * design.n_kept, table.coeffs[0].shape[3]
+    crossed = 0
+    for s in range(len(profile.segments)):
+        idx = np.flatnonzero(seg == s)
+        a0 = int(idx[0])
+        j, u = kernels.locate(table, s, rpm[idx])
+        crossed += int(np.count_nonzero(np.diff(j)))
+        got = np.full((n_ch, n), np.nan)
+        block_accel(rows, a0, j, u, design.constant[s], design.varying[s], kept, got)
+        want = np.full((n_ch, n), np.nan)
+        cuts = [0, *(np.flatnonzero(np.diff(j)) + 1).tolist(), j.size]
+        for a, b in itertools.pairwise(cuts):
+            d0, dk = design.constant[s][j[a]], design.varying[s][j[a]]
+            for c0 in range(a, b, CHUNK):
+                c1 = min(b, c0 + CHUNK)
+                y = [d0 @ rows[:, a0 + c0 : a0 + c1]]
+                if dk.shape[0]:
+                    y.append(dk @ rows[:kept, a0 + c0 : a0 + c1])
+                y = np.concatenate(y).reshape(-1, n_ch, c1 - c0)
+                acc = y[-1].copy()
+                for k in range(y.shape[0] - 2, -1, -1):
+                    acc = acc * u[c0:c1] + y[k]
+                want[:, a0 + c0 : a0 + c1] = acc
+        assert np.array_equal(got[:, idx], want[:, idx])
+    assert crossed >= 3  # the runs did cross intervals
+
+
+def design_rows(design) -> np.ndarray:
+    """Carrier rows in the compact design's order (kept orders first): row pair
+    ``position[k]`` holds order ``k``'s ``cos``, ``sin``."""
+    order = np.empty(2 * design.position.size, dtype=np.intp)
+    order[0::2] = np.argsort(design.position) * 2
+    order[1::2] = np.argsort(design.position) * 2 + 1
+    return order
