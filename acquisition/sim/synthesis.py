@@ -45,8 +45,6 @@ def order_basis(phi: np.ndarray, n_orders: int) -> np.ndarray:
     return e.view(np.float64)
 
 
-
-
 def synthesize_accel(
     table: AmplitudeTable,
     profile: RpmProfile,
