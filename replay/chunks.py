@@ -150,12 +150,12 @@ class MessageWalk:
     def __iter__(self) -> Iterator[MessageTuple]:
         zstd = zstandard.ZstdDecompressor()
         with open(self.path, "rb") as fh:
-            for opcode, offset, length in self._records(fh):
+            for opcode, offset, length, read in self._records(fh):
                 if ends_data(opcode, length):
                     return  # the summary section repeats what we have seen
                 if opcode == Opcode.CHUNK:
                     try:
-                        content = read_at(fh, offset, length)
+                        content = read_at(fh, offset, length) if read is None else read
                         payload = chunk_payload(content, self.check_crcs, zstd)
                         del content  # (not held while the chunk's messages are read)
                     except BadChunk as err:
@@ -179,22 +179,29 @@ class MessageWalk:
                         f"damaged record (opcode {opcode:#04x}, {length} bytes)",
                     )
 
-    def _records(self, fh: IO[bytes]) -> Iterator[tuple[int, int, int]]:
+    def _records(self, fh: IO[bytes]) -> Iterator[tuple[int, int, int, memoryview | None]]:
+        """(opcode, content offset, content length, the content when read already)."""
         if self.chunks is None:
-            yield from records(fh)
+            for opcode, offset, length in records(fh):
+                yield opcode, offset, length, None
             return
-        size = os.fstat(fh.fileno()).st_size
+        fd = fh.fileno()
+        size = os.fstat(fd).st_size
         for offset, length in self.chunks:  # from the summary's chunk indexes
             if offset + length > size:  # (a summary without CRC may say anything)
                 self._skip(offset, f"chunk record of {length} bytes runs past the end of the file")
                 continue
-            head = read_at(fh, offset, RECORD_HEAD.size)
+            # head and content in one read: each read releases the GIL, and in a replay
+            # the processing thread, which holds it most of the time, waits to get it back
+            # (a seek, a buffered read of the head and one of the content were three)
+            record = memoryview(os.pread(fd, length, offset))
+            head = record[: RECORD_HEAD.size]
             _, declared = RECORD_HEAD.unpack(head) if len(head) == RECORD_HEAD.size else (0, 0)
             if declared != length - RECORD_HEAD.size:
                 self._skip(offset, "damaged chunk record header")
                 continue
             # a damaged opcode alone is harmless here: the content's CRC decides
-            yield Opcode.CHUNK, offset + RECORD_HEAD.size, declared
+            yield Opcode.CHUNK, offset + RECORD_HEAD.size, declared, record[RECORD_HEAD.size :]
 
     def _skip(self, offset: int, reason: str) -> None:
         skipped = Skipped(offset, reason, after_ns=self._last_ns)
