@@ -16,18 +16,104 @@ product by ``np.dot``, which numba hands to the BLAS that scipy ships, on a cont
 of the chunk's carriers; the Horner sums as before). The product is the same ``dgemm``
 call as numpy's (the same operands, transposes and sizes: only the carriers' leading
 dimension differs, and the kernel packs its operands before it multiplies), so the samples
-are the same bits (tested against the Python loop).
+are the same bits (tested against numpy's product). That took the live run to
+0.435-0.475 s against 0.605-0.68 s before (two rounds interleaved).
+
+:func:`accel_block` goes further for a block of the simulated bench: the times, the sweep's
+motion, the anchors' angles and the carriers in one call, then the intervals and the
+products in one call per sweep segment (:mod:`acquisition.sim.kernels`' arithmetic, called
+from here: the same bits, tested). The accelerations' GIL releases fall from about 45 a
+block to 2. Live run, three rounds interleaved with the build before this module (c2bcbc1),
+best of 3: 0.465-0.468 s (128-129x) -> 0.345-0.388 s (155-174x); the simulator's thread
+0.20-0.25 -> 0.17-0.21 s of CPU, the processing thread 0.31-0.39 -> 0.28-0.35 s.
 """
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from acquisition.sim import kernels
+from acquisition.sim.amplitude_table import AmplitudeTable
+from acquisition.sim.sweep import RPM_TO_RAD_S, RpmProfile
+
 CHUNK = 1024  # samples per product: keeps the operands in cache (~1.5x faster than 2560)
+# numba's cache watches only this file's bytes; the fused kernels call the motion, carriers
+# and interval kernels of these files: their sha256, renewed with them, rebuilds the cache
+# (tests/acquisition/sim/test_synthesis_kernels.py checks it)
+HELPERS = ("kernels.py",)
+HELPERS_SHA256 = "064a4030089db9a9b1ddfda5c6a8e8e8dc28bbf67b517c2e58fb132d7d9057ad"
 _compiled: dict[str, Callable[..., Any]] = {}
+
+
+def accel_block(
+    table: AmplitudeTable, profile: RpmProfile, rate_hz: float, i0: int, i1: int, spacing: int
+) -> tuple[np.ndarray, ...]:
+    """Samples ``i0 .. i1 - 1`` at ``rate_hz`` of the compiled accelerations, in two calls
+    that hold no GIL (one for the block, one per sweep segment it spans): times (s),
+    segments, crank angles (rad), speeds (rad/s) and the accelerations (n_ch, n), m/s^2.
+
+    The same arithmetic as :meth:`SimulatedBench._motion` (``kernels.motion``), the
+    anchors every ``spacing`` samples, :func:`kernels.carriers` and
+    :func:`acquisition.sim.synthesis.synthesize_accel` on the compiled path: the same bits.
+    """
+    _compile()
+    n = i1 - i0
+    design = table.compact  # the orders with an rpm dependence first
+    seg = np.empty(n, dtype=np.intp)
+    t, phi, omega, rpm = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    rows = np.empty((2 * table.orders.size, n))
+    w_end = profile.segments[-1].rpm_to * RPM_TO_RAD_S
+    limits = np.array([profile.duration_s, profile.phi_end, w_end])
+    _compiled["motion"](
+        i0,
+        rate_hz,
+        spacing,
+        *profile.pieces,
+        limits,
+        design.position,
+        (seg, t, phi, omega, rpm),
+        rows,
+    )
+    out = np.empty((table.coeffs[0].shape[3], n))
+    if n:
+        starts = [0] if seg[0] == seg[-1] else [0, *(np.flatnonzero(np.diff(seg)) + 1).tolist()]
+        for a0, b0 in zip(starts, [*starts[1:], n], strict=True):
+            s = int(seg[a0])
+            n_rows = design.constant[s].shape[1] + design.varying[s].shape[1]
+            _compiled["segment"](
+                rpm[a0:b0], *table.intervals(s), rows, a0, design.constant[s],
+                design.varying[s], 2 * design.n_kept, np.empty(n_rows * CHUNK), out,
+            )  # fmt: skip
+    return t, seg, phi, omega, out
+
+
+def _compile() -> None:
+    if "motion" in _compiled:
+        return
+    from numba import njit  # heavy (0.3 s): only where the kernels are used
+
+    global _motion_c, _carriers_c, _powers_c, _locate_c, _block_c, _horner_compiled
+    jit = njit(cache=True, nogil=True)
+    _motion_c, _carriers_c = jit(kernels._motion), jit(kernels._carriers)
+    _powers_c, _locate_c = jit(kernels._powers), jit(kernels._locate)
+    _horner_compiled = jit(_horner)
+    _block_c = jit(_block_accel)
+    _compiled["block"] = _block_c
+    _compiled["segment"] = jit(_segment_accel)
+    _compiled["motion"] = jit(_block_motion)
+
+
+def helpers_sha256() -> str:
+    """The sha256 :data:`HELPERS_SHA256` must hold (the helpers' names and bytes)."""
+    digest = hashlib.sha256()
+    for helper in HELPERS:
+        digest.update(helper.encode() + b"\0" + (Path(__file__).parent / helper).read_bytes())
+    return digest.hexdigest()
 
 
 def block_accel(
@@ -47,12 +133,7 @@ def block_accel(
     segment, whose :class:`~acquisition.sim.compact_design.CompactDesign` operands are
     ``constant`` (n_int, n_ch, 2 n_o) and ``varying`` (n_int, degree n_ch, ``kept``).
     """
-    if "block" not in _compiled:
-        from numba import njit  # heavy (0.3 s): only where the kernels are used
-
-        global _horner_compiled
-        _horner_compiled = njit(cache=True, nogil=True)(_horner)
-        _compiled["block"] = njit(cache=True, nogil=True)(_block_accel)
+    _compile()
     n_rows = constant.shape[1] + varying.shape[1]
     y = np.empty(n_rows * CHUNK)
     _compiled["block"](rows, first, j, u, constant, varying, kept, y, out)
@@ -91,6 +172,57 @@ def _block_accel(
         a = b
 
 
+def _block_motion(
+    i0: int,
+    rate_hz: float,
+    spacing: int,
+    t_start: np.ndarray,
+    phi_start: np.ndarray,
+    w0: np.ndarray,
+    acc: np.ndarray,
+    limits: np.ndarray,
+    position: np.ndarray,
+    out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    rows: np.ndarray,
+) -> None:
+    """:func:`accel_block`'s first call: times, motion, the anchors' angles, carriers."""
+    seg, t, phi, omega, rpm = out
+    n = t.size
+    for s in range(n):
+        t[s] = (i0 + s) / rate_hz  # (np.arange(i0, i1) / rate_hz)
+    _motion_c(t, t_start, phi_start, w0, acc, limits, (seg, phi, omega, rpm))
+    a0 = i0 - i0 % spacing
+    n_anchor = (i0 + n - a0 + spacing - 1) // spacing
+    at = np.empty(n_anchor)
+    for k in range(n_anchor):
+        at[k] = (a0 + k * spacing) / rate_hz  # (np.arange(a0, i1, spacing) / rate_hz)
+    a_seg = np.empty(n_anchor, dtype=np.intp)
+    a_phi, a_omega, a_rpm = np.empty(n_anchor), np.empty(n_anchor), np.empty(n_anchor)
+    _motion_c(at, t_start, phi_start, w0, acc, limits, (a_seg, a_phi, a_omega, a_rpm))
+    _carriers_c(phi, a_phi, i0 - a0, spacing, 2 * position[0], rows)
+    _powers_c(position, rows)
+
+
+def _segment_accel(
+    rpm: np.ndarray,
+    edges: np.ndarray,
+    centre: np.ndarray,
+    inv_half: np.ndarray,
+    rows: np.ndarray,
+    first: int,
+    constant: np.ndarray,
+    varying: np.ndarray,
+    kept: int,
+    y: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """:func:`accel_block`'s call per segment: the intervals, then :func:`_block_accel`."""
+    j = np.empty(rpm.size, dtype=np.intp)
+    u = np.empty(rpm.size)
+    _locate_c(rpm, edges, centre, inv_half, j, u)
+    _block_c(rows, first, j, u, constant, varying, kept, y, out)
+
+
 def _horner(y: np.ndarray, u: np.ndarray, out: np.ndarray, first: int) -> None:
     """``out[c, first + s] = sum_k y[k n_ch + c, s] u[s]^k`` by Horner, highest ``k`` first.
 
@@ -120,4 +252,10 @@ def _horner(y: np.ndarray, u: np.ndarray, out: np.ndarray, first: int) -> None:
                 out[c, first + s] = out[c, first + s] * u[s] + yk[s]
 
 
-_horner_compiled: Any = None  # _horner compiled, set on block_accel's first call
+# the compiled kernels the others call, set by _compile
+_horner_compiled: Any = None
+_motion_c: Any = None
+_carriers_c: Any = None
+_powers_c: Any = None
+_locate_c: Any = None
+_block_c: Any = None

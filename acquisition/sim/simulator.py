@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from acquisition.sim import kernels, tacho_synth
+from acquisition.sim import block_kernels, kernels, tacho_synth
 from acquisition.sim.amplitude_table import AmplitudeModel, AmplitudeTable
 from acquisition.sim.sweep import RPM_TO_RAD_S, RpmProfile
 from acquisition.sim.synthesis import half_orders, synthesize_accel
@@ -260,18 +260,23 @@ class SimulatedBench(Source):
         return self._last_motion[1]
 
     def _group_data(self, group: SampleGroup, i0: int, i1: int) -> np.ndarray:
-        if group.name in ("accel", "pressure"):
+        if group.name == "accel" and kernels.USE:
+            # the motion, the carriers (exact phases every `spacing` samples, at indices
+            # fixed by the stream) and the products in two calls that hold no GIL: in a
+            # live run the processing thread waits for the GIL after every call here
+            # (acquisition.sim.block_kernels)
+            *motion, x = block_kernels.accel_block(
+                self.table, self.profile, group.rate_hz, i0, i1, self._anchor_spacing
+            )
+            self._last_motion = ((group.rate_hz, i0, i1), tuple(motion))
+            t = motion[0]
+        elif group.name in ("accel", "pressure"):
             t, seg, phi, omega = self._motion(group.rate_hz, i0, i1)
         else:
             t = np.arange(i0, i1) / group.rate_hz
         if group.name == "accel":
-            anchors = None
-            if kernels.USE:  # exact phases every `spacing` samples, at indices fixed by the stream
-                a0 = i0 - i0 % self._anchor_spacing
-                at = np.arange(a0, i1, self._anchor_spacing) / group.rate_hz
-                anchors = (kernels.motion(self.profile, at)[1], i0 - a0, self._anchor_spacing)
-            motion = (seg, phi, omega)
-            x = synthesize_accel(self.table, self.profile, t, motion, anchors, kernels.USE)
+            if not kernels.USE:
+                x = synthesize_accel(self.table, self.profile, t, (seg, phi, omega), None, False)
             if self._noisy:
                 for c, rng in enumerate(self._rngs):
                     x[c] += self.noise_std[c] * rng.standard_normal(t.size)

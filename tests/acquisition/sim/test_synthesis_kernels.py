@@ -8,7 +8,7 @@ import itertools
 import numpy as np
 import pytest
 
-from acquisition.sim import kernels
+from acquisition.sim import block_kernels, kernels
 from acquisition.sim.amplitude_table import AmplitudeTable
 from acquisition.sim.block_kernels import CHUNK, block_accel
 from acquisition.sim.compact_design import DROP_RTOL
@@ -206,3 +206,37 @@ def design_rows(design) -> np.ndarray:
     order[0::2] = np.argsort(design.position) * 2
     order[1::2] = np.argsort(design.position) * 2 + 1
     return order
+
+
+def test_the_fused_kernels_name_their_helpers_hash() -> None:
+    """numba's cache watches a kernel's own file only: block_kernels carries the sha256 of
+    the kernels it calls (acquisition/sim/kernels.py), so editing them changes it (else a
+    warm cache runs the old machine code and every test here compares that)."""
+    assert block_kernels.helpers_sha256() == block_kernels.HELPERS_SHA256, (
+        "a helper of acquisition/sim/block_kernels.py changed: set HELPERS_SHA256 there to "
+        f"{block_kernels.helpers_sha256()!r} so numba's cache is rebuilt"
+    )
+
+
+@pytest.mark.parametrize(
+    "i0, n, spans", [(0, 5000, 1), (3, 777, 1), (12_345, 12_800, 3), (17_000, 9000, 2)]
+)
+def test_accel_block_is_the_compiled_path_step_by_step_bit_for_bit(
+    i3, i0: int, n: int, spans: int
+) -> None:
+    """accel_block (motion, anchors, carriers and products in two calls) gives the bits of
+    kernels.motion, the anchors' angles, and synthesize_accel on the compiled path, for
+    blocks that start off the anchor grid and span up to three sweep segments."""
+    profile = RpmProfile([ramp(900, 4800, 0.5), hold(4800, 0.2), ramp(4800, 1200, 0.5)])
+    table = open_source("sim", i3, profile=profile).table
+    rate = 25_600.0
+    spacing = kernels.anchor_spacing(profile.rpm_max * 2 * np.pi / 60, rate)
+    got = block_kernels.accel_block(table, profile, rate, i0, i0 + n, spacing)
+    t = np.arange(i0, i0 + n) / rate
+    seg, phi, omega, _ = kernels.motion(profile, t)
+    a0 = i0 - i0 % spacing
+    anchors = (kernels.motion(profile, np.arange(a0, i0 + n, spacing) / rate)[1], i0 - a0, spacing)
+    x = synthesize_accel(table, profile, t, (seg, phi, omega), anchors, compiled=True)
+    for a, b in zip(got, (t, seg, phi, omega, x), strict=True):
+        assert np.array_equal(a, b)
+    assert len(set(seg.tolist())) == spans  # the segments meant
