@@ -31,6 +31,7 @@ best of 3: 0.465-0.468 s (128-129x) -> 0.345-0.388 s (155-174x); the simulator's
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -92,6 +93,19 @@ def accel_block(
     return t, seg, phi, omega, out
 
 
+def edge_times(
+    profile: RpmProfile, angles_rad: np.ndarray, period_rad: float, t_a: float, t_b: float
+) -> np.ndarray:
+    """:func:`acquisition.sim.tacho_synth.edge_times` in one call that holds no GIL (its
+    numpy steps held it for most of what was left of the simulator's GIL time in a live
+    run): the same arithmetic, so the same edge times (tested)."""
+    _compile()
+    w_end = profile.segments[-1].rpm_to * RPM_TO_RAD_S
+    limits = np.array([profile.duration_s, profile.phi_end, w_end])
+    angles = np.ascontiguousarray(angles_rad, dtype=float)
+    return _compiled["edges"](t_a, t_b, angles, float(period_rad), *profile.pieces, limits)
+
+
 def _compile() -> None:
     if "motion" in _compiled:
         return
@@ -106,6 +120,7 @@ def _compile() -> None:
     _compiled["block"] = _block_c
     _compiled["segment"] = jit(_segment_accel)
     _compiled["motion"] = jit(_block_motion)
+    _compiled["edges"] = jit(_edge_times)
 
 
 def helpers_sha256() -> str:
@@ -221,6 +236,63 @@ def _segment_accel(
     u = np.empty(rpm.size)
     _locate_c(rpm, edges, centre, inv_half, j, u)
     _block_c(rows, first, j, u, constant, varying, kept, y, out)
+
+
+def _edge_times(
+    t_a: float,
+    t_b: float,
+    angles: np.ndarray,
+    period: float,
+    t_start: np.ndarray,
+    phi_start: np.ndarray,
+    w0: np.ndarray,
+    acc: np.ndarray,
+    limits: np.ndarray,
+) -> np.ndarray:
+    """:func:`edge_times`: ``tacho_synth.angles_between`` and ``RpmProfile.t_of_phi``
+    operation for operation."""
+    ends = np.empty(2)
+    ends[0], ends[1] = t_a, t_b
+    seg = np.empty(2, dtype=np.intp)
+    ph, om, rp = np.empty(2), np.empty(2), np.empty(2)
+    _motion_c(ends, t_start, phi_start, w0, acc, limits, (seg, ph, om, rp))
+    margin = 1e-9 * max(1.0, abs(ph[1]))
+    lo, hi = ph[0] - margin, ph[1] + margin
+    m0 = math.floor(lo / period) - 1
+    m1 = math.floor(hi / period) + 2
+    cand = np.empty((m1 - m0) * angles.size)
+    n = 0
+    for m in range(m0, m1):
+        for a in angles:
+            v = m * period + a
+            if v >= lo and v < hi:
+                cand[n] = v
+                n += 1
+    phi = np.sort(cand[:n])
+    duration, phi_end, w_end = limits[0], limits[1], limits[2]
+    last = t_start.size - 1
+    out = np.empty(n)
+    kept = 0
+    for i in range(n):
+        p = phi[i]
+        k = -1  # searchsorted(phi_start, p, "right") - 1, clipped
+        while k < last and phi_start[k + 1] <= p:
+            k += 1
+        k = max(k, 0)
+        after = p > phi_end
+        if after:
+            dphi, w, a, t0 = p - phi_end, w_end, 0.0, duration
+        else:
+            dphi, w, a, t0 = p - phi_start[k], w0[k], acc[k], t_start[k]
+            if p < phi_start[0]:
+                a = 0.0
+        x = w * w + 2.0 * a * dphi
+        disc = x if x >= 0.0 else 0.0  # (np.maximum(x, 0.0))
+        t = t0 + 2.0 * dphi / (w + math.sqrt(disc))
+        if t >= t_a and t < t_b:
+            out[kept] = t
+            kept += 1
+    return out[:kept].copy()
 
 
 def _horner(y: np.ndarray, u: np.ndarray, out: np.ndarray, first: int) -> None:

@@ -304,6 +304,8 @@ class SimulatedBench(Source):
         duration = self.profile.duration_s
         n_windows = math.ceil(duration / self.block_s - 1e-9)
         totals = {g.name: self._n_total(g.rate_hz) for g in self._layout.groups}
+        # the compiled edge times hold no GIL (acquisition.sim.block_kernels)
+        edges = block_kernels.edge_times if kernels.USE else tacho_synth.edge_times
         start = self._clock()
         for k in range(n_windows):
             t_a, t_b = k * self.block_s, min((k + 1) * self.block_s, duration)
@@ -321,7 +323,7 @@ class SimulatedBench(Source):
                     )
             for ci, name in enumerate(self._layout.edge_channels):
                 p = self._patterns[name]
-                te = tacho_synth.edge_times(self.profile, p.rising_rad, p.period_rad, t_a, t_b)
+                te = edges(self.profile, p.rising_rad, p.period_rad, t_a, t_b)
                 if te.size:
                     items.append((float(te[0]), 100 + ci, EdgeBlock(name, te)))
             items.sort(key=lambda it: (it[0], it[1]))

@@ -14,6 +14,7 @@ from acquisition.sim.block_kernels import CHUNK, block_accel
 from acquisition.sim.compact_design import DROP_RTOL
 from acquisition.sim.sweep import RpmProfile, hold, ramp
 from acquisition.sim.synthesis import half_orders, synthesize_accel
+from acquisition.sim.tacho_synth import edge_times
 from acquisition.stream import SampleBlock
 from ptinertia.sources import open_source
 
@@ -240,3 +241,23 @@ def test_accel_block_is_the_compiled_path_step_by_step_bit_for_bit(
     for a, b in zip(got, (t, seg, phi, omega, x), strict=True):
         assert np.array_equal(a, b)
     assert len(set(seg.tolist())) == spans  # the segments meant
+
+
+def test_compiled_edge_times_are_the_numpy_ones_bit_for_bit() -> None:
+    """block_kernels.edge_times = tacho_synth.edge_times (angles_between, t_of_phi) on a
+    profile with a hold, a falling ramp and a step, windows across segment ends, before the
+    start and after the end, for a 60-2 wheel's angles and a single cam edge."""
+    profile = RpmProfile(
+        [ramp(1500, 4500, 0.3), hold(4500, 0.1), ramp(4500, 900, 0.2), ramp(2000, 2500, 0.1)]
+    )
+    wheel = np.arange(58) * (2 * np.pi / 60) + 0.013
+    edges = np.concatenate([[-0.05], np.linspace(0, 0.7, 45), profile.t_start, [0.75]])
+    windows = [(a, b) for a, b in itertools.pairwise(np.sort(edges)) if b > a]
+    total = 0
+    for angles, period in ((wheel, 2 * np.pi), (np.array([1.1]), 4 * np.pi)):
+        for t_a, t_b in windows:
+            want = edge_times(profile, angles, period, t_a, t_b)
+            got = block_kernels.edge_times(profile, angles, period, t_a, t_b)
+            assert np.array_equal(got, want), (t_a, t_b)
+            total += want.size
+    assert total > 500  # the windows held edges
