@@ -98,6 +98,9 @@ READ_ERRORS: tuple[type[Exception], ...] = (
 )
 
 
+_pread = getattr(os, "pread", None)  # POSIX only
+
+
 class MessageWalk:
     """Messages of ``topics`` in file order (raises on a cut file; see :func:`walk_messages`).
 
@@ -157,7 +160,9 @@ class MessageWalk:
                     try:
                         content = read_at(fh, offset, length) if read is None else read
                         payload = chunk_payload(content, self.check_crcs, zstd)
-                        del content  # (not held while the chunk's messages are read)
+                        # (not held while the chunk's messages are read; read by the summary,
+                        # the walk keeps the record until the next chunk's: one chunk)
+                        del content, read
                     except BadChunk as err:
                         self._skip(offset - RECORD_HEAD.size, str(err))
                         continue
@@ -194,7 +199,10 @@ class MessageWalk:
             # head and content in one read: each read releases the GIL, and in a replay
             # the processing thread, which holds it most of the time, waits to get it back
             # (a seek, a buffered read of the head and one of the content were three)
-            record = memoryview(os.pread(fd, length, offset))
+            # (os.pread is POSIX: elsewhere a seek and a read)
+            record = memoryview(
+                _pread(fd, length, offset) if _pread else read_at(fh, offset, length)
+            )
             head = record[: RECORD_HEAD.size]
             _, declared = RECORD_HEAD.unpack(head) if len(head) == RECORD_HEAD.size else (0, 0)
             if declared != length - RECORD_HEAD.size:

@@ -13,11 +13,15 @@ thread's CPU 0.36-0.39 s against 0.28-0.32 s.
 
 :func:`block_accel` runs the loop over intervals and chunks in one compiled call (the
 product by ``np.dot``, which numba hands to the BLAS that scipy ships, on a contiguous copy
-of the chunk's carriers; the Horner sums as before). The product is the same ``dgemm``
-call as numpy's (the same operands, transposes and sizes: only the carriers' leading
-dimension differs, and the kernel packs its operands before it multiplies), so the samples
-are the same bits (tested against numpy's product). That took the live run to
-0.435-0.475 s against 0.605-0.68 s before (two rounds interleaved).
+of the chunk's carriers; the Horner sums as before). numba's ``dgemm`` is scipy's OpenBLAS
+(0.3.30 here), not numpy's (0.3.31): the same operands, transposes and sizes, and with one
+BLAS thread the same bits (tested in a process with ``OPENBLAS_NUM_THREADS=1``, as the CLI,
+the benchmarks and the Dask workers it starts run, ``ptinertia/cli.py``). With more threads
+scipy's OpenBLAS splits a large product its own way, and the samples move at the rounding
+level (3.6e-15 m/s^2 seen on one channel of the i3): within the compiled path's contract
+(1e-13 of each channel's rms against the numpy path; tested whatever the thread count), as
+a run on another CPU's BLAS kernels would. That took the live run to 0.435-0.475 s against
+0.605-0.68 s before (two rounds interleaved).
 
 :func:`accel_block` goes further for a block of the simulated bench: the times, the sweep's
 motion, the anchors' angles and the carriers in one call, then the intervals and the
@@ -32,6 +36,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import threading
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -43,12 +48,13 @@ from acquisition.sim.amplitude_table import AmplitudeTable
 from acquisition.sim.sweep import RPM_TO_RAD_S, RpmProfile
 
 CHUNK = 1024  # samples per product: keeps the operands in cache (~1.5x faster than 2560)
-# numba's cache watches only this file's bytes; the fused kernels call the motion, carriers
-# and interval kernels of these files: their sha256, renewed with them, rebuilds the cache
-# (tests/acquisition/sim/test_synthesis_kernels.py checks it)
+# numba's cache checks only this file's time stamp and size; the fused kernels call the
+# motion, carriers and interval kernels of these files: their sha256, renewed with them,
+# changes this file and so rebuilds the cache (tests/acquisition/sim/test_synthesis_kernels.py)
 HELPERS = ("kernels.py",)
 HELPERS_SHA256 = "064a4030089db9a9b1ddfda5c6a8e8e8dc28bbf67b517c2e58fb132d7d9057ad"
 _compiled: dict[str, Callable[..., Any]] = {}
+_compiling = threading.Lock()
 
 
 def accel_block(
@@ -63,7 +69,7 @@ def accel_block(
     :func:`acquisition.sim.synthesis.synthesize_accel` on the compiled path: the same bits.
     """
     _compile()
-    n = i1 - i0
+    n = max(0, i1 - i0)  # (as np.arange(i0, i1): none for i1 <= i0)
     design = table.compact  # the orders with an rpm dependence first
     seg = np.empty(n, dtype=np.intp)
     t, phi, omega, rpm = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
@@ -96,10 +102,13 @@ def accel_block(
 def edge_times(
     profile: RpmProfile, angles_rad: np.ndarray, period_rad: float, t_a: float, t_b: float
 ) -> np.ndarray:
-    """:func:`acquisition.sim.tacho_synth.edge_times` in one call that holds no GIL (its
-    numpy steps held it for most of what was left of the simulator's GIL time in a live
-    run): the same arithmetic, so the same edge times (tested)."""
+    """Times (s) of the edges at ``angles_rad`` (mod ``period_rad``, rad of crank angle)
+    with ``t_a <= t < t_b`` (s): :func:`acquisition.sim.tacho_synth.edge_times` in one call
+    that holds no GIL (its numpy steps held it for most of what was left of the simulator's
+    GIL time in a live run): the same arithmetic, so the same edge times (tested)."""
     _compile()
+    if not t_b > t_a:  # an empty window: no edge (as the numpy path's selection)
+        return np.empty(0)
     w_end = profile.segments[-1].rpm_to * RPM_TO_RAD_S
     limits = np.array([profile.duration_s, profile.phi_end, w_end])
     angles = np.ascontiguousarray(angles_rad, dtype=float)
@@ -107,20 +116,29 @@ def edge_times(
 
 
 def _compile() -> None:
-    if "motion" in _compiled:
+    """Compile (or load from numba's cache) every kernel here, once per process: the
+    entries appear together, so a thread never finds some and misses others."""
+    if _compiled:
         return
-    from numba import njit  # heavy (0.3 s): only where the kernels are used
+    with _compiling:
+        if _compiled:
+            return
+        from numba import njit  # heavy (0.3 s): only where the kernels are used
 
-    global _motion_c, _carriers_c, _powers_c, _locate_c, _block_c, _horner_compiled
-    jit = njit(cache=True, nogil=True)
-    _motion_c, _carriers_c = jit(kernels._motion), jit(kernels._carriers)
-    _powers_c, _locate_c = jit(kernels._powers), jit(kernels._locate)
-    _horner_compiled = jit(_horner)
-    _block_c = jit(_block_accel)
-    _compiled["block"] = _block_c
-    _compiled["segment"] = jit(_segment_accel)
-    _compiled["motion"] = jit(_block_motion)
-    _compiled["edges"] = jit(_edge_times)
+        global _motion_c, _carriers_c, _powers_c, _locate_c, _block_c, _horner_compiled
+        # the same options as acquisition.sim.kernels._jit: the two dispatchers of a kernel
+        # there share one cache entry, whose key holds no options
+        jit = njit(cache=True, nogil=True)
+        _motion_c, _carriers_c = jit(kernels._motion), jit(kernels._carriers)
+        _powers_c, _locate_c = jit(kernels._powers), jit(kernels._locate)
+        _horner_compiled = jit(_horner)
+        _block_c = jit(_block_accel)
+        _compiled.update(
+            block=_block_c,
+            segment=jit(_segment_accel),
+            motion=jit(_block_motion),
+            edges=jit(_edge_times),
+        )
 
 
 def helpers_sha256() -> str:
@@ -200,7 +218,9 @@ def _block_motion(
     out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     rows: np.ndarray,
 ) -> None:
-    """:func:`accel_block`'s first call: times, motion, the anchors' angles, carriers."""
+    """:func:`accel_block`'s first call: into ``out`` the times (s), segments, crank angles
+    (rad), speeds (rad/s) and rpm of samples ``i0 ..`` at ``rate_hz``; into ``rows`` their
+    carriers, from the angles of anchors every ``spacing`` samples."""
     seg, t, phi, omega, rpm = out
     n = t.size
     for s in range(n):

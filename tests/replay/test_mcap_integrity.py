@@ -314,3 +314,16 @@ def test_a_record_flipped_into_an_end_record_does_not_end_the_read(
         assert entry["byte"] == starts[2] and "opcode 0x02" in entry["reason"]
     else:  # an index is not data: nothing lost
         assert got == want
+
+
+def test_without_pread_the_chunks_are_read_by_seek_and_read_to_the_same_result(
+    clean_run: CleanRun, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch
+) -> None:
+    """A platform without os.pread (Windows) reads the summary's chunks by a seek and a
+    read: the replay's result is the clean one, without a note."""
+    from replay import chunks
+
+    assert chunks._pread is not None  # (this machine has it: the default path is pread)
+    monkeypatch.setattr(chunks, "_pread", None)
+    code, doc, err = replay(clean_run.log, tmp_path / "r.json", capsys)
+    assert (code, err) == (0, []) and doc == clean_run.result

@@ -4,6 +4,10 @@ closed forms and against the numpy path, over block splits."""
 from __future__ import annotations
 
 import itertools
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -162,10 +166,75 @@ def test_orders_without_rpm_dependence_worth_keeping_are_dropped_within_their_bo
     assert np.max(np.abs(fast - ref).max(axis=1) / largest) < DROP_RTOL
 
 
-def test_block_kernel_is_the_chunked_numpy_product_and_horner_bit_for_bit(i3) -> None:
-    """block_accel (every interval and chunk in one compiled call, numba's ``np.dot``) gives
-    the bits of numpy's product chunk by chunk and the Horner sum highest power first,
-    over a sweep crossing table intervals, with runs longer and shorter than a chunk."""
+def block_case(n_k: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """block_accel on random operands of the i3's shapes (9 channels, 12 half orders of which
+    8 keep their rpm dependence, ``n_k - 1`` powers of ``u``) over 9000 samples in interval
+    runs longer and shorter than a chunk, and the reference: numpy's product chunk by chunk
+    and the Horner sum highest power first. Returns (kernel's, reference)."""
+    rng = np.random.default_rng(seed)
+    n_ch, n_o, kept, n, first = 9, 12, 16, 9000, 37
+    constant = rng.standard_normal((4, n_ch, 2 * n_o))
+    varying = rng.standard_normal((4, (n_k - 1) * n_ch, kept))
+    rows = rng.standard_normal((2 * n_o, first + n + 5))
+    j = np.repeat(np.array([2, 0, 3, 1, 3]), [3000, 17, 1100, 2900, 1983])
+    u = rng.uniform(-1, 1, n)
+    got = np.full((n_ch, first + n), np.nan)
+    block_accel(rows, first, j, u, constant, varying, kept, got)
+    want = np.full((n_ch, first + n), np.nan)
+    cuts = [0, *(np.flatnonzero(np.diff(j)) + 1).tolist(), n]
+    for a, b in itertools.pairwise(cuts):
+        d0, dk = constant[j[a]], varying[j[a]]
+        for c0 in range(a, b, CHUNK):
+            c1 = min(b, c0 + CHUNK)
+            y = [d0 @ rows[:, first + c0 : first + c1]]
+            if dk.shape[0]:
+                y.append(dk @ rows[:kept, first + c0 : first + c1])
+            y = np.concatenate(y).reshape(-1, n_ch, c1 - c0)
+            acc = y[-1].copy()
+            for k in range(y.shape[0] - 2, -1, -1):
+                acc = acc * u[c0:c1] + y[k]
+            want[:, first + c0 : first + c1] = acc
+    return got, want
+
+
+@pytest.mark.parametrize("n_k", [1, 3, 5])
+def test_block_kernel_is_the_chunked_numpy_product_and_horner(n_k: int) -> None:
+    """block_accel (every interval and chunk in one compiled call, numba's ``np.dot`` on
+    scipy's BLAS) against numpy's product and Horner sum, degrees 0, 2 and 4 (the default
+    one-pass branch and the general one): within rounding whatever the BLAS threads (a
+    product split over threads rounds its own way), NaN-free and every sample written."""
+    got, want = block_case(n_k, seed=n_k)
+    assert np.isnan(got[:, :37]).all() and not np.isnan(got[:, 37:]).any()
+    np.testing.assert_allclose(got[:, 37:], want[:, 37:], rtol=1e-12, atol=1e-12)
+
+
+def test_block_kernel_is_numpy_bit_for_bit_with_one_blas_thread() -> None:
+    """With one BLAS thread (as the CLI, the benchmarks and the Dask workers it starts run),
+    block_accel gives numpy's bits exactly: checked in a process of its own, whose BLAS
+    libraries read OPENBLAS_NUM_THREADS=1 when they load."""
+    script = (
+        "import sys; sys.path.insert(0, sys.argv[1]); import numpy as np\n"
+        "from test_synthesis_kernels import block_case\n"
+        "for n_k in (1, 3, 5):\n"
+        "    got, want = block_case(n_k, seed=n_k)\n"
+        "    assert np.array_equal(got, want, equal_nan=True), n_k\n"
+        "print('same bits')\n"
+    )
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    done = subprocess.run(
+        [sys.executable, "-c", script, str(Path(__file__).parent)],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0 and "same bits" in done.stdout, done.stderr[-2000:]
+
+
+def test_block_kernel_on_the_i3s_design(i3) -> None:
+    """block_accel on the i3's own operands over a sweep crossing table intervals: the
+    compiled path's samples as synthesize_accel makes them, within rounding of the
+    reference product and Horner sum."""
     profile = RpmProfile([ramp(900, 4800, 0.25), hold(4800, 0.05), ramp(4800, 1200, 0.2)])
     table = open_source("sim", i3, profile=profile).table
     design = table.compact
@@ -186,17 +255,16 @@ def test_block_kernel_is_the_chunked_numpy_product_and_horner_bit_for_bit(i3) ->
         cuts = [0, *(np.flatnonzero(np.diff(j)) + 1).tolist(), j.size]
         for a, b in itertools.pairwise(cuts):
             d0, dk = design.constant[s][j[a]], design.varying[s][j[a]]
-            for c0 in range(a, b, CHUNK):
-                c1 = min(b, c0 + CHUNK)
-                y = [d0 @ rows[:, a0 + c0 : a0 + c1]]
-                if dk.shape[0]:
-                    y.append(dk @ rows[:kept, a0 + c0 : a0 + c1])
-                y = np.concatenate(y).reshape(-1, n_ch, c1 - c0)
-                acc = y[-1].copy()
-                for k in range(y.shape[0] - 2, -1, -1):
-                    acc = acc * u[c0:c1] + y[k]
-                want[:, a0 + c0 : a0 + c1] = acc
-        assert np.array_equal(got[:, idx], want[:, idx])
+            y = [d0 @ rows[:, a0 + a : a0 + b]]
+            if dk.shape[0]:
+                y.append(dk @ rows[:kept, a0 + a : a0 + b])
+            y = np.concatenate(y).reshape(-1, n_ch, b - a)
+            acc = y[-1].copy()
+            for k in range(y.shape[0] - 2, -1, -1):
+                acc = acc * u[a:b] + y[k]
+            want[:, a0 + a : a0 + b] = acc
+        scale = np.abs(want[:, idx]).max()
+        np.testing.assert_allclose(got[:, idx], want[:, idx], rtol=0, atol=1e-13 * scale)
     assert crossed >= 3  # the runs did cross intervals
 
 
