@@ -33,7 +33,7 @@ class PendingFrame(NamedTuple):
     rpm: float
     force: np.ndarray  # (k, 3) complex
     moment: np.ndarray  # (k, 3) complex
-    var: np.ndarray  # (k,)
+    var: list[float] | np.ndarray  # (k,) (the queue's: a list, see FrameStack.cat)
     fit: RigidFit  # the channel geometry of the fit
     amplitudes: np.ndarray  # (k, u) complex, the fitted readings
     half: np.ndarray  # (k,) bool: a half order of a frame with an unknown 720 deg cycle
@@ -59,7 +59,14 @@ class FrameStack:
         """The frames' per-order field ``name`` (k, ...) concatenated: (P, ...)."""
         out = self._arrays.get(name)
         if out is None:
-            out = self._arrays[name] = np.concatenate(self._fields[name])
+            values = self._fields[name]
+            if isinstance(values[0], list):
+                # (the queue's noise variances, lists of floats: one conversion for the
+                # flush, the values np.array(var) of each and their concatenation have)
+                out = np.array(list(itertools.chain.from_iterable(values)), float)
+            else:
+                out = np.concatenate(values)
+            self._arrays[name] = out
         return out
 
     def per_pair(self, name: str) -> np.ndarray:
