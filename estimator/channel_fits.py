@@ -147,7 +147,14 @@ class ChannelFits:
             amps, ok = amps[:, :, at], ok[:, at]
         finite = np.logical_and.reduce(np.isfinite(amps), axis=1)  # (.all without its wrapper)
         used = present & ok & finite
-        return [(row, cols) for row in used], np.where(used[:, None, :], amps, np.nan)
+        first = used[0]
+        if used.tobytes() == first.tobytes() * len(used):
+            # every frame the same channels (most blocks): one row, shared (read only, as
+            # every row is), which run_end then compares by identity
+            masks = [(first, cols)] * len(used)
+        else:
+            masks = [(row, cols) for row in used]
+        return masks, np.where(used[:, None, :], amps, np.nan)
 
     def variance_steps(
         self, frame: FrameLike, used: np.ndarray, cols: np.ndarray

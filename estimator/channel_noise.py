@@ -96,6 +96,15 @@ class ThinnedSample:
         if not self._seen % self._stride:
             self._keep(make())
 
+    def add_made_many(self, n: int, make: Callable[[int], Any]) -> None:
+        """:meth:`add_made` of ``n`` items in turn, ``make(i)`` called only for the kept
+        ones (no callable made per item: a flush's frames, most of them not kept)."""
+        keep = self._keep
+        for i in range(n):
+            self._seen += 1
+            if not self._seen % self._stride:  # (read each time: a keep may double it)
+                keep(make(i))
+
     def _keep(self, item: Any) -> None:
         self.items.append(item)
         if len(self.items) >= self.capacity:

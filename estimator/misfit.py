@@ -24,8 +24,6 @@ is equation j given the ones before it: the attribution is to that equation.
 
 from __future__ import annotations
 
-import functools
-import itertools
 from typing import Any
 
 import numpy as np
@@ -83,8 +81,10 @@ class MisfitSample:
         kept = self._rows.get(sign)
         if kept is None:  # (not setdefault: that would build a sample per call)
             kept = self._rows[sign] = ThinnedSample(CAPACITY)
-        for a, b in itertools.pairwise(bounds.tolist()):
-            kept.add_made(functools.partial(_copied, orders, H, y, slice(a, b)))
+        edges = bounds.tolist()
+        kept.add_made_many(
+            len(edges) - 1, lambda f: _copied(orders, H, y, slice(edges[f], edges[f + 1]))
+        )
 
     def copy(self) -> MisfitSample:
         """An independent copy (the samples are copied, their rows shared: never changed)."""

@@ -99,7 +99,9 @@ class FrameQueue:
         """
         if fit.null is not None:
             self.flush_timing_matters = True
-        floor = max(1e-16 * (power_sum / len(orders)), 1e-30)  # of the mean square
+        floor = 1e-16 * (power_sum / len(orders))  # of the mean square
+        if floor < 1e-30:  # (max(floor, 1e-30) without the call: NaN stays NaN alike)
+            floor = 1e-30
         if self.cal:
             redundancy = self._redundancy_raw(fit, motion, readings, ks)
             raw = self._raw_noise_var(motion, ks, redundancy)
@@ -126,7 +128,7 @@ class FrameQueue:
                     float(rpm),
                     force,
                     moment,
-                    np.array(var),
+                    var,  # (a list: FrameStack.cat makes a flush's array in one go)
                     fit,
                     readings,  # amplitudes
                     half,
