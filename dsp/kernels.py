@@ -7,9 +7,9 @@ orders of each set, sums them, and packs each segment's row), the cutting of the
 into segments (:func:`segment_cuts`), the angle lookup of the samples
 (:func:`cubic_values`; of a block's consecutive samples with their times, :func:`grid_values`),
 the times of the frames' window ends (:func:`cubic_times`), the frames' window sums and
-amplitudes (:func:`window_sums`, :func:`group_amplitudes`), their speed and leakage figures
-(:func:`frame_figures`), the leakage correction's ramps and coupling (:func:`ramp_slopes`,
-:func:`apply_ramps`), the angle table's new knots and coefficients (:func:`append_knots`),
+amplitudes (:func:`window_sums`, :func:`group_amplitudes`), their speed and leakage figures,
+angles, flags and turned orders (:func:`frame_outputs`), the leakage correction's ramps
+and coupling (:func:`ramp_slopes`, :func:`apply_ramps`), the angle table's new knots and coefficients (:func:`append_knots`),
 the pressure votes' candidate sums (:func:`pressure_sums`) and the wheel decoder's interval
 pass (:func:`wheel_intervals`), each releasing the GIL (``nogil=True``).
 
@@ -98,8 +98,7 @@ import numpy as np
 
 from dsp.angle_loops import append_knots as knots_loops
 from dsp.angle_loops import grid_values as grid_loops
-from dsp.frame_figures import frame_codes as codes_loops
-from dsp.frame_figures import frame_figures as figures_loops
+from dsp.frame_figures import frame_outputs as outputs_loops
 from dsp.frames import RISE_PACKED
 from dsp.ramp_slopes import ramp_slopes as slopes_loops
 from dsp.sum_rows import (
@@ -263,21 +262,10 @@ def group_amplitudes(
     return nan_rows, clip_rows
 
 
-def frame_figures(
-    times: np.ndarray, omegas: np.ndarray, x: np.ndarray, ms: np.ndarray,
-    corrected: np.ndarray, out: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
-    """The frames' rpm, rpm change (f,) and leakage figures (f, n_ch) in one compiled call
-    after numpy's magnitudes (:func:`dsp.frame_figures.frame_figures`: the numpy path's bits)."""
-    f, _, n_ch = x.shape
-    rpm, rpm_change, leak = np.empty(f), np.empty(f), np.empty((f, n_ch))
-    _jit(figures_loops)(times, omegas, np.abs(x), ms, corrected, out, rpm, rpm_change, leak)
-    return rpm, rpm_change, leak
-
-
-def frame_codes(*args: Any) -> None:
-    """:func:`dsp.frame_figures.frame_codes` compiled (on the first call, as :func:`piece_sums`)."""
-    _jit(codes_loops)(*args)
+def frame_outputs(*args: Any) -> None:
+    """:func:`dsp.frame_figures.frame_outputs` compiled (on the first call, as
+    :func:`piece_sums`): a batch's figures, angles, flag bits and turned orders."""
+    _jit(outputs_loops)(*args)
 
 
 def cubic_times(*args: Any) -> None:
