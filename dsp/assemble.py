@@ -108,17 +108,18 @@ def _ranges(st: TrackerState, j0: int, j1: int, spacing: float) -> list[tuple[in
     return [(a, b) for a, b in out if a <= b]
 
 
-def _chains(st: TrackerState, phis: np.ndarray) -> np.ndarray:
-    """Parity chain of the run holding each angle (-1 outside every run); ``phis``
-    increasing (rad)."""
+def _chains(st: TrackerState, phis: np.ndarray) -> tuple[np.ndarray, int | None]:
+    """Parity chain of the run holding each angle (-1 outside every run), and the chain
+    when all of them lie inside one run's span (else None); ``phis`` increasing (rad)."""
     table = st.table
     if table.run.size and table.run[0] == table.run[-1]:
         # one run in the table (no re-sync within reach): one chain, inside its angle span
         only = st.chain_of_run.get(int(table.run[0]), -1)
         lo, hi = table.phi_lo[0], table.phi_hi[-1]
         if phis.size and phis[0] >= lo and phis[-1] <= hi:
-            return np.full(phis.size, only, dtype=np.int64)  # increasing angles, all inside
-        return np.where((phis >= lo) & (phis <= hi), only, -1)
+            # increasing angles, all inside
+            return np.full(phis.size, only, dtype=np.int64), only
+        return np.where((phis >= lo) & (phis <= hi), only, -1), None
     t, _ = ang.time_at(table, phis)
     out = np.full(phis.size, -1, dtype=np.int64)
     good = np.isfinite(t)
@@ -126,7 +127,7 @@ def _chains(st: TrackerState, phis: np.ndarray) -> np.ndarray:
         ok, _, _, run = ang.lookup(st.table, t[good])
         chain = np.array([st.chain_of_run.get(int(r), -1) for r in run], dtype=np.int64)
         out[good] = np.where(ok, chain, -1)
-    return out
+    return out, None
 
 
 def _batch(
@@ -137,33 +138,40 @@ def _batch(
     n = cfg.frames_per_rev
     spacing = TWO_PI / n
     tw = math.radians(cfg.taper_deg)
-    chains = _chains(st, js * spacing)
+    chains, only = _chains(st, js * spacing)
     referenced = cfg.tacho.phase_reference != "none"
     wait = cfg.cycle_wait_revs * TWO_PI if referenced else 0.0
     end_phi = (js + n) * spacing + 0.5 * tw
-    # the chains' decided offsets, looked up once per frame (a batch holds one or two chains)
-    known = [st.parity.get(c) for c in chains.tolist()]
-    decided = np.array(
-        [k is not None and k[1] <= e + wait for k, e in zip(known, end_phi.tolist(), strict=True)],
-        dtype=bool,
-    )
     done = True
-    if referenced:
-        ready = decided | (front >= end_phi + wait)
-        stop = int(np.argmin(ready)) if not ready.all() else js.size
-        if stop < js.size:
-            js, chains, decided, done = js[:stop], chains[:stop], decided[:stop], False
-            known = known[:stop]
-        if js.size == 0:
-            return st, [], False
-    parity = np.array(
-        [k[0] if k is not None and d else 0 for k, d in zip(known, decided.tolist(), strict=True)],
-        dtype=np.int64,
-    )
+    settled = None if only is None else st.parity.get(only)
+    if settled is not None and settled[1] <= float(end_phi[0]) + wait:
+        # the rule: one chain, its offset decided before the first frame's end, so before
+        # every frame's (their ends increase): all decided, none waits, one parity
+        parity = np.full(js.size, settled[0], dtype=np.int64)
+        ambiguous = np.zeros(js.size, bool)
+    else:
+        # the chains' decided offsets, looked up once per frame (a batch holds one or two)
+        known = [st.parity.get(c) for c in chains.tolist()]
+        ends = end_phi.tolist()
+        decided = np.array(
+            [k is not None and k[1] <= e + wait for k, e in zip(known, ends, strict=True)],
+            dtype=bool,
+        )
+        if referenced:
+            ready = decided | (front >= end_phi + wait)
+            stop = int(np.argmin(ready)) if not ready.all() else js.size
+            if stop < js.size:
+                js, chains, decided, done = js[:stop], chains[:stop], decided[:stop], False
+                known = known[:stop]
+            if js.size == 0:
+                return st, [], False
+        use = zip(known, decided.tolist(), strict=True)
+        parity = np.array([k[0] if k is not None and d else 0 for k, d in use], dtype=np.int64)
+        ambiguous = ~decided
     raw = window_amplitudes(st, js)
     st, x, corrected = _correct(st, js, chains, raw["x"], raw["tacho_bad"])
     st, spectrum = _spectrum(st, js, chains, raw)
-    frames = _finish(st, js, raw, x, corrected, parity, ~decided, chains, spectrum)
+    frames = _finish(st, js, raw, x, corrected, parity, ambiguous, chains, spectrum)
     st, frames = rejoin(st, frames, chains)
     return _forget(st, int(js[-1]) + 1), frames, done
 
@@ -207,14 +215,15 @@ def _spectrum(
     lo_phi = (js - n) * spacing - 0.5 * tw
     usable = ~(raw["tacho_bad"] | raw["bad_group"][:, gi]) & (lo_phi >= gs.first_phi)
     if kernels.USE:
-        # sums and 2 s / w in two compiled calls, as the tracked groups': the same bits
+        # sums and 2 s / w in one compiled call, as the tracked groups': the same bits
         x = np.empty((js.size, sk2.size, 1), complex)  # as the tracked channels' (f, n_int, n_ch)
         scratch = np.empty((js.size, 1)), np.empty((js.size, 1), bool)
-        nan_rows, _ = kernels.group_amplitudes(
+        nan_rows, _, code = kernels.group_amplitudes(
             gs.spec, js, n, sk2.size, usable, _SPECTRUM_COLUMN, x, *scratch
         )
         x[:, 0, 0] *= 0.5
-        usable &= ~nan_rows  # the halved mean keeps finite what was
+        if code & 1:
+            usable &= ~nan_rows  # the halved mean keeps finite what was
     else:
         s, w, _, _ = window_sums(gs.spec, int(js[0]), int(js[-1]), n, 1, sk2.size)
         with np.errstate(invalid="ignore", divide="ignore"):

@@ -43,8 +43,9 @@ def rejoin(
         # whose half orders were measured (found from the end: usually the last one)
         if half.size:
             for f in reversed(frames):
-                if _measured(f.amplitudes[half]):
-                    return evolve(st, half_ref=f.amplitudes[half]), frames
+                last = f.amplitudes[half]
+                if _measured(last):
+                    return evolve(st, half_ref=last), frames
         return st, frames
     tc = st.plan.config.tacho
     once_per_rev = tc.kind in ("wheel", "pulses") and (tc.gap_teeth > 0 or tc.teeth_per_rev == 1)

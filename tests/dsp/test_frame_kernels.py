@@ -413,3 +413,38 @@ def test_a_repeated_tacho_edge_is_survived_by_the_compiled_wheel_decoder(monkeyp
     assert [(g.time_s, g.crank_angle_rad, g.flags) for g in got] == [
         (w.time_s, w.crank_angle_rad, w.flags) for w in want
     ]
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_compiled_window_times_give_the_numpy_bits(compiled, monkeypatch):
+    """The times and speeds at the windows' start, centre and end (dsp.window_times through
+    dsp.kernels, compiled and as plain loops) against dsp.angle.time_at of the angles
+    (numpy path): the same bits, NaN before, between and after two wheel runs, and
+    whether all are finite."""
+    from dsp import angle as ang
+
+    rng = np.random.default_rng(17)
+    table, t0 = ang.AngleTable(), 0.0
+    for run in range(2):
+        t = t0 + np.cumsum(rng.uniform(0.9, 1.1, 300) * 60.0 / 3000.0 / 58)
+        phi = 60.0 * run + np.arange(t.size) * (2 * np.pi / 60)
+        table = ang.add_knots(table, t, phi, np.full(t.size, run, dtype=np.int64))
+        t0 = t[-1] + 0.01
+    n, spacing = 4, 2 * np.pi / 4
+    cols = (table.t_lo, table.t_hi, table.phi_lo, table.phi_hi, table.c1, table.c2, table.c3)
+    if not compiled:
+        monkeypatch.setattr(kernels, "_jit", lambda fn, numpy_division=False: fn)
+    monkeypatch.setattr(kernels, "USE", False)
+    nan_seen = 0
+    for j0, f in ((-3, 10), (5, 10), (10, 20), (43, 10), (50, 20)):
+        js = np.arange(j0, j0 + f)
+        span = np.arange(j0 - n, j0 + f + n)
+        want_t, want_w = ang.time_at(table, span * spacing)
+        at = (np.arange(f)[:, None] + np.array([0, n, 2 * n])).ravel()
+        times, omegas = np.empty((f, 3)), np.empty((f, 3))
+        finite = kernels.window_times(js, n, spacing, *cols, times, omegas)
+        assert times.tobytes() == want_t[at].reshape(f, 3).tobytes()
+        assert omegas.tobytes() == want_w[at].reshape(f, 3).tobytes()
+        assert finite == bool(np.isfinite(want_t).all())
+        nan_seen += not finite
+    assert nan_seen == 3  # before, across the gap, after; two inside a run
