@@ -212,8 +212,14 @@ def _spectrum(
     gs = st.groups[gi]
     # a window that begins before the channel's first sample (its group may start later
     # than the tracked ones) has missing sums, not zeros
-    lo_phi = (js - n) * spacing - 0.5 * tw
-    usable = ~(raw["tacho_bad"] | raw["bad_group"][:, gi]) & (lo_phi >= gs.first_phi)
+    # (the rule: no unsynchronised stretch, from which alone window_amplitudes marks
+    # frames bad, and the first window's start, so every one's, after the first sample)
+    every = not st.invalid and (int(js[0]) - n) * spacing - 0.5 * tw >= gs.first_phi
+    if every:
+        usable = np.ones(js.size, bool)
+    else:
+        lo_phi = (js - n) * spacing - 0.5 * tw
+        usable = ~(raw["tacho_bad"] | raw["bad_group"][:, gi]) & (lo_phi >= gs.first_phi)
     if kernels.USE:
         # sums and 2 s / w in one compiled call, as the tracked groups': the same bits
         x = np.empty((js.size, sk2.size, 1), complex)  # as the tracked channels' (f, n_int, n_ch)
@@ -224,6 +230,7 @@ def _spectrum(
         x[:, 0, 0] *= 0.5
         if code & 1:
             usable &= ~nan_rows  # the halved mean keeps finite what was
+            every = False
     else:
         s, w, _, _ = window_sums(gs.spec, int(js[0]), int(js[-1]), n, 1, sk2.size)
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -231,7 +238,9 @@ def _spectrum(
         x[:, :, 0] *= 0.5
         x = x.transpose(0, 2, 1)  # (f, n_spec, 1), as the tracked channels' (f, n_int, n_ch)
         usable &= np.isfinite(x).all(axis=(1, 2))
-    x[~usable] = np.nan
+        every = False
+    if not every:
+        x[~usable] = np.nan
     history, x, _ = ramp_correction(
         st.spec_history, js, chains, x, raw["tacho_bad"], plan.spectrum_same,
         plan.spectrum_image, n, cfg.leakage_correction,

@@ -71,7 +71,7 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
             continue
         holes = st.groups[gi].holes
         if kernels.USE and not holes[0].size:
-            # sums, amplitudes and flags in two compiled calls: the same bits as below
+            # sums, amplitudes and flags in one compiled call: the same bits as below
             usable = ~(tacho_bad | bad_group[:, gi])
             nan_rows, clip_rows, code = kernels.group_amplitudes(
                 st.groups[gi].acc, js, n, n_int, usable, _cols_array(g.track_cols), x, ms, ok

@@ -12,8 +12,10 @@ angle ``(j + (a - 1) n) spacing`` as numpy makes it (the integer made a float, t
 bits (an angle shared by two frames' windows is solved twice, to the same bits).
 Plain Python: the loops run uncompiled too, which is how the tests step through them.
 
-Measured (issue 24; the run's 60 s log compiled, 120 steps of about 25 frames, CPU best
-of 7): see the commit that brought it.
+Measured (issue 24; the run's 60 s log compiled, 120 steps of about 25 frames): the
+lookup and its array operations about 16 us a step (wall time of its lines, load 3), the
+compiled call about 4 us; :func:`dsp.window_amplitudes.window_amplitudes` with it and
+:mod:`dsp.fused_frames` 4.6-5.7 -> 4.1-4.7 ms a minute (CPU best of 9, load 3.3-4.6).
 """
 
 from __future__ import annotations
