@@ -62,9 +62,11 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
         if not np.isfinite(times).all():
             times = interpolate_times(st, span * spacing, times)
         times, omegas = times[at].reshape(f, 3), omegas[at].reshape(f, 3)
-    x = np.full((f, n_int, n_ch), np.nan + 0j)
-    ms = np.full((f, n_ch), np.nan)
-    ok = np.zeros((f, n_ch), bool)
+    # every column is a tracked channel of exactly one group (dsp.config.make_plan), whose
+    # branch below writes all of its rows: nothing to fill beforehand
+    x = np.empty((f, n_int, n_ch), complex)
+    ms = np.empty((f, n_ch))
+    ok = np.empty((f, n_ch), bool)
     variance = np.ones((f, n_ch))
     for gi, g in enumerate(plan.groups):
         if not g.track_rows:
@@ -72,7 +74,8 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
         holes = st.groups[gi].holes
         if kernels.USE and not holes[0].size:
             # sums, amplitudes and flags in one compiled call: the same bits as below
-            usable = ~(tacho_bad | bad_group[:, gi])
+            # (without an unsynchronised stretch every frame is usable)
+            usable = ~(tacho_bad | bad_group[:, gi]) if st.invalid else np.ones(f, bool)
             nan_rows, clip_rows, code = kernels.group_amplitudes(
                 st.groups[gi].acc, js, n, n_int, usable, _cols_array(g.track_cols), x, ms, ok
             )
