@@ -108,18 +108,22 @@ def _ranges(st: TrackerState, j0: int, j1: int, spacing: float) -> list[tuple[in
     return [(a, b) for a, b in out if a <= b]
 
 
-def _chains(st: TrackerState, phis: np.ndarray) -> tuple[np.ndarray, int | None]:
-    """Parity chain of the run holding each angle (-1 outside every run), and the chain
-    when all of them lie inside one run's span (else None); ``phis`` increasing (rad)."""
+def _chains(st: TrackerState, js: np.ndarray, spacing: float) -> tuple[np.ndarray, int | None]:
+    """Parity chain of the run holding each frame's centre ``js * spacing`` (rad; -1
+    outside every run), and the chain when all of them lie inside one run's span (else
+    None); ``js`` increasing."""
     table = st.table
     if table.run.size and table.run[0] == table.run[-1]:
         # one run in the table (no re-sync within reach): one chain, inside its angle span
         only = st.chain_of_run.get(int(table.run[0]), -1)
         lo, hi = table.phi_lo[0], table.phi_hi[-1]
-        if phis.size and phis[0] >= lo and phis[-1] <= hi:
+        # (the first and last angle as numpy makes them: the integer made a float, times spacing)
+        if js.size and int(js[0]) * spacing >= lo and int(js[-1]) * spacing <= hi:
             # increasing angles, all inside
-            return np.full(phis.size, only, dtype=np.int64), only
+            return np.full(js.size, only, dtype=np.int64), only
+        phis = js * spacing
         return np.where((phis >= lo) & (phis <= hi), only, -1), None
+    phis = js * spacing
     t, _ = ang.time_at(table, phis)
     out = np.full(phis.size, -1, dtype=np.int64)
     good = np.isfinite(t)
@@ -138,19 +142,20 @@ def _batch(
     n = cfg.frames_per_rev
     spacing = TWO_PI / n
     tw = math.radians(cfg.taper_deg)
-    chains, only = _chains(st, js * spacing)
+    chains, only = _chains(st, js, spacing)
     referenced = cfg.tacho.phase_reference != "none"
     wait = cfg.cycle_wait_revs * TWO_PI if referenced else 0.0
-    end_phi = (js + n) * spacing + 0.5 * tw
     done = True
     settled = None if only is None else st.parity.get(only)
-    if settled is not None and settled[1] <= float(end_phi[0]) + wait:
+    # the first frame's end angle as numpy makes end_phi[0] below (the same bits)
+    if settled is not None and settled[1] <= (int(js[0]) + n) * spacing + 0.5 * tw + wait:
         # the rule: one chain, its offset decided before the first frame's end, so before
         # every frame's (their ends increase): all decided, none waits, one parity
         parity = np.full(js.size, settled[0], dtype=np.int64)
         ambiguous = np.zeros(js.size, bool)
     else:
         # the chains' decided offsets, looked up once per frame (a batch holds one or two)
+        end_phi = (js + n) * spacing + 0.5 * tw
         known = [st.parity.get(c) for c in chains.tolist()]
         ends = end_phi.tolist()
         decided = np.array(
@@ -172,7 +177,8 @@ def _batch(
     st, x, corrected = _correct(st, js, chains, raw["x"], raw["tacho_bad"])
     st, spectrum = _spectrum(st, js, chains, raw)
     frames = _finish(st, js, raw, x, corrected, parity, ambiguous, chains, spectrum)
-    st, frames = rejoin(st, frames, chains)
+    # (a frame is rebased where its chain is above 0: _finish's flag bit 4)
+    st, frames = rejoin(st, frames, chains, None if only is None else only > 0)
     return _forget(st, int(js[-1]) + 1), frames, done
 
 
