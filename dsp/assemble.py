@@ -24,7 +24,7 @@ import numpy as np
 from dsp import angle as ang
 from dsp import cycle, kernels
 from dsp.frame_constants import frame_constants, rotation
-from dsp.frame_figures import frame_codes_numpy
+from dsp.frame_figures import frame_codes_numpy, frame_figures_numpy
 from dsp.frames import OrderFrame
 from dsp.gap_fit import forget_holes
 from dsp.immutable import evolve
@@ -299,7 +299,9 @@ def _finish(
             spec[:, :1] = spec[:, :1].real
     else:
         out = x[:, plan.out, :]  # (f, n_orders, n_ch)
-        rpm, rpm_change, leak = frame_figures(times, omegas, x, raw["ms"], corrected, plan.out)
+        rpm, rpm_change, leak = frame_figures_numpy(
+            times, omegas, x, raw["ms"], corrected, plan.out
+        )
         out = out * rotation(parity, const.k2, steps, const.signs)[:, :, None]
         if spectrum is not None:
             k = const.spectrum_k
@@ -370,33 +372,6 @@ def _finish(
         )
         frames.append(frame)
     return frames
-
-
-def frame_figures(
-    times: np.ndarray,
-    omegas: np.ndarray,
-    x: np.ndarray,
-    ms: np.ndarray,
-    corrected: np.ndarray,
-    out: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """rpm, rpm change (f,) and leakage figure (f, n_ch) of frames with window start,
-    centre and end ``times``, ``omegas`` (f, 3), corrected amplitudes ``x`` (f, n_int,
-    n_ch), mean squares ``ms`` (f, n_ch), output orders ``out`` (the reference of
-    :func:`dsp.frame_figures.frame_figures`)."""
-    duration = times[:, 2] - times[:, 0]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rpm = 120.0 / duration  # 720 deg over the window's duration
-        rpm_change = (omegas[:, 2] - omegas[:, 0]) * duration / (4.0 * math.pi)
-        # what can leak: the internal orders unless corrected for (their amplitudes add in
-        # the worst case), plus whatever power the internal orders do not explain
-        absx = np.abs(x)
-        explained = 0.5 * np.sum(absx**2, axis=1)
-        rest = np.sqrt(2.0 * np.maximum(ms - explained, 0.0))
-        known = np.where(corrected, 0.0, absx.sum(axis=1))
-        strongest = np.max(absx[:, out, :], axis=1)  # of the output orders
-        leak = np.abs(rpm_change)[:, None] / math.pi * (known + rest) / strongest
-    return rpm, rpm_change, leak
 
 
 def _forget(st: TrackerState, j_next: int) -> TrackerState:

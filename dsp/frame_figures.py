@@ -1,19 +1,19 @@
 """A batch's frame figures (speed, speed change, leakage figure, angle, flag bits) and its
 output orders in the crank angle, frame by frame in one pass, for the compiled path.
 
-:func:`dsp.assemble._finish` computes them with some thirty array operations per step
-(its numpy code, with :func:`frame_codes_numpy`, is the reference); :func:`frame_outputs`
-is the same arithmetic as loops, which the compiled path (:func:`dsp.kernels.frame_outputs`)
-runs through numba in one call. The same operations in the same order, so the same bits:
-the magnitudes are numpy's own (its SIMD ``abs`` of a complex is not libm's ``hypot``: it
-differs in the last bit, measured, and whether it fuses a multiply-add depends on the
-machine), the sums over the internal orders add them in order as numpy's reduction over
-that (non-contiguous) axis does, NaN propagates through the largest output order as
-``np.max`` lets it, and the divisions by zero numpy lets through (inf, NaN) are written
-out (numba's ``/`` would raise). The leakage figure takes the square root of a
-difference of nearly equal powers, so only equal bits keep it equal. The turn to the
-crank angle with a wheel is a product by +-1, exact however it is computed.
-Plain Python: the loops run uncompiled too, which is how the tests step through them.
+:func:`dsp.assemble._finish` computes them with some thirty array operations per step (its
+numpy code, :func:`frame_figures_numpy` and :func:`frame_codes_numpy`, is the reference);
+:func:`frame_outputs` is the same arithmetic as loops, which the compiled path
+(:func:`dsp.kernels.frame_outputs`) runs through numba in one call. The same operations in
+the same order, so the same bits: the magnitudes are numpy's own (its SIMD ``abs`` of a
+complex is not libm's ``hypot``: it differs in the last bit, measured, and whether it fuses
+a multiply-add depends on the machine), the sums over the internal orders add them in order
+as numpy's reduction over that (non-contiguous) axis does, NaN propagates through the
+largest output order as ``np.max`` lets it, and the divisions by zero numpy lets through
+(inf, NaN) are written out (numba's ``/`` would raise). The leakage figure takes the square
+root of a difference of nearly equal powers, so only equal bits keep it equal. The turn to
+the crank angle with a wheel is a product by +-1, exact however it is computed. Plain
+Python: the loops run uncompiled too, which is how the tests step through them.
 
 Measured (issue 24; the run's 60 s log compiled, 120 steps of about 25 frames, CPU best
 of 7, load 2.4-2.8): the figures and codes in two calls and the turns in numpy, about
@@ -69,7 +69,7 @@ def frame_outputs(
     ``ms`` (f, n_ch) the mean squares, ``corrected`` (f, n_ch), ``rows`` the output
     orders' rows of ``x``. rpm is 720 deg over the window's duration, ``rpm_change`` the
     speed change across it (``(omega_end - omega_start) * duration / 4 pi``), ``leak``
-    (f, n_ch) the leakage figure, as :func:`dsp.assemble.frame_figures` makes them.
+    (f, n_ch) the leakage figure, as :func:`frame_figures_numpy` makes them.
 
     ``out`` (f, n_orders, n_ch) gets the output orders, in the crank angle with a wheel
     (``steps == 1``): times ``signs[parity % 2]`` (:func:`dsp.frame_constants.rotation`),
@@ -156,6 +156,33 @@ def frame_outputs(
         codes[i] = code
 
 
+def frame_figures_numpy(
+    times: np.ndarray,
+    omegas: np.ndarray,
+    x: np.ndarray,
+    ms: np.ndarray,
+    corrected: np.ndarray,
+    out: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """rpm, rpm change (f,) and leakage figure (f, n_ch) of frames with window start,
+    centre and end ``times``, ``omegas`` (f, 3), corrected amplitudes ``x`` (f, n_int,
+    n_ch), mean squares ``ms`` (f, n_ch), output orders ``out``: the numpy path of
+    :func:`dsp.assemble._finish`, the reference of :func:`frame_outputs`'s figures."""
+    duration = times[:, 2] - times[:, 0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rpm = 120.0 / duration  # 720 deg over the window's duration
+        rpm_change = (omegas[:, 2] - omegas[:, 0]) * duration / (4.0 * math.pi)
+        # what can leak: the internal orders unless corrected for (their amplitudes add in
+        # the worst case), plus whatever power the internal orders do not explain
+        absx = np.abs(x)
+        explained = 0.5 * np.sum(absx**2, axis=1)
+        rest = np.sqrt(2.0 * np.maximum(ms - explained, 0.0))
+        known = np.where(corrected, 0.0, absx.sum(axis=1))
+        strongest = np.max(absx[:, out, :], axis=1)  # of the output orders
+        leak = np.abs(rpm_change)[:, None] / math.pi * (known + rest) / strongest
+    return rpm, rpm_change, leak
+
+
 def frame_codes_numpy(
     js: np.ndarray,
     parity: np.ndarray,
@@ -175,7 +202,8 @@ def frame_codes_numpy(
     1), 8 the cycle is ambiguous, 4 the chain was rebased (``chain > 0``), 2 the rpm is
     in ``rpm_range``, 1 leakage left uncorrected (a usable channel not corrected while
     ``correcting``). Frames ``js``, ``parity``, ``chains``, ``ambiguous``, ``rpm`` (f,),
-    ``ok``, ``corrected``, ``variance`` (f, n_ch). The numpy reference of :func:`frame_outputs`'s angles and codes."""
+    ``ok``, ``corrected``, ``variance`` (f, n_ch). The numpy reference of
+    :func:`frame_outputs`'s angles and codes."""
     in_range = (rpm >= rpm_range[0]) & (rpm <= rpm_range[1])
     uncorrected = (ok & ~corrected).any(axis=1) if correcting else in_range & False
     codes = np.column_stack((ambiguous, chains > 0, in_range, uncorrected)) @ _CODE_BITS

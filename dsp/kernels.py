@@ -252,20 +252,16 @@ def group_amplitudes(
     cols: np.ndarray, x: np.ndarray, ms: np.ndarray, ok: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, int]:  # fmt: skip
     """A group's window sums, amplitudes and flags of frames ``js`` in one compiled call
-    (:func:`dsp.fused_frames.group_windows`: :func:`dsp.sum_rows.add_windows`, then
-    :func:`dsp.sum_rows.amplitudes_of_windows`, the numpy path's bits); returns the frames
-    with a non-finite amplitude and with clipped samples (f,) bool, and a code: 1 if any
-    frame has the first, plus 2 if any has the second. Arguments as there; the group must
-    have no holes."""
+    (:func:`dsp.fused_frames.group_windows`, the numpy path's bits; arguments as there;
+    the group must have no holes): the frames with a non-finite amplitude and with clipped
+    samples (f,) bool, and a code: 1 if any frame has the first, plus 2 the second."""
     from dsp import fused_frames  # imports numba: see piece_sums
 
     rows_w = window_rows(rows, int(js[0]), int(js[-1]), n, cols.size, no)
     h = (rows_w.shape[1] - cols.size) // 2
-    nan_rows, clip_rows = np.empty(js.size, bool), np.empty(js.size, bool)
-    code = fused_frames.group_windows(
-        rows_w, n, h, no, usable, cols, x, ms, ok, nan_rows, clip_rows
-    )
-    return nan_rows, clip_rows, code
+    flags = np.empty(js.size, bool), np.empty(js.size, bool)  # NaN, clipped
+    code = fused_frames.group_windows(rows_w, n, h, no, usable, cols, x, ms, ok, *flags)
+    return flags[0], flags[1], code
 
 
 def correct_ramps(*args: Any) -> None:
@@ -277,14 +273,12 @@ def correct_ramps(*args: Any) -> None:
 
 
 def window_times(*args: Any) -> bool:
-    """:func:`dsp.window_times.window_times` compiled (on the first call, as
-    :func:`piece_sums`; numpy's division, inf or NaN for a zero divisor, as there)."""
+    """:func:`dsp.window_times.window_times` compiled (as :func:`append_knots`)."""
     return cast(bool, _jit(times_loops, numpy_division=True)(*args))
 
 
 def frame_outputs(*args: Any) -> None:
-    """:func:`dsp.frame_figures.frame_outputs` compiled (on the first call, as
-    :func:`piece_sums`): a batch's figures, angles, flag bits and turned orders."""
+    """:func:`dsp.frame_figures.frame_outputs` compiled (as :func:`cubic_values`)."""
     _jit(outputs_loops)(*args)
 
 

@@ -11,6 +11,7 @@ from acquisition.stream import EdgeBlock, SampleBlock
 from dsp import assemble, kernels
 from dsp.config import OrderTrackerConfig
 from dsp.driver import track_items
+from dsp.frame_figures import frame_figures_numpy
 from dsp.frames import OrderFrame
 from dsp.leakage import coupling, real_coupling
 from dsp.sum_rows import window_sums
@@ -194,8 +195,8 @@ def _code_args(rng, f, n_ch, steps, correcting):
 
 @pytest.mark.parametrize("compiled", [True, False])
 def test_compiled_frame_figures_give_the_numpy_bits(compiled, monkeypatch):
-    """rpm, rpm change and leakage figure (dsp.frame_figures.frame_outputs through
-    dsp.kernels, compiled and as plain loops) against dsp.assemble.frame_figures: the same
+    """rpm, rpm change and leakage figure (dsp.frame_figures.frame_outputs through dsp.kernels,
+    compiled and as plain loops) against dsp.frame_figures.frame_figures_numpy: the same
     bits, also where numpy divides by zero (a window of no duration, channels with nothing
     in the output orders), where NaN comes in (a time, amplitudes) and where the orders
     explain more than the mean square."""
@@ -214,7 +215,7 @@ def test_compiled_frame_figures_give_the_numpy_bits(compiled, monkeypatch):
     corrected = rng.random((f, n_ch)) < 0.6
     corrected[6, 2] = False  # the internal orders count: x / 0
     corrected[7, 3] = True  # only the unexplained power (NaN) counts
-    want = assemble.frame_figures(times, omegas, x, ms, corrected, out)
+    want = frame_figures_numpy(times, omegas, x, ms, corrected, out)
     if not compiled:
         monkeypatch.setattr(kernels, "_jit", lambda fn: fn)
     signs, no_spectrum = np.ones((2, out.size)), np.empty((0, 0, 1), complex)
