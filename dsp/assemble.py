@@ -24,7 +24,7 @@ import numpy as np
 from dsp import angle as ang
 from dsp import cycle, kernels
 from dsp.frame_constants import frame_constants, rotation
-from dsp.frame_figures import frame_codes_numpy
+from dsp.frame_figures import frame_codes_numpy, frame_figures_numpy
 from dsp.frames import OrderFrame
 from dsp.gap_fit import forget_holes
 from dsp.immutable import evolve
@@ -38,6 +38,8 @@ from dsp.window_amplitudes import window_amplitudes
 CHUNK = 512  # frames computed together at most (bounds memory after a long dropout)
 _SPECTRUM_COLUMN = np.zeros(1, np.int64)  # the spectrum channel's column in its x (never modified)
 _new_frame = object.__new__
+_set_dict = object.__setattr__
+_NO_SPECTRUM = np.empty((0, 0, 1), complex)  # the compiled call's spectrum when there is none
 
 
 def emit(st: TrackerState) -> tuple[TrackerState, list[OrderFrame]]:
@@ -106,17 +108,22 @@ def _ranges(st: TrackerState, j0: int, j1: int, spacing: float) -> list[tuple[in
     return [(a, b) for a, b in out if a <= b]
 
 
-def _chains(st: TrackerState, phis: np.ndarray) -> np.ndarray:
-    """Parity chain of the run holding each angle (-1 outside every run); ``phis``
-    increasing (rad)."""
+def _chains(st: TrackerState, js: np.ndarray, spacing: float) -> tuple[np.ndarray, int | None]:
+    """Parity chain of the run holding each frame's centre ``js * spacing`` (rad; -1
+    outside every run), and the chain when all of them lie inside one run's span (else
+    None); ``js`` increasing."""
     table = st.table
     if table.run.size and table.run[0] == table.run[-1]:
         # one run in the table (no re-sync within reach): one chain, inside its angle span
         only = st.chain_of_run.get(int(table.run[0]), -1)
         lo, hi = table.phi_lo[0], table.phi_hi[-1]
-        if phis.size and phis[0] >= lo and phis[-1] <= hi:
-            return np.full(phis.size, only, dtype=np.int64)  # increasing angles, all inside
-        return np.where((phis >= lo) & (phis <= hi), only, -1)
+        # (the first and last angle as numpy makes them: the integer made a float, times spacing)
+        if js.size and int(js[0]) * spacing >= lo and int(js[-1]) * spacing <= hi:
+            # increasing angles, all inside
+            return np.full(js.size, only, dtype=np.int64), only
+        phis = js * spacing
+        return np.where((phis >= lo) & (phis <= hi), only, -1), None
+    phis = js * spacing
     t, _ = ang.time_at(table, phis)
     out = np.full(phis.size, -1, dtype=np.int64)
     good = np.isfinite(t)
@@ -124,7 +131,7 @@ def _chains(st: TrackerState, phis: np.ndarray) -> np.ndarray:
         ok, _, _, run = ang.lookup(st.table, t[good])
         chain = np.array([st.chain_of_run.get(int(r), -1) for r in run], dtype=np.int64)
         out[good] = np.where(ok, chain, -1)
-    return out
+    return out, None
 
 
 def _batch(
@@ -135,34 +142,43 @@ def _batch(
     n = cfg.frames_per_rev
     spacing = TWO_PI / n
     tw = math.radians(cfg.taper_deg)
-    chains = _chains(st, js * spacing)
+    chains, only = _chains(st, js, spacing)
     referenced = cfg.tacho.phase_reference != "none"
     wait = cfg.cycle_wait_revs * TWO_PI if referenced else 0.0
-    end_phi = (js + n) * spacing + 0.5 * tw
-    # the chains' decided offsets, looked up once per frame (a batch holds one or two chains)
-    known = [st.parity.get(c) for c in chains.tolist()]
-    decided = np.array(
-        [k is not None and k[1] <= e + wait for k, e in zip(known, end_phi.tolist(), strict=True)],
-        dtype=bool,
-    )
     done = True
-    if referenced:
-        ready = decided | (front >= end_phi + wait)
-        stop = int(np.argmin(ready)) if not ready.all() else js.size
-        if stop < js.size:
-            js, chains, decided, done = js[:stop], chains[:stop], decided[:stop], False
-            known = known[:stop]
-        if js.size == 0:
-            return st, [], False
-    parity = np.array(
-        [k[0] if k is not None and d else 0 for k, d in zip(known, decided.tolist(), strict=True)],
-        dtype=np.int64,
-    )
+    settled = None if only is None else st.parity.get(only)
+    # the first frame's end angle as numpy makes end_phi[0] below (the same bits)
+    if settled is not None and settled[1] <= (int(js[0]) + n) * spacing + 0.5 * tw + wait:
+        # the rule: one chain, its offset decided before the first frame's end, so before
+        # every frame's (their ends increase): all decided, none waits, one parity
+        parity = np.full(js.size, settled[0], dtype=np.int64)
+        ambiguous = np.zeros(js.size, bool)
+    else:
+        # the chains' decided offsets, looked up once per frame (a batch holds one or two)
+        end_phi = (js + n) * spacing + 0.5 * tw
+        known = [st.parity.get(c) for c in chains.tolist()]
+        ends = end_phi.tolist()
+        decided = np.array(
+            [k is not None and k[1] <= e + wait for k, e in zip(known, ends, strict=True)],
+            dtype=bool,
+        )
+        if referenced:
+            ready = decided | (front >= end_phi + wait)
+            stop = int(np.argmin(ready)) if not ready.all() else js.size
+            if stop < js.size:
+                js, chains, decided, done = js[:stop], chains[:stop], decided[:stop], False
+                known = known[:stop]
+            if js.size == 0:
+                return st, [], False
+        use = zip(known, decided.tolist(), strict=True)
+        parity = np.array([k[0] if k is not None and d else 0 for k, d in use], dtype=np.int64)
+        ambiguous = ~decided
     raw = window_amplitudes(st, js)
     st, x, corrected = _correct(st, js, chains, raw["x"], raw["tacho_bad"])
     st, spectrum = _spectrum(st, js, chains, raw)
-    frames = _finish(st, js, raw, x, corrected, parity, ~decided, chains, spectrum)
-    st, frames = rejoin(st, frames, chains)
+    frames = _finish(st, js, raw, x, corrected, parity, ambiguous, chains, spectrum)
+    # (a frame is rebased where its chain is above 0: _finish's flag bit 4)
+    st, frames = rejoin(st, frames, chains, None if only is None else only > 0)
     return _forget(st, int(js[-1]) + 1), frames, done
 
 
@@ -202,17 +218,25 @@ def _spectrum(
     gs = st.groups[gi]
     # a window that begins before the channel's first sample (its group may start later
     # than the tracked ones) has missing sums, not zeros
-    lo_phi = (js - n) * spacing - 0.5 * tw
-    usable = ~(raw["tacho_bad"] | raw["bad_group"][:, gi]) & (lo_phi >= gs.first_phi)
+    # (the rule: no unsynchronised stretch, from which alone window_amplitudes marks
+    # frames bad, and the first window's start, so every one's, after the first sample)
+    every = not st.invalid and (int(js[0]) - n) * spacing - 0.5 * tw >= gs.first_phi
+    if every:
+        usable = np.ones(js.size, bool)
+    else:
+        lo_phi = (js - n) * spacing - 0.5 * tw
+        usable = ~(raw["tacho_bad"] | raw["bad_group"][:, gi]) & (lo_phi >= gs.first_phi)
     if kernels.USE:
-        # sums and 2 s / w in two compiled calls, as the tracked groups': the same bits
+        # sums and 2 s / w in one compiled call, as the tracked groups': the same bits
         x = np.empty((js.size, sk2.size, 1), complex)  # as the tracked channels' (f, n_int, n_ch)
         scratch = np.empty((js.size, 1)), np.empty((js.size, 1), bool)
-        nan_rows, _ = kernels.group_amplitudes(
+        nan_rows, _, code = kernels.group_amplitudes(
             gs.spec, js, n, sk2.size, usable, _SPECTRUM_COLUMN, x, *scratch
         )
         x[:, 0, 0] *= 0.5
-        usable &= ~nan_rows  # the halved mean keeps finite what was
+        if code & 1:
+            usable &= ~nan_rows  # the halved mean keeps finite what was
+            every = False
     else:
         s, w, _, _ = window_sums(gs.spec, int(js[0]), int(js[-1]), n, 1, sk2.size)
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -220,7 +244,9 @@ def _spectrum(
         x[:, :, 0] *= 0.5
         x = x.transpose(0, 2, 1)  # (f, n_spec, 1), as the tracked channels' (f, n_int, n_ch)
         usable &= np.isfinite(x).all(axis=(1, 2))
-    x[~usable] = np.nan
+        every = False
+    if not every:
+        x[~usable] = np.nan
     history, x, _ = ramp_correction(
         st.spec_history, js, chains, x, raw["tacho_bad"], plan.spectrum_same,
         plan.spectrum_image, n, cfg.leakage_correction,
@@ -244,34 +270,48 @@ def _finish(
     tc = cfg.tacho
     spacing = TWO_PI / cfg.frames_per_rev
     times, omegas = raw["times"], raw["omegas"]
-    out = x[:, plan.out, :]  # (f, n_orders, n_ch)
-    figures = kernels.frame_figures if kernels.USE else frame_figures  # the same bits
-    rpm, rpm_change, leak = figures(times, omegas, x, raw["ms"], corrected, plan.out)
     # from the wheel angle to the crank angle: half orders flip with the cycle; with N pulses
     # per revolution every order turns by the offset the cam found (cycle.offset_rotation)
     steps = cycle.offset_steps(tc.kind, tc.teeth)
     const = frame_constants(plan)
-    out = out * rotation(parity, const.k2, steps, const.signs)[:, :, None]
-    if spectrum is None:
-        spectra: list[np.ndarray | None] = [None] * js.size
-    else:
-        k = const.spectrum_k
-        spec = spectrum[:, : k.size, 0] * rotation(parity, k, steps, const.spectrum_signs)
-        spec[:, 0] = spec[:, 0].real  # the mean: real, its correction is real to rounding
-        spectra = list(spec)
-    # N pulses without a decided reference: phi is only known modulo 360/N deg
-    pulses_unknown = steps > 1
-    orders = const.orders
     # each frame's angle and flag bits (dsp.frame_figures.frame_codes_numpy: 16 a window
     # lost samples, 8 ambiguous cycle, 4 rebased, 2 rpm in range, 1 uncorrected); the
     # angle j * spacing + 2 pi p / steps as Python computes it for ints j, p: the same bits
-    code_args = (js, parity, spacing, steps, chains, ambiguous, rpm)
+    code_args = (js, parity, spacing, steps, chains, ambiguous)
     more = (raw["ok"], corrected, cfg.leakage_correction, raw["variance"])
-    if kernels.USE:  # one compiled call instead of a dozen array operations: the same bits
-        angles, codes = np.empty(js.size), np.empty(js.size, np.int64)
-        kernels.frame_codes(*code_args, cfg.rpm_min, cfg.rpm_max, *more, angles, codes)
+    if kernels.USE:
+        # figures, codes and the turn of a wheel's frames in one compiled call instead of
+        # some thirty array operations: the same bits (dsp.frame_figures)
+        f, n_ch = js.size, x.shape[2]
+        k = const.spectrum_k if spectrum is not None else const.spectrum_k[:0]
+        out, spec = np.empty((f, const.k2.size, n_ch), complex), np.empty((f, k.size), complex)
+        rpm, rpm_change, leak = np.empty(f), np.empty(f), np.empty((f, n_ch))
+        angles, codes = np.empty(f), np.empty(f, np.int64)
+        kernels.frame_outputs(
+            times, omegas, x, np.abs(x), raw["ms"], corrected, plan.out, const.signs,
+            _NO_SPECTRUM if spectrum is None else spectrum, const.spectrum_signs,
+            *code_args, cfg.rpm_min, cfg.rpm_max, raw["ok"], cfg.leakage_correction,
+            raw["variance"], out, spec, rpm, rpm_change, leak, angles, codes,
+        )  # fmt: skip
+        if steps > 1:  # N pulses: numpy's complex exponentials, as below
+            out = out * rotation(parity, const.k2, steps, const.signs)[:, :, None]
+            spec = spec * rotation(parity, k, steps, const.spectrum_signs)
+            spec[:, :1] = spec[:, :1].real
     else:
-        angles, codes = frame_codes_numpy(*code_args, (cfg.rpm_min, cfg.rpm_max), *more)
+        out = x[:, plan.out, :]  # (f, n_orders, n_ch)
+        rpm, rpm_change, leak = frame_figures_numpy(
+            times, omegas, x, raw["ms"], corrected, plan.out
+        )
+        out = out * rotation(parity, const.k2, steps, const.signs)[:, :, None]
+        if spectrum is not None:
+            k = const.spectrum_k
+            spec = spectrum[:, : k.size, 0] * rotation(parity, k, steps, const.spectrum_signs)
+            spec[:, 0] = spec[:, 0].real  # the mean: real, its correction is real to rounding
+        angles, codes = frame_codes_numpy(*code_args, rpm, (cfg.rpm_min, cfg.rpm_max), *more)
+    spectra: list[np.ndarray | None] = [None] * js.size if spectrum is None else list(spec)
+    # N pulses without a decided reference: phi is only known modulo 360/N deg
+    pulses_unknown = steps > 1
+    orders = const.orders
     cache: dict[int, frozenset[str]] = {}
     frames = []
     # a variance factor only where a window lost samples (most frames have none)
@@ -307,53 +347,31 @@ def _finish(
             flags = frozenset(new)
             if not raw_flags:
                 cache[code & 15] = flags
-        # the dataclass's fields set directly: its generated __init__ of a frozen class
-        # sets them one object.__setattr__ at a time (1.9 us a frame against 0.5 us)
+        # the dataclass's fields set directly, its instance dict made whole: its generated
+        # __init__ of a frozen class sets them one object.__setattr__ at a time (1.9 us a
+        # frame against 0.3 us)
         frame = _new_frame(OrderFrame)
-        frame.__dict__.update(
-            time_s=t,
-            rpm=r,
-            crank_angle_rad=angle,
-            orders=orders,
-            channels=channels,
-            amplitudes=amp,
-            channel_ok=ok,
-            rpm_change=dr,
-            leakage=lk,
-            flags=flags,
-            spectrum=sp,
-            spectrum_channel=spectrum_channel,
-            variance_factor=var,
+        _set_dict(
+            frame,
+            "__dict__",
+            {
+                "time_s": t,
+                "rpm": r,
+                "crank_angle_rad": angle,
+                "orders": orders,
+                "channels": channels,
+                "amplitudes": amp,
+                "channel_ok": ok,
+                "rpm_change": dr,
+                "leakage": lk,
+                "flags": flags,
+                "spectrum": sp,
+                "spectrum_channel": spectrum_channel,
+                "variance_factor": var,
+            },
         )
         frames.append(frame)
     return frames
-
-
-def frame_figures(
-    times: np.ndarray,
-    omegas: np.ndarray,
-    x: np.ndarray,
-    ms: np.ndarray,
-    corrected: np.ndarray,
-    out: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """rpm, rpm change (f,) and leakage figure (f, n_ch) of frames with window start,
-    centre and end ``times``, ``omegas`` (f, 3), corrected amplitudes ``x`` (f, n_int,
-    n_ch), mean squares ``ms`` (f, n_ch), output orders ``out`` (the reference of
-    :func:`dsp.frame_figures.frame_figures`)."""
-    duration = times[:, 2] - times[:, 0]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rpm = 120.0 / duration  # 720 deg over the window's duration
-        rpm_change = (omegas[:, 2] - omegas[:, 0]) * duration / (4.0 * math.pi)
-        # what can leak: the internal orders unless corrected for (their amplitudes add in
-        # the worst case), plus whatever power the internal orders do not explain
-        absx = np.abs(x)
-        explained = 0.5 * np.sum(absx**2, axis=1)
-        rest = np.sqrt(2.0 * np.maximum(ms - explained, 0.0))
-        known = np.where(corrected, 0.0, absx.sum(axis=1))
-        strongest = np.max(absx[:, out, :], axis=1)  # of the output orders
-        leak = np.abs(rpm_change)[:, None] / math.pi * (known + rest) / strongest
-    return rpm, rpm_change, leak
 
 
 def _forget(st: TrackerState, j_next: int) -> TrackerState:

@@ -6,10 +6,12 @@ sends the tracker through numba instead, for: the segment sums (:func:`compiled_
 orders of each set, sums them, and packs each segment's row), the cutting of the pieces
 into segments (:func:`segment_cuts`), the angle lookup of the samples
 (:func:`cubic_values`; of a block's consecutive samples with their times, :func:`grid_values`),
-the times of the frames' window ends (:func:`cubic_times`), the frames' window sums and
-amplitudes (:func:`window_sums`, :func:`group_amplitudes`), their speed and leakage figures
-(:func:`frame_figures`), the leakage correction's ramps and coupling (:func:`ramp_slopes`,
-:func:`apply_ramps`), the angle table's new knots and coefficients (:func:`append_knots`),
+the times of the frames' window ends (:func:`cubic_times`; of a batch's windows,
+:func:`window_times`), the frames' window sums and
+amplitudes (:func:`window_sums`, :func:`group_amplitudes`), their speed and leakage figures,
+angles, flags and turned orders (:func:`frame_outputs`), the leakage correction's ramps
+and coupling (:func:`ramp_slopes`, :func:`apply_ramps`; both at once,
+:func:`correct_ramps`), the angle table's new knots and coefficients (:func:`append_knots`),
 the pressure votes' candidate sums (:func:`pressure_sums`) and the wheel decoder's interval
 pass (:func:`wheel_intervals`), each releasing the GIL (``nogil=True``).
 
@@ -98,19 +100,18 @@ import numpy as np
 
 from dsp.angle_loops import append_knots as knots_loops
 from dsp.angle_loops import grid_values as grid_loops
-from dsp.frame_figures import frame_codes as codes_loops
-from dsp.frame_figures import frame_figures as figures_loops
+from dsp.frame_figures import frame_outputs as outputs_loops
 from dsp.frames import RISE_PACKED
 from dsp.ramp_slopes import ramp_slopes as slopes_loops
 from dsp.sum_rows import (
     add_windows,
-    amplitudes_of_windows,
     plain_block,
     row_size,
     window_rows,
 )
 from dsp.sum_sets import POWER_STRIDE, Cut, SumSet
 from dsp.wheel_intervals import interval_loops
+from dsp.window_times import window_times as times_loops
 
 # numba is optional and imported on first use only: its import and the cached machine
 # code cost about 0.5 s of CPU per process, more than the kernel saves on a short run
@@ -249,35 +250,36 @@ def _window_totals(
 def group_amplitudes(
     rows: dict[int, np.ndarray], js: np.ndarray, n: int, no: int, usable: np.ndarray,
     cols: np.ndarray, x: np.ndarray, ms: np.ndarray, ok: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """A group's window sums, amplitudes and flags of frames ``js`` in two compiled calls
-    (:func:`dsp.sum_rows.add_windows`, :func:`dsp.sum_rows.amplitudes_of_windows`: the
-    numpy path's bits); returns the frames with a non-finite amplitude and with clipped
-    samples (f,) bool. Arguments as there; the group must have no holes."""
-    total, mean_square, h = _window_totals(rows, int(js[0]), int(js[-1]), n, cols.size, no)
-    nan_rows = np.empty(js.size, bool)
-    clip_rows = np.empty(js.size, bool)
-    _jit(amplitudes_of_windows)(
-        total, mean_square, h, no, usable, cols, x, ms, ok, nan_rows, clip_rows
-    )
-    return nan_rows, clip_rows
+) -> tuple[np.ndarray, np.ndarray, int]:  # fmt: skip
+    """A group's window sums, amplitudes and flags of frames ``js`` in one compiled call
+    (:func:`dsp.fused_frames.group_windows`, the numpy path's bits; arguments as there;
+    the group must have no holes): the frames with a non-finite amplitude and with clipped
+    samples (f,) bool, and a code: 1 if any frame has the first, plus 2 the second."""
+    from dsp import fused_frames  # imports numba: see piece_sums
+
+    rows_w = window_rows(rows, int(js[0]), int(js[-1]), n, cols.size, no)
+    h = (rows_w.shape[1] - cols.size) // 2
+    flags = np.empty(js.size, bool), np.empty(js.size, bool)  # NaN, clipped
+    code = fused_frames.group_windows(rows_w, n, h, no, usable, cols, x, ms, ok, *flags)
+    return flags[0], flags[1], code
 
 
-def frame_figures(
-    times: np.ndarray, omegas: np.ndarray, x: np.ndarray, ms: np.ndarray,
-    corrected: np.ndarray, out: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
-    """The frames' rpm, rpm change (f,) and leakage figures (f, n_ch) in one compiled call
-    after numpy's magnitudes (:func:`dsp.frame_figures.frame_figures`: the numpy path's bits)."""
-    f, _, n_ch = x.shape
-    rpm, rpm_change, leak = np.empty(f), np.empty(f), np.empty((f, n_ch))
-    _jit(figures_loops)(times, omegas, np.abs(x), ms, corrected, out, rpm, rpm_change, leak)
-    return rpm, rpm_change, leak
+def correct_ramps(*args: Any) -> None:
+    """:func:`dsp.fused_frames.correct_ramps`: the leakage correction's ramps and their
+    coupling in one compiled call."""
+    from dsp import fused_frames  # imports numba: see piece_sums
+
+    fused_frames.correct_ramps(*args)
 
 
-def frame_codes(*args: Any) -> None:
-    """:func:`dsp.frame_figures.frame_codes` compiled (on the first call, as :func:`piece_sums`)."""
-    _jit(codes_loops)(*args)
+def window_times(*args: Any) -> bool:
+    """:func:`dsp.window_times.window_times` compiled (as :func:`append_knots`)."""
+    return cast(bool, _jit(times_loops, numpy_division=True)(*args))
+
+
+def frame_outputs(*args: Any) -> None:
+    """:func:`dsp.frame_figures.frame_outputs` compiled (as :func:`cubic_values`)."""
+    _jit(outputs_loops)(*args)
 
 
 def cubic_times(*args: Any) -> None:

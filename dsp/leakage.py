@@ -217,16 +217,16 @@ def ramp_correction(
 
     n_int = x.shape[1]
     if kernels.USE:
-        b = np.empty((f, n_int, n_ch), complex)
-        good = np.empty((f, n_ch), bool)
-        kernels.ramp_slopes(
-            all_j, all_c, all_x, js, chains, tacho_bad, period, SLOPE_PERIODS, b, good
-        )
-        # the two coupling products as one real product per frame and channel, compiled
-        # (dsp.fused_ramps: not these bits, within 1e-12)
+        # the ramps and the two coupling products as one real product per frame and
+        # channel, in one compiled call (dsp.fused_frames; the coupling: dsp.fused_ramps,
+        # not numpy's bits, within 1e-12)
         out = np.empty((f, n_int, n_ch), complex)
+        good = np.empty((f, n_ch), bool)
         coupling, m8 = real_coupling(same, image)
-        kernels.apply_ramps(x, b, js % period, coupling, m8, out, np.empty(m8))
+        kernels.correct_ramps(
+            all_j, all_c, all_x, x, js, chains, tacho_bad, period, SLOPE_PERIODS, coupling, m8,
+            out, good,
+        )  # fmt: skip
         return history, out, good
     else:
         b, good = _slopes(all_j, all_c, all_x, js, chains, tacho_bad, period)

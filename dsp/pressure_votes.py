@@ -74,6 +74,10 @@ def decide_pressure(st: TrackerState) -> TrackerState:
     step = TWO_PI / steps
     half = cycle.pressure_half_width(steps)
     span = 2 * steps  # candidates per 720 deg cycle
+    # a vote names the chain of a run (chains_at: one of chain_of_run's, or -1): once every
+    # chain's offset is decided (the rule after the stream's first cycles) none can decide
+    # anything, and only the complete candidates are dropped
+    undecided = any(c not in st.parity for c in st.chain_of_run.values())
     for gi, g in enumerate(st.plan.groups):
         if g.pressure_row is None:
             continue
@@ -84,7 +88,7 @@ def decide_pressure(st: TrackerState) -> TrackerState:
         cands = gs.pressure
         complete = set(done)
         votes = []  # (last candidate of the cycle, offset) of the cycles that decide
-        for k in done:
+        for k in done if undecided else ():
             if any(k + i not in complete for i in range(span)):
                 continue
             means = np.array([cands[k + i][0] / max(cands[k + i][1], 1) for i in range(span)])

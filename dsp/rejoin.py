@@ -34,17 +34,23 @@ MIN_CORRELATION = 0.5
 
 
 def rejoin(
-    st: TrackerState, frames: list[OrderFrame], chains: np.ndarray
+    st: TrackerState, frames: list[OrderFrame], chains: np.ndarray, rebased: bool | None = None
 ) -> tuple[TrackerState, list[OrderFrame]]:
-    """Frames of re-synchronised chains with their angle re-acquired where it can be."""
+    """Frames of re-synchronised chains with their angle re-acquired where it can be.
+
+    ``rebased``: whether any frame has the ``angle_rebased`` flag, if the caller knows
+    (None: the frames' flags are looked at)."""
     half = frame_constants(st.plan).half
-    if not any("angle_rebased" in f.flags for f in frames):
+    if rebased is None:
+        rebased = any("angle_rebased" in f.flags for f in frames)
+    if not rebased:
         # the rule: nothing to re-acquire; only the reference moves on to the last frame
         # whose half orders were measured (found from the end: usually the last one)
         if half.size:
             for f in reversed(frames):
-                if _measured(f.amplitudes[half]):
-                    return evolve(st, half_ref=f.amplitudes[half]), frames
+                last = f.amplitudes[half]
+                if _measured(last):
+                    return evolve(st, half_ref=last), frames
         return st, frames
     tc = st.plan.config.tacho
     once_per_rev = tc.kind in ("wheel", "pulses") and (tc.gap_teeth > 0 or tc.teeth_per_rev == 1)

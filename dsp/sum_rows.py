@@ -14,6 +14,8 @@ amplitudes in :func:`amplitudes_of_windows` (the same bits).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 # One float64 vector per segment, in three blocks (see unpack):
@@ -94,8 +96,16 @@ def window_sums(
 
 def window_rows(rows: dict[int, Row], j0: int, j1: int, n: int, n_ch: int, no: int) -> np.ndarray:
     """The rows of segments ``j0 - n .. j1 + n`` stacked (zeros where a segment has none)."""
-    zero = np.zeros(row_size(n_ch, no))
+    zero = _zero_row(row_size(n_ch, no))
     return np.array([rows.get(m, zero) for m in range(j0 - n, j1 + n + 1)])  # 3x np.stack
+
+
+@functools.cache
+def _zero_row(size: int) -> np.ndarray:
+    """A row of zeros, made once per size (read-only: only ever copied)."""
+    zero = np.zeros(size)
+    zero.setflags(write=False)
+    return zero
 
 
 def add_windows(

@@ -5,7 +5,7 @@ weight, NaN where the tacho or the group is unusable, and flagged (``nan``, ``cl
 the reasons of the unsynchronised stretches they overlap). The leakage correction
 (:func:`dsp.leakage.ramp_correction`) and the frame objects (:mod:`dsp.assemble`) come after.
 On the compiled path a group without holes goes through :func:`dsp.kernels.group_amplitudes`
-(the same bits in two calls instead of some twenty array operations).
+(the same bits in one call instead of some twenty array operations).
 """
 
 from __future__ import annotations
@@ -45,30 +45,43 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
             tacho_bad[hit] = True
         else:
             bad_group[hit, inv.group] = True
-    # window start, centre and end of consecutive frames: f + 2 n distinct angles
-    span = np.arange(int(js[0]) - n, int(js[-1]) + n + 1)
-    at = (js[:, None] + np.array([-n - span[0], -span[0], n - span[0]])).ravel()
-    times, omegas = ang.time_at(st.table, span * spacing)
-    if not np.isfinite(times).all():
-        times = interpolate_times(st, span * spacing, times)
-    times, omegas = times[at], omegas[at]
-    x = np.full((f, n_int, n_ch), np.nan + 0j)
-    ms = np.full((f, n_ch), np.nan)
-    ok = np.zeros((f, n_ch), bool)
+    # window start, centre and end of consecutive frames: f + 2 n distinct angles (the
+    # compiled path: each frame's three in one call, the same bits)
+    table = st.table
+    finite = False
+    if kernels.USE:
+        times, omegas = np.empty((f, 3)), np.empty((f, 3))
+        finite = kernels.window_times(
+            js, n, spacing, table.t_lo, table.t_hi, table.phi_lo, table.phi_hi, table.c1,
+            table.c2, table.c3, times, omegas,
+        )  # fmt: skip
+    if not finite:
+        span = np.arange(int(js[0]) - n, int(js[-1]) + n + 1)
+        at = (js[:, None] + np.array([-n - span[0], -span[0], n - span[0]])).ravel()
+        times, omegas = ang.time_at(table, span * spacing)
+        if not np.isfinite(times).all():
+            times = interpolate_times(st, span * spacing, times)
+        times, omegas = times[at].reshape(f, 3), omegas[at].reshape(f, 3)
+    # every column is a tracked channel of exactly one group (dsp.config.make_plan), whose
+    # branch below writes all of its rows: nothing to fill beforehand
+    x = np.empty((f, n_int, n_ch), complex)
+    ms = np.empty((f, n_ch))
+    ok = np.empty((f, n_ch), bool)
     variance = np.ones((f, n_ch))
     for gi, g in enumerate(plan.groups):
         if not g.track_rows:
             continue
         holes = st.groups[gi].holes
         if kernels.USE and not holes[0].size:
-            # sums, amplitudes and flags in two compiled calls: the same bits as below
-            usable = ~(tacho_bad | bad_group[:, gi])
-            nan_rows, clip_rows = kernels.group_amplitudes(
+            # sums, amplitudes and flags in one compiled call: the same bits as below
+            # (without an unsynchronised stretch every frame is usable)
+            usable = ~(tacho_bad | bad_group[:, gi]) if st.invalid else np.ones(f, bool)
+            nan_rows, clip_rows, code = kernels.group_amplitudes(
                 st.groups[gi].acc, js, n, n_int, usable, _cols_array(g.track_cols), x, ms, ok
             )
-            if nan_rows.any():
+            if code & 1:
                 _flag(flags, np.flatnonzero(nan_rows), "nan")
-            if clip_rows.any():
+            if code & 2:
                 _flag(flags, np.flatnonzero(clip_rows), "clipped")
             continue
         cols = _columns(g.track_cols)
@@ -103,8 +116,8 @@ def window_amplitudes(st: TrackerState, js: np.ndarray) -> dict[str, np.ndarray]
         "ok": ok,
         "variance": variance,
         "flags": np.array(flags, dtype=object),
-        "times": times.reshape(f, 3),
-        "omegas": omegas.reshape(f, 3),
+        "times": times,
+        "omegas": omegas,
         "tacho_bad": tacho_bad,
         "bad_group": bad_group,
     }

@@ -11,6 +11,7 @@ from acquisition.stream import EdgeBlock, SampleBlock
 from dsp import assemble, kernels
 from dsp.config import OrderTrackerConfig
 from dsp.driver import track_items
+from dsp.frame_figures import frame_figures_numpy
 from dsp.frames import OrderFrame
 from dsp.leakage import coupling, real_coupling
 from dsp.sum_rows import window_sums
@@ -161,13 +162,44 @@ def test_compiled_window_amplitudes_give_the_numpy_bits(monkeypatch):
     assert 0 < nan_frames < sum(args[1].size for args in spectra)
 
 
+def _outputs(times, omegas, x, ms, corrected, out, spectrum, signs, spectrum_signs, codes):
+    """dsp.kernels.frame_outputs's results (rpm, rpm change, leak, turned orders, turned
+    spectrum, angles, codes) for the figures' and the codes' arguments."""
+    f, _, n_ch = x.shape
+    js, parity, spacing, steps, chains, ambiguous, rpm_range, ok, correcting, variance = codes
+    n_spec = min(spectrum.shape[1], spectrum_signs.shape[1])  # the spectrum's first orders
+    turned, spec = np.empty((f, out.size, n_ch), complex), np.empty((f, n_spec), complex)
+    rpm, rpm_change, leak = np.empty(f), np.empty(f), np.empty((f, n_ch))
+    angles, code = np.empty(f), np.empty(f, np.int64)
+    kernels.frame_outputs(
+        times, omegas, x, np.abs(x), ms, corrected, out, signs, spectrum, spectrum_signs,
+        js, parity, spacing, steps, chains, ambiguous, *rpm_range, ok, correcting, variance,
+        turned, spec, rpm, rpm_change, leak, angles, code,
+    )  # fmt: skip
+    return rpm, rpm_change, leak, turned, spec, angles, code
+
+
+def _code_args(rng, f, n_ch, steps, correcting):
+    """Frames' indices, parities, chains, flags and variance factors with every flag bit set
+    somewhere and left out somewhere (a NaN variance factor, an rpm on the range's edge)."""
+    js = np.arange(1_000_003, 1_000_003 + f)
+    parity = rng.integers(0, steps + 1, f)
+    chains = rng.integers(-1, 3, f)
+    ambiguous = rng.random(f) < 0.3
+    ok = rng.random((f, n_ch)) < 0.8
+    variance = np.ones((f, n_ch))
+    variance[[4, 9], [1, 3]] = 1.7, np.nan
+    spacing = 2 * np.pi / 4
+    return js, parity, spacing, steps, chains, ambiguous, (600.0, 6000.0), ok, correcting, variance
+
+
 @pytest.mark.parametrize("compiled", [True, False])
 def test_compiled_frame_figures_give_the_numpy_bits(compiled, monkeypatch):
-    """rpm, rpm change and leakage figure (dsp.frame_figures through dsp.kernels, compiled
-    and as plain loops) against dsp.assemble.frame_figures: the same bits, also where
-    numpy divides by zero (a window of no duration, channels with nothing in the output
-    orders), where NaN comes in (a time, amplitudes) and where the orders explain more
-    than the mean square."""
+    """rpm, rpm change and leakage figure (dsp.frame_figures.frame_outputs through dsp.kernels,
+    compiled and as plain loops) against dsp.frame_figures.frame_figures_numpy: the same
+    bits, also where numpy divides by zero (a window of no duration, channels with nothing
+    in the output orders), where NaN comes in (a time, amplitudes) and where the orders
+    explain more than the mean square."""
     rng = np.random.default_rng(21)
     f, n_int, n_ch = 40, 8, 5
     times = np.sort(rng.uniform(0.0, 1.0, (f, 3)), axis=1)
@@ -183,11 +215,13 @@ def test_compiled_frame_figures_give_the_numpy_bits(compiled, monkeypatch):
     corrected = rng.random((f, n_ch)) < 0.6
     corrected[6, 2] = False  # the internal orders count: x / 0
     corrected[7, 3] = True  # only the unexplained power (NaN) counts
-    want = assemble.frame_figures(times, omegas, x, ms, corrected, out)
+    want = frame_figures_numpy(times, omegas, x, ms, corrected, out)
     if not compiled:
         monkeypatch.setattr(kernels, "_jit", lambda fn: fn)
-    got = kernels.frame_figures(times, omegas, x, ms, corrected, out)
-    for w, g in zip(want, got, strict=True):
+    signs, no_spectrum = np.ones((2, out.size)), np.empty((0, 0, 1), complex)
+    codes = _code_args(rng, f, n_ch, 1, True)
+    got = _outputs(times, omegas, x, ms, corrected, out, no_spectrum, signs, signs, codes)
+    for w, g in zip(want, got[:3], strict=True):
         np.testing.assert_array_equal(g, w)
     leak = want[2]
     assert np.isinf(want[0]).any() and np.isnan(leak[5, 1]) and np.isinf(leak[6, 2])
@@ -197,7 +231,7 @@ def test_compiled_frame_figures_give_the_numpy_bits(compiled, monkeypatch):
 @pytest.mark.parametrize("compiled", [True, False])
 @pytest.mark.parametrize("steps", [1, 3])
 def test_compiled_frame_codes_give_the_numpy_bits(compiled, steps, monkeypatch):
-    """Each frame's angle and flag bits (dsp.frame_figures.frame_codes through dsp.kernels,
+    """Each frame's angle and flag bits (dsp.frame_figures.frame_outputs through dsp.kernels,
     compiled and as plain loops) against dsp.frame_figures.frame_codes_numpy: the same
     angles bit for bit, the same codes, with every flag set somewhere and left out
     somewhere (a NaN variance factor counts as lost samples, an rpm on the range's edge
@@ -206,35 +240,82 @@ def test_compiled_frame_codes_give_the_numpy_bits(compiled, steps, monkeypatch):
 
     rng = np.random.default_rng(5)
     f, n_ch = 60, 4
-    js = np.arange(1_000_003, 1_000_003 + f)
-    parity = rng.integers(0, steps + 1, f)
-    chains = rng.integers(-1, 3, f)
-    ambiguous = rng.random(f) < 0.3
-    rpm = rng.uniform(500.0, 7000.0, f)
-    rpm[:2] = 600.0, 6000.0  # the range's ends
-    rpm[2] = np.nan
-    ok = rng.random((f, n_ch)) < 0.8
-    corrected = rng.random((f, n_ch)) < 0.7
-    variance = np.ones((f, n_ch))
-    variance[[4, 9], [1, 3]] = 1.7, np.nan
-    spacing = 2 * np.pi / 4
     if not compiled:
         monkeypatch.setattr(kernels, "_jit", lambda fn: fn)
     for correcting in (True, False):
-        args = (js, parity, spacing, steps, chains, ambiguous, rpm)
-        more = (ok, corrected, correcting, variance)
-        want_angles, want_codes = frame_codes_numpy(*args, (600.0, 6000.0), *more)
-        angles, codes = np.empty(f), np.empty(f, np.int64)
-        kernels.frame_codes(*args, 600.0, 6000.0, *more, angles, codes)
+        codes = _code_args(rng, f, n_ch, steps, correcting)
+        js, parity, spacing, steps, chains, ambiguous, rpm_range, ok, _, variance = codes
+        corrected = rng.random((f, n_ch)) < 0.7
+        # window ends that give these rpm: 720 deg in 120 / rpm s
+        rpm = rng.uniform(500.0, 7000.0, f)
+        rpm[:2] = 600.0, 6000.0  # the range's ends
+        rpm[2] = np.nan
+        times = np.column_stack((np.zeros(f), np.full(f, 0.01), 120.0 / rpm))
+        x = np.ones((f, 3, n_ch), complex)
+        ms, out = np.ones((f, n_ch)), np.array([0, 2])
+        got = _outputs(
+            times, np.ones((f, 3)), x, ms, corrected, out, np.empty((0, 0, 1), complex),
+            np.ones((2, 2)), np.ones((2, 0)), codes,
+        )  # fmt: skip
+        rpm, angles, code = got[0], got[5], got[6]
+        want_angles, want_codes = frame_codes_numpy(
+            js, parity, spacing, steps, chains, ambiguous, rpm, rpm_range, ok, corrected,
+            correcting, variance,
+        )  # fmt: skip
         np.testing.assert_array_equal(angles, want_angles)
         assert angles.tobytes() == want_angles.tobytes()
-        np.testing.assert_array_equal(codes, want_codes)
+        np.testing.assert_array_equal(code, want_codes)
         for bit in (16, 8, 4, 2) + ((1,) if correcting else ()):
-            assert 0 < np.count_nonzero(codes & bit) < f
-        assert codes[2] & 2 == 0 and codes[0] & 2 and codes[1] & 2
-        assert codes[4] & 16 and codes[9] & 16
+            assert 0 < np.count_nonzero(code & bit) < f
+        assert code[2] & 2 == 0 and code[0] & 2 and code[1] & 2
+        assert code[4] & 16 and code[9] & 16
         if not correcting:
-            assert not (codes & 1).any()
+            assert not (code & 1).any()
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize("steps", [1, 3])
+def test_compiled_turn_to_the_crank_angle_gives_the_numpy_bits(compiled, steps, monkeypatch):
+    """The output orders and the spectrum turned from the wheel angle to the crank angle
+    (dsp.frame_figures.frame_outputs through dsp.kernels, compiled and as plain loops)
+    against numpy's products with dsp.frame_constants.rotation: the same bits with a
+    wheel (signed zeros, NaN and inf included), copied unturned with N pulses (the
+    caller turns them in numpy); the spectrum's mean made real."""
+    from dsp.frame_constants import rotation
+
+    rng = np.random.default_rng(9)
+    f, n_int, n_ch, n_spec = 30, 8, 4, 7
+    x = rng.standard_normal((f, n_int, n_ch)) + 1j * rng.standard_normal((f, n_int, n_ch))
+    x[3, 2, 1] = complex(-0.0, 0.0)
+    x[4, 3, 2] = complex(np.inf, 1.0)
+    x[5, 2, 0] = complex(1.0, np.nan)
+    shape = (f, n_spec + 2, 1)  # the spectrum's internal orders: more than it gives out
+    spectrum = rng.standard_normal(shape) + 1j * rng.standard_normal(shape)
+    spectrum[6, 1, 0] = complex(0.0, -np.inf)
+    k2, k = np.array([2, 3, 4]), np.arange(n_spec)
+    out = np.array([1, 2, 3])  # k2's rows among the internal orders
+    both = np.arange(2)
+    signs = np.where((k2[None, :] * both[:, None]) % 2 == 1, -1.0, 1.0)
+    spectrum_signs = np.where((k[None, :] * both[:, None]) % 2 == 1, -1.0, 1.0)
+    if not compiled:
+        monkeypatch.setattr(kernels, "_jit", lambda fn: fn)
+    codes = _code_args(rng, f, n_ch, steps, True)
+    parity = codes[1]
+    times, omegas, ms = np.ones((f, 3)), np.ones((f, 3)), np.ones((f, n_ch))
+    corrected = np.ones((f, n_ch), bool)
+    with np.errstate(invalid="ignore"):
+        got = _outputs(times, omegas, x, ms, corrected, out, spectrum, signs, spectrum_signs, codes)
+        turned, spec = got[3], got[4]
+        if steps == 1:
+            want = x[:, out, :] * rotation(parity, k2, steps, signs)[:, :, None]
+            want_spec = spectrum[:, :n_spec, 0] * rotation(parity, k, steps, spectrum_signs)
+        else:
+            want, want_spec = x[:, out, :], spectrum[:, :n_spec, 0].copy()
+    want_spec[:, 0] = want_spec[:, 0].real
+    assert turned.tobytes() == want.tobytes()
+    assert spec.tobytes() == want_spec.tobytes()
+    if steps == 1:
+        assert (parity % 2 == 1).any() and (turned != x[:, out, :]).any()
 
 
 def test_compiled_frames_agree_with_numpy_in_any_blocks(monkeypatch):
@@ -333,3 +414,38 @@ def test_a_repeated_tacho_edge_is_survived_by_the_compiled_wheel_decoder(monkeyp
     assert [(g.time_s, g.crank_angle_rad, g.flags) for g in got] == [
         (w.time_s, w.crank_angle_rad, w.flags) for w in want
     ]
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_compiled_window_times_give_the_numpy_bits(compiled, monkeypatch):
+    """The times and speeds at the windows' start, centre and end (dsp.window_times through
+    dsp.kernels, compiled and as plain loops) against dsp.angle.time_at of the angles
+    (numpy path): the same bits, NaN before, between and after two wheel runs, and
+    whether all are finite."""
+    from dsp import angle as ang
+
+    rng = np.random.default_rng(17)
+    table, t0 = ang.AngleTable(), 0.0
+    for run in range(2):
+        t = t0 + np.cumsum(rng.uniform(0.9, 1.1, 300) * 60.0 / 3000.0 / 58)
+        phi = 60.0 * run + np.arange(t.size) * (2 * np.pi / 60)
+        table = ang.add_knots(table, t, phi, np.full(t.size, run, dtype=np.int64))
+        t0 = t[-1] + 0.01
+    n, spacing = 4, 2 * np.pi / 4
+    cols = (table.t_lo, table.t_hi, table.phi_lo, table.phi_hi, table.c1, table.c2, table.c3)
+    if not compiled:
+        monkeypatch.setattr(kernels, "_jit", lambda fn, numpy_division=False: fn)
+    monkeypatch.setattr(kernels, "USE", False)
+    nan_seen = 0
+    for j0, f in ((-3, 10), (5, 10), (10, 20), (43, 10), (50, 20)):
+        js = np.arange(j0, j0 + f)
+        span = np.arange(j0 - n, j0 + f + n)
+        want_t, want_w = ang.time_at(table, span * spacing)
+        at = (np.arange(f)[:, None] + np.array([0, n, 2 * n])).ravel()
+        times, omegas = np.empty((f, 3)), np.empty((f, 3))
+        finite = kernels.window_times(js, n, spacing, *cols, times, omegas)
+        assert times.tobytes() == want_t[at].reshape(f, 3).tobytes()
+        assert omegas.tobytes() == want_w[at].reshape(f, 3).tobytes()
+        assert finite == bool(np.isfinite(want_t).all())
+        nan_seen += not finite
+    assert nan_seen == 3  # before, across the gap, after; two inside a run

@@ -260,7 +260,7 @@ def test_compiled_sums_take_read_only_samples():
         assert all(np.array_equal(a[m], b[m], equal_nan=True) for m in a)
 
 
-@pytest.mark.parametrize("name", ["fused_sums", "fused_ramps", "spectrum_lanes"])
+@pytest.mark.parametrize("name", ["fused_sums", "fused_ramps", "spectrum_lanes", "fused_frames"])
 def test_the_compiled_sums_name_their_helpers_hash(name):
     """numba's cache watches only a kernel module's own bytes (dsp.fused_sums,
     dsp.fused_ramps): the hash of the helpers it inlines is written in it, so editing a
