@@ -99,9 +99,7 @@ class FrameQueue:
         """
         if fit.null is not None:
             self.flush_timing_matters = True
-        floor = 1e-16 * (power_sum / len(orders))  # of the mean square
-        if floor < 1e-30:  # (max(floor, 1e-30) without the call: NaN stays NaN alike)
-            floor = 1e-30
+        floor = max(1e-16 * (power_sum / len(orders)), 1e-30)  # of the mean square
         if self.cal:
             redundancy = self._redundancy_raw(fit, motion, readings, ks)
             raw = self._raw_noise_var(motion, ks, redundancy)
