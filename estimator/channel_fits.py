@@ -147,6 +147,7 @@ class ChannelFits:
             amps, ok = amps[:, :, at], ok[:, at]
         finite = np.logical_and.reduce(np.isfinite(amps), axis=1)  # (.all without its wrapper)
         used = present & ok & finite
+        used.flags.writeable = False  # (rows shared between frames below)
         first = used[0]
         if used.tobytes() == first.tobytes() * len(used):
             # every frame the same channels (most blocks): one row, shared (read only, as

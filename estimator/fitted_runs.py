@@ -256,7 +256,8 @@ def gas_moments(
     shapes = {p.shape if isinstance(p, np.ndarray) else np.shape(p) for _, p in given}
     if many is not None and len(shapes) == 1 and len(next(iter(shapes))) == 1:
         stack = np.array([p for _, p in given])  # (m, n_half): a frame's pressure orders
-        total = complex(np.add.reduce(stack, axis=None))
+        with np.errstate(over="ignore", invalid="ignore"):  # (finite sums to inf: the test below)
+            total = complex(np.add.reduce(stack, axis=None))
         if math.isfinite(total.real) and math.isfinite(total.imag):
             # (a NaN or an infinity anywhere makes the sum one: every spectrum finite,
             # the common case, in one reduction)

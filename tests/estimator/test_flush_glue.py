@@ -198,3 +198,43 @@ def test_kept_row_constants_are_the_ones_made_per_call(compiled: bool, mass_know
     assert est.rows._constants_at(other, False) is est.rows._constants_at(other, False)
     # measured gas moment: its column flag
     assert est.rows._constants_at(other, True)[0][-1][-1] == 1
+
+
+def test_stacked_noise_variances_are_the_per_frame_arrays_concatenated() -> None:
+    """FrameStack.cat('var') turns the queue's lists of floats into the flush's array in one
+    go: the bits of np.array(var) per frame, concatenated (NaN, -0.0, a subnormal, an
+    infinity, a frame without pairs, numpy scalars beside Python floats)."""
+    lists = [
+        [1.5, np.float64(2.25), -0.0],
+        [],
+        [float("nan"), 5e-324, float("inf")],
+        [np.float64(1e-300)],
+    ]
+    blank = dict.fromkeys(PendingFrame._fields)
+    stack = FrameStack([PendingFrame(**{**blank, "orders": v, "var": v}) for v in lists])
+    want = np.concatenate([np.array(v, dtype=float) for v in lists])
+    got = stack.cat("var")
+    assert got.dtype == want.dtype == np.float64
+    assert got.tobytes() == want.tobytes()
+
+
+def test_finite_pressure_spectra_whose_sum_overflows_keep_every_frame() -> None:
+    """gas_moments checks every spectrum finite by one sum; finite spectra whose sum
+    overflows take the row-by-row test, keep every frame, and raise no floating-point
+    warning; a NaN or an infinity drops its frame only."""
+    from estimator.fitted_runs import gas_moments
+
+    class Gas:
+        def __call__(self, orders, p):
+            return np.zeros((len(orders), 3), complex)
+
+        def many(self, orders, stack):
+            return np.zeros((len(stack), len(orders), 3), complex)
+
+    setup = SimpleNamespace(gas_moment=Gas())
+    big = [SimpleNamespace(spectrum=np.full(3, 1e308 + 0j)) for _ in range(3)]
+    bad = np.array([np.nan, 1.0, 1.0], complex)
+    with np.errstate(all="raise"):
+        assert gas_moments(setup, big, np.array([1.0]))[1] == [0, 1, 2]
+        mixed = [*big[:2], SimpleNamespace(spectrum=bad)]
+        assert gas_moments(setup, mixed, np.array([1.0]))[1] == [0, 1]
