@@ -274,7 +274,7 @@ def decode_edges(
         )
         st = evolve(st, buf=buf[b + 1 :], synced=False, lost_reason=kind)
     if len(out_t) == 1:  # the rule: one stretch of committed edges per block
-        knots = Knots(out_t[0], out_n[0].astype(np.int64), out_r[0], tuple(runs))
+        knots = Knots(out_t[0], out_n[0].astype(np.int64, copy=False), out_r[0], tuple(runs))
     elif out_t:
         knots = Knots(
             np.concatenate(out_t),
