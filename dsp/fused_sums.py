@@ -195,7 +195,7 @@ def _sums1(x, c, s0, n, e, rp, r0, sums, top, clipping):
 # theirs change this file too (tests/dsp/test_kernels.py recomputes it and fails with
 # the new value), so a stale cache is never loaded.
 HELPERS = ("fused_rows.py", "spectrum_lanes.py", "vec8.py")
-HELPERS_SHA256 = "fdc37d6a48513f42d06358097196ed8c1ca349054c202aeba049aab653e2c3e3"
+HELPERS_SHA256 = "e13b0cf8efbbd409f8e0ff98916dc2d2d33337faaa896e82f20b8a1280fa1a84"
 
 # one signature, compiled (or loaded from numba's cache) when this module is imported, so
 # after the helpers above: the samples as any 2-d layout (blocks come channel-fastest,
