@@ -138,22 +138,16 @@ def apply_ramps(*args: Any) -> None:
 
 def segment_cuts(
     phi: np.ndarray, omega: np.ndarray, rate_hz: float, cuts: np.ndarray, spacing: float, half: float
-) -> tuple[
-    np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int], np.ndarray, np.ndarray,
-    np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray],
-]:  # fmt: skip
-    """:func:`dsp.fused_segments.cut_pass`: ``q = omega dt`` (rad), the segments of each
-    piece and the samples' angles from their segment's frame angle, as
-    :func:`dsp.sums.add_sample_sets` cuts them, half of those angles in single precision
-    (the carriers'), the frame angles, and the zones' falling taper and its sums
-    (:func:`dsp.fused_segments.zone_falls`), in one compiled call. Returns ``mu, starts,
-    ends, zone_end, per_piece, delta, half32, c, q, (fall, wd)``."""
+) -> tuple[Any, ...]:  # fmt: skip
+    """:func:`dsp.fused_segments.cut_pass` (``q``, the segments, angles, frame angles and the
+    zones' taper of a cut in one compiled call): ``mu, starts, ends, zone_end, per_piece``
+    (a list), ``delta, half32, c, q, (fall, wd)``, as there."""
     from dsp import fused_segments  # imports numba: see piece_sums
 
-    mu, starts, ends, zone_end, per_piece, delta, half32, c, q, fall, wd = fused_segments.cut_pass(
+    mu, starts, ends, zone_end, per_piece, *rest, fall, wd = fused_segments.cut_pass(
         phi, omega, 1.0 / rate_hz, cuts, spacing, half, RISE_PACKED
-    )  # fmt: skip
-    return mu, starts, ends, zone_end, per_piece.tolist(), delta, half32, c, q, (fall, wd)
+    )
+    return (mu, starts, ends, zone_end, per_piece.tolist(), *rest, (fall, wd))
 
 
 def append_knots(*args: Any) -> tuple[np.ndarray, ...]:
