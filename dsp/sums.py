@@ -214,13 +214,13 @@ def _segments(
     m1 = math.floor((piece[-1] + half) / spacing)
     mu = np.arange(m0, m1 + 1)
     c = mu * spacing
-    starts = np.searchsorted(piece, c - half, side="left")
+    starts = piece.searchsorted(c - half, side="left")
     starts[0] = 0
     starts += p0
     ends = np.empty_like(starts)
     ends[:-1] = starts[1:]
     ends[-1] = p1
-    zone_end = np.searchsorted(piece, c + half, side="left")
+    zone_end = piece.searchsorted(c + half, side="left")
     zone_end += p0
     # within the segment (np.clip costs 3x this)
     np.maximum(zone_end, starts, out=zone_end)

@@ -183,7 +183,7 @@ def decode_edges(
                 r_prev=float(d[g]) / (gap + 1),
             )
             continue
-        d = np.diff(buf)
+        d = buf[1:] - buf[:-1]  # np.diff's subtraction, without its Python wrapper
         if d.size < 2:
             break
         intervals = kernels.wheel_intervals if kernels.USE else wheel_intervals  # same bits
