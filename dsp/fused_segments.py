@@ -10,7 +10,10 @@ not watch this file for :mod:`dsp.fused_sums`: after changing it, set
 :func:`cut_pass` makes the whole compiled cut of a step's samples in one call (issue 24,
 seventh pass): ``q``, the segments, the frame angles and the zones' taper, which took two
 calls and five numpy operations (each a pass over the samples or the segments, a
-temporary, some microseconds of call overhead) a step; the same bits.
+temporary, some microseconds of call overhead) a step; the same bits. Measured on the
+calls of the run's 60 s log (both ways in one process, CPU best of 15, load 6.6): 6.34 ->
+6.0 ms a minute; callgrind, the busy steps of :func:`dsp.segments.process_groups` with
+this pass's other changes: 916.6 -> 878.0 M instructions.
 """
 
 from __future__ import annotations
