@@ -161,7 +161,7 @@ def add_knots(table: AngleTable, t: np.ndarray, phi: np.ndarray, run: np.ndarray
 
 def trim(table: AngleTable, t_keep: float) -> AngleTable:
     """Drop intervals that end before ``t_keep`` (s); keeps memory flat on long streams."""
-    k = int(np.searchsorted(table.t_hi, t_keep, side="left"))
+    k = int(table.t_hi.searchsorted(t_keep, side="left"))
     if k == 0:
         return table
     names = ("t_lo", "t_hi", "phi_lo", "phi_hi", "c1", "c2", "c3", "run")
@@ -192,10 +192,10 @@ def lookup(
         return np.zeros(n, bool), z, z, np.zeros(n, dtype=np.int64)
     # both sides are sorted: place the (fewer) knots among the samples, then repeat each
     # piece's coefficients over its samples (2x faster than a search per sample)
-    i0 = max(int(np.searchsorted(table.t_lo, t[0], side="right")) - 1, 0)
-    i1 = int(np.searchsorted(table.t_lo, t[-1], side="right"))
+    i0 = max(int(table.t_lo.searchsorted(t[0], side="right")) - 1, 0)
+    i1 = int(table.t_lo.searchsorted(t[-1], side="right"))
     sl = slice(i0, i1)
-    pos = np.searchsorted(t, table.t_lo[sl], side="left")
+    pos = t.searchsorted(table.t_lo[sl], side="left")
     head = int(pos[0])  # samples before the first piece
     counts = np.diff(np.append(pos, n))
     tt = t[head:]
@@ -296,7 +296,7 @@ def time_at(table: AngleTable, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 def angle_at_one(table: AngleTable, t: float) -> float:
     """:func:`lookup`'s angle at one time (rad), NaN where it gives ``ok`` False: the same
     arithmetic in Python floats (the same bits), without its array operations."""
-    j = int(np.searchsorted(table.t_lo, t, side="right")) - 1
+    j = int(table.t_lo.searchsorted(t, side="right")) - 1  # (the method: no wrapper calls)
     if j < 0 or not t < float(table.t_hi[j]):
         return math.nan
     tau = t - float(table.t_lo[j])
@@ -309,7 +309,7 @@ def time_at_one(table: AngleTable, phi: float) -> float:
     Python floats, without the fixed cost of some thirty array operations."""
     if not table.t_lo.size:
         return math.nan
-    j = int(np.searchsorted(table.phi_lo, phi, side="right")) - 1
+    j = int(table.phi_lo.searchsorted(phi, side="right")) - 1
     if j < 0 or not phi <= float(table.phi_hi[j]):
         return math.nan
     t_lo, t_hi = float(table.t_lo[j]), float(table.t_hi[j])

@@ -26,7 +26,8 @@ def put_rows(acc, ch, nb, r0, width, sums):
 @njit(cache=True, nogil=True)
 def pack_row(row, m, k2, turn_re, turn_im, period, acc_a, acc_d, wa, wd, s2, n2, clip):
     """Segment ``m``'s sums into its :data:`dsp.sum_rows.Row`: ``a`` and ``d`` as complex
-    (Re, Im pairs), rotated by ``exp(-i h c_m)``, each product as numpy's complex one."""
+    (Re, Im pairs), rotated by ``exp(-i h c_m)``, each product as numpy's complex one;
+    every place of the row written."""
     n_ch, no = acc_a.shape[0], k2.size
     k = 2 * n_ch * no
     h = k + n_ch + 2
@@ -47,6 +48,10 @@ def pack_row(row, m, k2, turn_re, turn_im, period, acc_a, acc_d, wa, wd, s2, n2,
     for ch in range(n_ch):
         row[k + 1 + ch] = s2[ch]
         row[2 * h + ch] = clip[ch]
+    # the zone block's mean-square and count places are not used: zeros, as numpy's
+    # packing leaves them, so the whole row is written (the rows come uninitialised)
+    for j in range(h + k + 1, 2 * h):
+        row[j] = 0.0
 
 
 @njit(cache=True, nogil=True)

@@ -132,7 +132,7 @@ def _last_cycle(pieces: list[np.ndarray], phi: np.ndarray, recent: Recent) -> Re
     """The samples of the last engine cycle (and ``HISTORY_MARGIN``) up to the end of ``phi``:
     copied from the block's tail alone when the block covers a cycle."""
     lo = phi[-1] - CYCLE - HISTORY_MARGIN
-    i0 = int(np.searchsorted(phi, lo))
+    i0 = int(phi.searchsorted(lo))  # (the method: np.searchsorted wraps it in two calls)
     if i0 > 0:
         parts, p0 = [], 0
         for p in pieces:

@@ -137,21 +137,18 @@ def apply_ramps(*args: Any) -> None:
     fused_ramps.apply_ramps(*args)
 
 
-def segment_cuts(phi: np.ndarray, q: np.ndarray, cuts: np.ndarray, spacing: float, half: float) -> tuple[
-    np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[int], np.ndarray, np.ndarray,
-    tuple[np.ndarray, np.ndarray],
-]:  # fmt: skip
-    """:func:`dsp.fused_segments.segment_cuts`: the segments of each piece and the samples'
-    angles from their segment's frame angle, as :func:`dsp.sums.add_sample_sets` cuts them,
-    half of those angles in single precision (the carriers'), and the zones' falling taper
-    and its sums (:func:`dsp.fused_segments.zone_falls`; ``q`` (rad) as there)."""
+def segment_cuts(
+    phi: np.ndarray, omega: np.ndarray, rate_hz: float, cuts: np.ndarray, spacing: float, half: float
+) -> tuple[Any, ...]:  # fmt: skip
+    """:func:`dsp.fused_segments.cut_pass` (``q``, the segments, angles, frame angles and the
+    zones' taper of a cut in one compiled call): ``mu, starts, ends, zone_end, per_piece``
+    (a list), ``delta, half32, c, q, (fall, wd)``, as there."""
     from dsp import fused_segments  # imports numba: see piece_sums
 
-    mu, starts, ends, zone_end, per_piece, delta, half32 = fused_segments.segment_cuts(phi, cuts, spacing, half)  # fmt: skip
-    fall, wd = np.empty(phi.size), np.empty(mu.size)
-    c_lo = mu * spacing - half  # the zones' starts, as compiled_rows made them
-    fused_segments.zone_falls(phi, q, starts, zone_end, c_lo, 2.0 * half, RISE_PACKED, fall, wd)
-    return mu, starts, ends, zone_end, per_piece.tolist(), delta, half32, (fall, wd)
+    mu, starts, ends, zone_end, per_piece, *rest, fall, wd = fused_segments.cut_pass(
+        phi, omega, 1.0 / rate_hz, cuts, spacing, half, RISE_PACKED
+    )
+    return (mu, starts, ends, zone_end, per_piece.tolist(), *rest, (fall, wd))
 
 
 def append_knots(*args: Any) -> tuple[np.ndarray, ...]:
@@ -335,6 +332,9 @@ def compiled_rows(
     sets: Sequence[SumSet], cut: Cut, first_index: int, frames_per_rev: int
 ) -> list[np.ndarray]:
     """Every set's rows (seg, :func:`dsp.sum_rows.row_size`), packed by :func:`piece_sums`."""
+    from dsp import fused_sums  # imports numba: see piece_sums (once a call, not a piece)
+
+    sums = fused_sums.piece_sums
     seg = cut.seg
     phi, q, cos_half, sin_half = cut.phi, cut.q, cut.cos_half, cut.sin_half
     assert cut.falls is not None  # (the compiled cut's)
@@ -342,12 +342,13 @@ def compiled_rows(
     turn_re, turn_im = _turns(2 * frames_per_rev)
     out = []
     for st in sets:
-        w = np.zeros((seg.mu.size, row_size(st.x[0].shape[0], st.k2.size)))
+        # every row written whole by the kernel (dsp.fused_rows.pack_row): no zeros needed
+        w = np.empty((seg.mu.size, row_size(st.x[0].shape[0], st.k2.size)))
         level = math.nan if st.clip_level is None else st.clip_level
         i = 0
         # the whole call's arrays and where the piece is in them (sliced in the kernel)
         for xp, p0, count in zip(st.x, seg.cuts[:-1], seg.per_piece, strict=True):
-            piece_sums(
+            sums(
                 xp, phi, q, cos_half, sin_half, fall, wd, seg.starts, seg.ends, seg.zone_end,
                 st.k2, st.tracked, (-(first_index + p0)) % POWER_STRIDE, POWER_STRIDE, level,
                 seg.mu, turn_re, turn_im, w, p0, i, i + count,

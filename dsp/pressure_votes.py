@@ -38,8 +38,8 @@ def silent_pressure(st: TrackerState, phi: np.ndarray) -> tuple[int, int]:
     if k_hi <= k_lo:
         return 0, 0
     # their samples lie within 60 deg of 2 pi k, so between the half-way angles
-    a, b = np.searchsorted(phi, (TWO_PI * (k_lo - 0.5), TWO_PI * (k_hi - 0.5)))
-    return int(a), int(b)
+    a, b = phi.searchsorted((TWO_PI * (k_lo - 0.5), TWO_PI * (k_hi - 0.5))).tolist()
+    return a, b
 
 
 def add_pressure(gs: GroupState, phi: np.ndarray, p: np.ndarray, steps: int = 1) -> GroupState:
@@ -47,9 +47,10 @@ def add_pressure(gs: GroupState, phi: np.ndarray, p: np.ndarray, steps: int = 1)
     if k.size == 0:
         return gs
     cands = dict(gs.pressure)
-    for kk, tt, cc in zip(k, total, count, strict=True):
-        s0, c0 = cands.get(int(kk), (0.0, 0))
-        cands[int(kk)] = (s0 + float(tt), c0 + int(cc))
+    # as Python numbers at once (tolist), not numpy scalars converted one by one
+    for kk, tt, cc in zip(k.tolist(), total.tolist(), count.tolist(), strict=True):
+        s0, c0 = cands.get(kk, (0.0, 0))
+        cands[kk] = (s0 + tt, c0 + cc)
     return evolve(gs, pressure=cands)
 
 

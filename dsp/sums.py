@@ -147,17 +147,16 @@ def cut_samples(
     cuts = list(itertools.accumulate(sizes, initial=0))  # where each piece begins
     # each piece cut into segments as a call of its own would: a segment split between
     # two pieces appears twice, and its parts are added in order at the end
-    q = omega * (1.0 / rate_hz)
     falls: tuple[np.ndarray, np.ndarray] | None = None
     if compiled:
-        # the same segments and angles from one compiled pass, and the zones' taper made
-        # once for every set (dsp.kernels.segment_cuts)
-        mu, starts, ends, zone_end, per_piece, delta, half32, falls = kernels.segment_cuts(
-            phi, q, np.array(cuts, dtype=np.int64), spacing, half
-        )
-        c = mu * spacing
+        # q, the same segments and angles from one compiled pass, and the zones' taper
+        # made once for every set (dsp.kernels.segment_cuts)
+        mu, starts, ends, zone_end, per_piece, delta, half32, c, q, falls = kernels.segment_cuts(
+            phi, omega, rate_hz, np.array(cuts, dtype=np.int64), spacing, half
+        )  # fmt: skip
         cos_half, sin_half = half_parts(half32)
     else:
+        q = omega * (1.0 / rate_hz)
         parts = [_segments(phi, p0, p1, spacing, half) for p0, p1 in itertools.pairwise(cuts)]
         if len(parts) == 1:
             mu, starts, ends, zone_end = parts[0]
@@ -215,13 +214,13 @@ def _segments(
     m1 = math.floor((piece[-1] + half) / spacing)
     mu = np.arange(m0, m1 + 1)
     c = mu * spacing
-    starts = np.searchsorted(piece, c - half, side="left")
+    starts = piece.searchsorted(c - half, side="left")
     starts[0] = 0
     starts += p0
     ends = np.empty_like(starts)
     ends[:-1] = starts[1:]
     ends[-1] = p1
-    zone_end = np.searchsorted(piece, c + half, side="left")
+    zone_end = piece.searchsorted(c + half, side="left")
     zone_end += p0
     # within the segment (np.clip costs 3x this)
     np.maximum(zone_end, starts, out=zone_end)

@@ -183,7 +183,7 @@ def decode_edges(
                 r_prev=float(d[g]) / (gap + 1),
             )
             continue
-        d = np.diff(buf)
+        d = buf[1:] - buf[:-1]  # np.diff's subtraction, without its Python wrapper
         if d.size < 2:
             break
         intervals = kernels.wheel_intervals if kernels.USE else wheel_intervals  # same bits
@@ -274,7 +274,7 @@ def decode_edges(
         )
         st = evolve(st, buf=buf[b + 1 :], synced=False, lost_reason=kind)
     if len(out_t) == 1:  # the rule: one stretch of committed edges per block
-        knots = Knots(out_t[0], out_n[0].astype(np.int64), out_r[0], tuple(runs))
+        knots = Knots(out_t[0], out_n[0].astype(np.int64, copy=False), out_r[0], tuple(runs))
     elif out_t:
         knots = Knots(
             np.concatenate(out_t),

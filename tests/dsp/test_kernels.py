@@ -183,9 +183,9 @@ def test_vector_transpose_puts_rows_in_columns():
 
 @pytest.mark.parametrize("fpr", [1, 2, 4])
 def test_compiled_segment_cuts_are_the_numpy_ones(fpr):
-    """dsp.kernels.segment_cuts (the compiled path's segments) against dsp.sums._segments
-    piece by piece and the numpy path's angles from the frame angle: the same integers and
-    the same bits (and their halves in single precision), with segments split between
+    """dsp.kernels.segment_cuts (the compiled path's q and segments) against the numpy
+    path's q, dsp.sums._segments piece by piece, its frame angles and its angles from the
+    frame angle: the same integers and the same bits (and their halves in single precision), with segments split between
     pieces and pieces inside one segment; and the zones' falling taper, made once for
     every set on the cut (dsp.fused_segments.zone_falls): the numpy path's taper weights
     bit for bit, their sums with q (added in sample order, numpy's reduceat pairwise)
@@ -194,10 +194,11 @@ def test_compiled_segment_cuts_are_the_numpy_ones(fpr):
     from dsp.sums import _segments
 
     phi, omega, _, _ = _signal(fpr, 5000)
-    q = omega / 25600.0
     cuts = [0, 3, 40, 41, 2600, 5000]
     spacing, half = 2 * np.pi / fpr, 0.5 * np.radians(45.0)
-    got = kernels.segment_cuts(phi, q, np.array(cuts, dtype=np.int64), spacing, half)
+    got = kernels.segment_cuts(phi, omega, 25600.0, np.array(cuts, dtype=np.int64), spacing, half)
+    q = omega * (1.0 / 25600.0)  # the numpy path's q, bit for bit
+    np.testing.assert_array_equal(got[8], q)
     parts = [_segments(phi, p0, p1, spacing, half) for p0, p1 in itertools.pairwise(cuts)]
     for have, want in zip(got[:4], zip(*parts, strict=True), strict=True):
         np.testing.assert_array_equal(have, np.concatenate(want))
@@ -207,11 +208,12 @@ def test_compiled_segment_cuts_are_the_numpy_ones(fpr):
     assert got[6].dtype == np.float32  # the carriers' half angles, as dsp.sum_sets.base_parts
     np.testing.assert_array_equal(got[6], (0.5 * got[5]).astype(np.float32))
     assert len(set(mu.tolist())) < mu.size  # a segment split between pieces
+    np.testing.assert_array_equal(got[7], mu * spacing)  # the frame angles
     seg = Segments(mu, starts, ends, got[3], cuts, got[4], mu * spacing, half)
     _, _, z, fall, _, wd = zones(seg, phi, q)
     assert z.size > 100 and np.all(wd[got[3] > starts] > 0)  # zones with samples
-    np.testing.assert_array_equal(got[7][0][z], fall)
-    np.testing.assert_allclose(got[7][1], wd, rtol=1e-12, atol=0.0)
+    np.testing.assert_array_equal(got[9][0][z], fall)
+    np.testing.assert_allclose(got[9][1], wd, rtol=1e-12, atol=0.0)
 
 
 def test_the_default_path_never_imports_numba():
