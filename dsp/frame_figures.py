@@ -75,7 +75,8 @@ def frame_outputs(
     (``steps == 1``): times ``signs[parity % 2]`` (:func:`dsp.frame_constants.rotation`),
     as numpy multiplies a complex by a real made complex; with ``steps > 1`` unturned (the
     caller turns them by numpy's complex exponential). ``spec`` (f, n_spec) the same of
-    ``spectrum[:, :n_spec, 0]`` with ``spectrum_signs``, its mean (column 0) made real
+    ``spectrum[:, :n_spec, 0]`` with ``spectrum_signs``, its mean (column 0) made real with a
+    wheel (with N pulses the caller turns it first, then makes it real)
     (n_spec 0: no spectrum channel). ``angles`` and ``codes`` (f,) as
     :func:`frame_codes_numpy` makes them from ``js``, ``parity``, ``chains``,
     ``ambiguous`` (f,), ``ok``, ``corrected``, ``variance`` (f, n_ch).
@@ -134,8 +135,8 @@ def frame_outputs(
                 g = spectrum_signs[s, k]
                 v = complex(v.real * g - v.imag * 0.0, v.real * 0.0 + v.imag * g)
             spec[i, k] = v
-        if n_spec:
-            spec[i, 0] = complex(spec[i, 0].real, 0.0)  # the mean: real
+        if n_spec and wheel:  # the mean: real (turned first: with N pulses, by the caller)
+            spec[i, 0] = complex(spec[i, 0].real, 0.0)
         # the angle and the flag bits
         angles[i] = js[i] * spacing + TWO_PI * parity[i] / steps
         code = 0
