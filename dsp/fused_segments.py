@@ -1,11 +1,10 @@
 """Where the compiled path's segments begin and end, and the taper over their zones.
 
-Compiled helpers of :mod:`dsp.fused_sums` (imported only with it: numba). Both repeat
-the numpy path's operations in its order, so they give its numbers bit for bit:
-:func:`segment_cuts` those of :func:`dsp.sums._segments` and the angles from the frame
-angle, :func:`falling_taper` those of :func:`dsp.frames.rise_table`. numba's cache does
-not watch this file for :mod:`dsp.fused_sums`: after changing it, set
-``dsp.fused_sums.HELPERS_SHA256`` anew (its test prints the value).
+Compiled kernels of the compiled path (numba). Both repeat the numpy path's operations in
+its order, so they give its numbers bit for bit: :func:`segment_cuts` those of
+:func:`dsp.sums._segments` and the angles from the frame angle, :func:`falling_taper`
+those of :func:`dsp.frames.rise_table`. Every kernel here calls only this file's, so
+numba's cache of this file is its own (no helper hash).
 
 :func:`cut_pass` makes the whole compiled cut of a step's samples in one call (issue 24,
 seventh pass): ``q``, the segments, the frame angles and the zones' taper, which took two

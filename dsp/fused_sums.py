@@ -190,7 +190,7 @@ def _sums1(x, c, s0, n, e, rp, r0, sums, top, clipping):
 
 
 # numba's cache keys a kernel's machine code on the sha256 of its own file only: the
-# helpers this file inlines (vec8's intrinsics, spectrum_lanes, fused_segments) change
+# helpers this file inlines (vec8's intrinsics, spectrum_lanes, fused_rows) change
 # the code without changing this file. Their hash, written here, makes any edit of
 # theirs change this file too (tests/dsp/test_kernels.py recomputes it and fails with
 # the new value), so a stale cache is never loaded.
@@ -258,7 +258,8 @@ def piece_sums(
         # needed (issue 24: two memsets of some 64 KB a call at 3000 rpm spared)
         e = np.empty(size)
         ez = np.empty(size)
-    else:  # padding columns, or one-channel sums that read past the last row: zeros
+    else:  # padding columns, or 1-3 channels: the extra lanes' sums are dropped (put_rows),
+        # zeros keep NaN and denormal arithmetic out of them
         e = np.zeros(size)
         ez = np.zeros(size)
     blk = np.zeros(8 * rp)  # one block of 8 samples, a row per column of e

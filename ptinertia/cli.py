@@ -171,7 +171,7 @@ def _version() -> str:
 def announce_compiling(command: str) -> Any:
     """One line on stderr when numba starts compiling a kernel (numba broadcasts the event
     after a cache miss only, so loading from its cache says nothing): the first compiled run
-    after an install or an update spends 20-30 s there before its first progress line,
+    after an install or an update spends 30-35 s there before its first progress line,
     which would look like a hang. Returns the registered listener."""
     # numba is imported here only: the compiled kernels were asked for, so it loads anyway
     from numba.core import event
@@ -184,7 +184,7 @@ def announce_compiling(command: str) -> Any:
                 self.said = True
                 print(
                     f"ptinertia {command}: compiling the numba kernels (once after an install "
-                    "or an update, 20-30 s; later runs load them from numba's cache)",
+                    "or an update, 30-35 s; later runs load them from numba's cache)",
                     file=sys.stderr,
                     flush=True,
                 )

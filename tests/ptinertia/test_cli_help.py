@@ -96,7 +96,7 @@ def test_a_numba_compile_is_announced_once_and_a_cache_load_is_not(capsys) -> No
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [
         "ptinertia run: compiling the numba kernels (once after an install or an update, "
-        "20-30 s; later runs load them from numba's cache)"
+        "30-35 s; later runs load them from numba's cache)"
     ]
 
 
