@@ -48,7 +48,11 @@ Prints:
    275-291x with the dsp thread; numpy replay best of three 137-141x (115-127x). Night,
    load 0.1-1.5, the host 5-15 % slower, three rounds interleaved with the evening's
    4adcb8f: live 125 / 124 / 102x (123 / 114 / 100x), replay 305 / 297 / 261x
-   (282 / 262 / 247x), 227-269x with the dsp thread).
+   (282 / 262 / 247x), 227-269x with the dsp thread. Late evening, load 0.8-1.8, two
+   rounds interleaved with c2bcbc1, each from a checkout of its own: live 154 / 186x
+   (108 / 106x: the simulator's block kernels, acquisition/sim/block_kernels.py), 141 /
+   152x with the dsp thread; replay 324 / 337x (279 / 294x), 278 / 306x with the dsp
+   thread).
 
 Usage: python benchmarks/bench_pipeline.py [--hours 1.0] [--skip-long]
 """
