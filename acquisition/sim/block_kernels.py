@@ -45,14 +45,14 @@ import numpy as np
 
 from acquisition.sim import kernels
 from acquisition.sim.amplitude_table import AmplitudeTable
-from acquisition.sim.sweep import RPM_TO_RAD_S, RpmProfile
+from acquisition.sim.sweep import RpmProfile
 
 CHUNK = 1024  # samples per product: keeps the operands in cache (~1.5x faster than 2560)
 # numba's cache checks only this file's time stamp and size; the fused kernels call the
 # motion, carriers and interval kernels of these files: their sha256, renewed with them,
 # changes this file and so rebuilds the cache (tests/acquisition/sim/test_synthesis_kernels.py)
 HELPERS = ("kernels.py",)
-HELPERS_SHA256 = "064a4030089db9a9b1ddfda5c6a8e8e8dc28bbf67b517c2e58fb132d7d9057ad"
+HELPERS_SHA256 = "d530c8b1463c0f6a998531ab9c21db531511b5e310e40dc2931d7822c45977f7"
 _compiled: dict[str, Callable[..., Any]] = {}
 _compiling = threading.Lock()
 
@@ -74,18 +74,28 @@ def accel_block(
     seg = np.empty(n, dtype=np.intp)
     t, phi, omega, rpm = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     rows = np.empty((2 * table.orders.size, n))
-    w_end = profile.segments[-1].rpm_to * RPM_TO_RAD_S
-    limits = np.array([profile.duration_s, profile.phi_end, w_end])
     _compiled["motion"](
         i0,
         rate_hz,
         spacing,
         *profile.pieces,
-        limits,
+        kernels.motion_limits(profile),
         design.position,
         (seg, t, phi, omega, rpm),
         rows,
     )
+    return t, seg, phi, omega, segments_accel(table, seg, rpm, rows)
+
+
+def segments_accel(
+    table: AmplitudeTable, seg: np.ndarray, rpm: np.ndarray, rows: np.ndarray
+) -> np.ndarray:
+    """The accelerations (n_ch, n), m/s^2, of samples in sweep segments ``seg`` (n,
+    non-decreasing) at ``rpm`` (n,), from their carriers ``rows`` (2 n_o, n) laid out as
+    ``table.compact`` reads them: the intervals and products in one call per segment."""
+    _compile()
+    design = table.compact
+    n = seg.size
     out = np.empty((table.coeffs[0].shape[3], n))
     if n:
         starts = [0] if seg[0] == seg[-1] else [0, *(np.flatnonzero(np.diff(seg)) + 1).tolist()]
@@ -96,7 +106,7 @@ def accel_block(
                 rpm[a0:b0], *table.intervals(s), rows, a0, design.constant[s],
                 design.varying[s], 2 * design.n_kept, np.empty(n_rows * CHUNK), out,
             )  # fmt: skip
-    return t, seg, phi, omega, out
+    return out
 
 
 def edge_times(
@@ -109,9 +119,8 @@ def edge_times(
     _compile()
     if not t_b > t_a:  # an empty window: no edge (as the numpy path's selection)
         return np.empty(0)
-    w_end = profile.segments[-1].rpm_to * RPM_TO_RAD_S
-    limits = np.array([profile.duration_s, profile.phi_end, w_end])
     angles = np.ascontiguousarray(angles_rad, dtype=float)
+    limits = kernels.motion_limits(profile)
     return _compiled["edges"](t_a, t_b, angles, float(period_rad), *profile.pieces, limits)
 
 
@@ -125,13 +134,13 @@ def _compile() -> None:
             return
         from numba import njit  # heavy (0.3 s): only where the kernels are used
 
-        global _motion_c, _carriers_c, _powers_c, _locate_c, _block_c, _horner_compiled
+        global _motion_c, _carriers_c, _powers_c, _locate_c, _block_c, _horner_c
         # the same options as acquisition.sim.kernels._jit: the two dispatchers of a kernel
         # there share one cache entry, whose key holds no options
         jit = njit(cache=True, nogil=True)
         _motion_c, _carriers_c = jit(kernels._motion), jit(kernels._carriers)
         _powers_c, _locate_c = jit(kernels._powers), jit(kernels._locate)
-        _horner_compiled = jit(_horner)
+        _horner_c = jit(_horner)
         _block_c = jit(_block_accel)
         _compiled.update(
             block=_block_c,
@@ -159,7 +168,9 @@ def block_accel(
     kept: int,
     out: np.ndarray,
 ) -> None:
-    """Accelerations of samples ``first .. first + j.size`` into ``out`` (n_ch, n), m/s^2.
+    """Accelerations of samples ``first .. first + j.size`` into ``out`` (n_ch, n), m/s^2:
+    the compiled loop over one segment's intervals and chunks, given the intervals (the
+    simulator calls it with them found in the same call, :func:`segments_accel`).
 
     ``rows`` (2 n_o, n): the carriers (:func:`acquisition.sim.kernels.carriers`); ``j``,
     ``u``: the samples' table interval and normalised rpm (:func:`kernels.locate`) in one
@@ -201,7 +212,7 @@ def _block_accel(
             np.dot(d0, np.ascontiguousarray(rows[:, s0 : s0 + m]), yk[:n_ch])
             if n_var:
                 np.dot(dk, np.ascontiguousarray(rows[:kept, s0 : s0 + m]), yk[n_ch:])
-            _horner_compiled(yk, u[c0 : c0 + m], out, s0)
+            _horner_c(yk, u[c0 : c0 + m], out, s0)
         a = b
 
 
@@ -345,7 +356,7 @@ def _horner(y: np.ndarray, u: np.ndarray, out: np.ndarray, first: int) -> None:
 
 
 # the compiled kernels the others call, set by _compile
-_horner_compiled: Any = None
+_horner_c: Any = None
 _motion_c: Any = None
 _carriers_c: Any = None
 _powers_c: Any = None

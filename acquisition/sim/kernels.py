@@ -106,10 +106,15 @@ def motion(
     n = t.size
     seg = np.empty(n, dtype=np.intp)
     phi, omega, rpm = np.empty(n), np.empty(n), np.empty(n)
-    w1_end = profile.segments[-1].rpm_to * RPM_TO_RAD_S
-    limits = np.array([profile.duration_s, profile.phi_end, w1_end])
-    _jit("motion", _motion)(t, *profile.pieces, limits, (seg, phi, omega, rpm))
+    _jit("motion", _motion)(t, *profile.pieces, motion_limits(profile), (seg, phi, omega, rpm))
     return seg, phi, omega, rpm
+
+
+def motion_limits(profile: RpmProfile) -> np.ndarray:
+    """What :func:`_motion` reads beside the profile's pieces: its duration (s), end angle
+    (rad) and end speed (rad/s)."""
+    w_end = profile.segments[-1].rpm_to * RPM_TO_RAD_S
+    return np.array([profile.duration_s, profile.phi_end, w_end])
 
 
 def locate(table: AmplitudeTable, segment: int, rpm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

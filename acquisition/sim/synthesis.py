@@ -20,7 +20,7 @@ import numpy as np
 
 from acquisition.sim import kernels
 from acquisition.sim.amplitude_table import AmplitudeTable
-from acquisition.sim.block_kernels import CHUNK, block_accel
+from acquisition.sim.block_kernels import CHUNK, segments_accel
 from acquisition.sim.sweep import RpmProfile
 
 
@@ -69,12 +69,13 @@ def synthesize_accel(
     compiled = kernels.USE if compiled is None else compiled
     n_o = table.orders.size
     if compiled:
-        design = table.compact  # the orders with an rpm dependence first
+        # the orders with an rpm dependence first: u^0 rows against every carrier, u^1..
+        # against the kept orders' only, every interval and chunk of a segment in one call
+        # that holds no GIL
         rows = np.empty((2 * n_o, t.size))  # (2 n_o, n): cos, sin rows as BLAS reads them
-        kernels.carriers(phi, *(anchors or (phi, 0, 1)), design.position, rows)
-        kept = 2 * design.n_kept
-    else:
-        rows = order_basis(phi, n_o).T  # a view of the sample-major carriers
+        kernels.carriers(phi, *(anchors or (phi, 0, 1)), table.compact.position, rows)
+        return segments_accel(table, np.asarray(seg), rpm, rows)
+    rows = order_basis(phi, n_o).T  # a view of the sample-major carriers
     n_ch = table.coeffs[0].shape[3]
     out = np.empty((n_ch, t.size))
     if t.size == 0:
@@ -83,12 +84,6 @@ def synthesize_accel(
     seg_cuts = [0, *(np.flatnonzero(seg[1:] != seg[:-1]) + 1).tolist(), t.size]
     for a0, b0 in itertools.pairwise(seg_cuts):
         s = int(seg[a0])
-        if compiled:
-            # u^0 rows against every carrier, u^1.. against the kept orders' only, every
-            # interval and chunk in one call that holds no GIL
-            j, u = kernels.locate(table, s, rpm[a0:b0])
-            block_accel(rows, a0, j, u, design.constant[s], design.varying[s], kept, out)
-            continue
         j, u = table.locate(s, rpm[a0:b0])
         cuts = [0, *(np.flatnonzero(j[1:] != j[:-1]) + 1).tolist(), b0 - a0]
         coeffs = table.real_coeffs[s]
